@@ -1,0 +1,5 @@
+import sys
+
+from racerlab.cli import main
+
+sys.exit(main())

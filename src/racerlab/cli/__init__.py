@@ -1,0 +1,50 @@
+"""The `racerlab` command. Thin: parses arguments, calls the packages, prints.
+
+Each sub-command lives in its own module here with a `register(subparsers)` function that adds
+its parser and sets `func`; heavy imports happen inside the command functions so that
+`racerlab --help` stays instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from racerlab import __version__
+from racerlab.errors import RacerlabError
+
+# module names under racerlab.cli, in the order `racerlab --help` lists them
+COMMAND_MODULES = ["quickstart", "tracks"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="racerlab",
+        description="Train, race and analyse AWS-DeepRacer-style cars locally.",
+    )
+    parser.add_argument("--version", action="version", version=f"racerlab {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in COMMAND_MODULES:
+        importlib.import_module(f"racerlab.cli.{mod}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except RacerlabError as exc:
+        print(f"racerlab: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("racerlab: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,174 @@
+"""Numba kernels for track geometry: projection onto a polyline and the point-in-road test.
+
+They work on plain arrays so that the simulator can call them inside its own compiled step
+without Python in between. `Track` wraps them with a friendly batched API.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Segments examined on either side of a hint before falling back to a full search.
+LOCAL_WINDOW = 6
+
+
+@njit(cache=True, inline="always")
+def _segment_distance_sq(px, py, ax, ay, dx, dy, seg_len_sq):
+    """Squared distance from p to segment a + t*d, t in [0, 1]; returns (dist_sq, t)."""
+    if seg_len_sq > 0.0:
+        t = ((px - ax) * dx + (py - ay) * dy) / seg_len_sq
+        if t < 0.0:
+            t = 0.0
+        elif t > 1.0:
+            t = 1.0
+    else:
+        t = 0.0
+    qx = ax + t * dx - px
+    qy = ay + t * dy - py
+    return qx * qx + qy * qy, t
+
+
+@njit(cache=True)
+def nearest_segment(px, py, line, seg_len, closed, hint):
+    """Nearest segment of polyline `line` (N x 2, N-1 segments) to point p.
+
+    Searches `LOCAL_WINDOW` segments around `hint` first (the car moves little between steps)
+    and searches the whole line when the hint is negative or the best candidate lies on the
+    window's edge, so the result always equals the global nearest segment for a car that
+    moved less than the window. Returns (segment, t, dist_sq).
+    """
+    nseg = line.shape[0] - 1
+    best_i = -1
+    best_d = np.inf
+    best_t = 0.0
+    if hint >= 0 and nseg > 2 * LOCAL_WINDOW + 1:
+        for k in range(-LOCAL_WINDOW, LOCAL_WINDOW + 1):
+            i = hint + k
+            if closed:
+                i = i % nseg
+            elif i < 0 or i >= nseg:
+                continue
+            ax = line[i, 0]
+            ay = line[i, 1]
+            d, t = _segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
+                                        seg_len[i] * seg_len[i])
+            if d < best_d:
+                best_d = d
+                best_i = i
+                best_t = t
+        edge_lo = hint - LOCAL_WINDOW
+        edge_hi = hint + LOCAL_WINDOW
+        if closed:
+            edge_lo = edge_lo % nseg
+            edge_hi = edge_hi % nseg
+        if best_i != edge_lo and best_i != edge_hi:
+            return best_i, best_t, best_d
+    best_d = np.inf
+    for i in range(nseg):
+        ax = line[i, 0]
+        ay = line[i, 1]
+        d, t = _segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
+                                    seg_len[i] * seg_len[i])
+        if d < best_d:
+            best_d = d
+            best_i = i
+            best_t = t
+    return best_i, best_t, best_d
+
+
+@njit(cache=True)
+def project_many(points, line, seg_len, cum_s, closed, hints, out_seg, out_t, out_s, out_lat):
+    """Project each point onto the polyline: segment, fraction, arc length and signed offset (+ left)."""
+    for j in range(points.shape[0]):
+        px = points[j, 0]
+        py = points[j, 1]
+        i, t, d2 = nearest_segment(px, py, line, seg_len, closed, hints[j])
+        ax = line[i, 0]
+        ay = line[i, 1]
+        dx = line[i + 1, 0] - ax
+        dy = line[i + 1, 1] - ay
+        cross = dx * (py - ay) - dy * (px - ax)
+        out_seg[j] = i
+        out_t[j] = t
+        out_s[j] = cum_s[i] + t * seg_len[i]
+        out_lat[j] = np.sqrt(d2) if cross >= 0.0 else -np.sqrt(d2)
+
+
+@njit(cache=True, inline="always")
+def point_in_road(px, py, edges, band_start, band_edges, y0, band_h):
+    """Even-odd test of p against all road border edges that share its horizontal band.
+
+    `edges` is (E, 4) [x1, y1, x2, y2] holding both borders (or the single ring of an open
+    track); `band_start`/`band_edges` index them by y band in CSR form. Equivalent to
+    shapely's `Polygon(outer, [inner]).contains(p)` away from the measure-zero boundary.
+    """
+    nb = band_start.shape[0] - 1
+    b = int(np.floor((py - y0) / band_h))
+    if b < 0 or b >= nb:
+        return False
+    inside = False
+    for k in range(band_start[b], band_start[b + 1]):
+        e = band_edges[k]
+        x1 = edges[e, 0]
+        y1 = edges[e, 1]
+        x2 = edges[e, 2]
+        y2 = edges[e, 3]
+        if (y1 > py) != (y2 > py):
+            xint = x1 + (py - y1) * (x2 - x1) / (y2 - y1)
+            if px < xint:
+                inside = not inside
+    return inside
+
+
+@njit(cache=True)
+def contains_many(points, edges, band_start, band_edges, y0, band_h, out):
+    for j in range(points.shape[0]):
+        out[j] = point_in_road(points[j, 0], points[j, 1], edges, band_start, band_edges, y0, band_h)
+
+
+@njit(cache=True)
+def nearest_on_polyline_near(px, py, line, seg, closed, reach):
+    """Nearest point of `line` to p among segments seg-reach..seg+reach; returns (x, y)."""
+    nseg = line.shape[0] - 1
+    best_d = np.inf
+    bx = line[0, 0]
+    by = line[0, 1]
+    for k in range(-reach, reach + 1):
+        i = seg + k
+        if closed:
+            i = i % nseg
+        elif i < 0 or i >= nseg:
+            continue
+        ax = line[i, 0]
+        ay = line[i, 1]
+        dx = line[i + 1, 0] - ax
+        dy = line[i + 1, 1] - ay
+        d, t = _segment_distance_sq(px, py, ax, ay, dx, dy, dx * dx + dy * dy)
+        if d < best_d:
+            best_d = d
+            bx = ax + t * dx
+            by = ay + t * dy
+    return bx, by
+
+
+def build_road_index(edges: np.ndarray, band_h: float = 0.25):
+    """CSR index of edges by horizontal band: (band_start, band_edges, y0, band_h)."""
+    ylo = np.minimum(edges[:, 1], edges[:, 3])
+    yhi = np.maximum(edges[:, 1], edges[:, 3])
+    y0 = float(ylo.min()) - band_h
+    nb = int(np.ceil((float(yhi.max()) - y0) / band_h)) + 2
+    first = np.floor((ylo - y0) / band_h).astype(np.int64)
+    last = np.floor((yhi - y0) / band_h).astype(np.int64)
+    counts = np.zeros(nb, dtype=np.int64)
+    for f, la in zip(first, last, strict=True):
+        counts[f:la + 1] += 1
+    band_start = np.zeros(nb + 1, dtype=np.int64)
+    np.cumsum(counts, out=band_start[1:])
+    band_edges = np.empty(band_start[-1], dtype=np.int64)
+    fill = band_start[:-1].copy()
+    for e, (f, la) in enumerate(zip(first, last, strict=True)):
+        for b in range(f, la + 1):
+            band_edges[fill[b]] = e
+            fill[b] += 1
+    return band_start, band_edges, y0, band_h
