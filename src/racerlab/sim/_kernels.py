@@ -1,0 +1,268 @@
+"""Compiled step of the batched simulator: episode rules, dynamics and measurements for every car.
+
+State lives in two tables with the car axis first and named columns (see `layout`):
+`car` (float: pose, speeds, commands, start point) and `ctr` (int: steps, phase, counters,
+direction, status). Measurements of a pose (everything the reward params and the rules need)
+go to a table `meas` with the same column names the params use.
+
+Order of events per step follows the AWS simulator (facts §2): the prepare step ignores the
+action and holds the car; in a RUN step the rules and the params are evaluated on the pose the
+observation was taken in (the measurement cached at the end of the previous step), then the
+action moves the car and the new pose is measured for the next observation. With `after_action`
+the car moves first and the rules and params see the new pose.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from racerlab.sim.car import MODEL_POINT_AHEAD_M, advance
+from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment, point_in_road
+
+# ---- table layouts ----------------------------------------------------------------------------
+# car (float64)
+CX, CY, CYAW, CV, CSTEER, CBETA, CSTART, CBPX, CBPY, CCMD_STEER, CCMD_SPEED = range(11)
+N_CAR = 11
+# ctr (int64)
+KSTEPS, KPHASE, KIMMOB, KREVCNT, KREV, KSTATUS, KPAUSE = range(7)
+N_CTR = 7
+# meas (float64): a measured pose, also the per-step params table
+(MX, MY, MS, MDIST, MLEFT, MWIDTH, MWP_PREV, MWP_NEXT, MCLOSEST, MWHEELS, MPROG, MPROG_PREV, MHEADING,
+ MSEG, MLAT, MTHEAD) = range(16)
+N_MEAS = 16
+
+# phases
+PREPARE, RUN = 0, 1
+# episode statuses (AWS names in STATUS_NAMES)
+IN_PROGRESS, LAP_COMPLETE, CRASHED, OFF_TRACK, IMMOBILIZED, REVERSED, STATUS_PREPARE, PAUSE, TIME_UP = range(9)
+STATUS_NAMES = ("in_progress", "lap_complete", "crashed", "off_track", "immobilized", "reversed", "prepare",
+                "pause", "time_up")
+
+IMMOBILE_STEPS = 15  # NUM_STEPS_TO_CHECK_STUCK
+IMMOBILE_DIST_M = 0.0003
+REVERSE_STEPS = 15  # NUMBER_OF_REVERSE_COUNTS
+
+
+@njit(cache=True)
+def aws_progress(ndist, start_ndist, prev):
+    """Progress in % from the episode start, as simapp's compute_current_prog."""
+    cur = 100.0 * (ndist - start_ndist)
+    if cur <= 0.0:
+        cur += 100.0
+    if prev - cur > 50.0:
+        cur += 100.0
+    elif cur - prev > 50.0:
+        cur -= 100.0
+    return min(cur, 100.0)
+
+
+@njit(cache=True)
+def measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
+    """Measure car i's pose into meas[i]: model point, projection, progress, wheels on the road."""
+    rev = ctr[i, KREV] != 0
+    center, seg_len, cum_s, inner, outer, wp_ndist = trk_r if rev else trk_f
+    x = car[i, CX]
+    y = car[i, CY]
+    yaw = car[i, CYAW]
+    c = math.cos(yaw)
+    s = math.sin(yaw)
+    mx = x + MODEL_POINT_AHEAD_M * c
+    my = y + MODEL_POINT_AHEAD_M * s
+    seg, t, d2 = nearest_segment(mx, my, center, seg_len, closed, int(meas[i, MSEG]))
+    ax = center[seg, 0]
+    ay = center[seg, 1]
+    dx = center[seg + 1, 0] - ax
+    dy = center[seg + 1, 1] - ay
+    arc = cum_s[seg] + t * seg_len[seg]
+    ndist = arc / length
+    dist = math.sqrt(d2)
+    cross = dx * (my - ay) - dy * (mx - ax)
+    # is_left_of_center and track_width as simapp builds them: the centre projection point's
+    # nearest points on each border, then which of the two the model point is nearer to.
+    cpx = ax + t * dx
+    cpy = ay + t * dy
+    ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 3)
+    ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 3)
+    nearer_inner = math.hypot(mx - ix, my - iy) < math.hypot(mx - ox, my - oy)
+    driving_ccw = ccw_f != rev
+    # closest_waypoints by arc length: next = bisect_right(waypoint positions, ndist)
+    n = wp_ndist.shape[0]
+    nxt = np.searchsorted(wp_ndist, ndist, side="right")
+    prv = max(nxt - 1, 0)
+    if nxt >= n:
+        nxt = 0
+    dprev = math.hypot(mx - center[prv, 0], my - center[prv, 1])
+    dnext = math.hypot(mx - center[nxt, 0], my - center[nxt, 1])
+    wheels = 0
+    edges, bstart, bedges, y0, bh = road
+    for k in range(4):
+        wx = x + wheel_off[k, 0] * c - wheel_off[k, 1] * s
+        wy = y + wheel_off[k, 0] * s + wheel_off[k, 1] * c
+        if point_in_road(wx, wy, edges, bstart, bedges, y0, bh):
+            wheels += 1
+    prev_prog = meas[i, MPROG]
+    meas[i, MX] = mx
+    meas[i, MY] = my
+    meas[i, MS] = arc
+    meas[i, MDIST] = dist
+    meas[i, MLEFT] = 1.0 if (nearer_inner != (not driving_ccw)) else 0.0
+    meas[i, MWIDTH] = math.hypot(ix - ox, iy - oy)
+    meas[i, MWP_PREV] = prv
+    meas[i, MWP_NEXT] = nxt
+    meas[i, MCLOSEST] = prv if dprev <= dnext else nxt
+    meas[i, MWHEELS] = wheels
+    meas[i, MPROG_PREV] = prev_prog
+    meas[i, MPROG] = aws_progress(ndist, car[i, CSTART], prev_prog)
+    meas[i, MHEADING] = math.degrees(yaw)
+    meas[i, MSEG] = seg
+    meas[i, MLAT] = dist if cross >= 0.0 else -dist
+    meas[i, MTHEAD] = math.atan2(dy, dx)
+
+
+@njit(cache=True)
+def judge(i, car, ctr, meas):
+    """Update car i's reset-rule counters from its measured pose and return the episode status."""
+    x = car[i, CX]
+    y = car[i, CY]
+    moved = math.hypot(x - car[i, CBPX], y - car[i, CBPY])
+    car[i, CBPX] = x
+    car[i, CBPY] = y
+    ctr[i, KIMMOB] = ctr[i, KIMMOB] + 1 if moved <= IMMOBILE_DIST_M else 0
+    ctr[i, KREVCNT] = ctr[i, KREVCNT] + 1 if meas[i, MPROG] < meas[i, MPROG_PREV] else 0
+    if meas[i, MPROG] >= 100.0:
+        return LAP_COMPLETE
+    if meas[i, MWHEELS] == 0:
+        return OFF_TRACK
+    if ctr[i, KIMMOB] >= IMMOBILE_STEPS:
+        return IMMOBILIZED
+    if ctr[i, KREVCNT] >= REVERSE_STEPS:
+        return REVERSED
+    return IN_PROGRESS
+
+
+@njit(cache=True)
+def move(i, car, hold, car_params, dt):
+    x, y, yaw, v, steer, beta = advance(car[i, CX], car[i, CY], car[i, CYAW], car[i, CV], car[i, CSTEER],
+                                        math.radians(car[i, CCMD_STEER]), car[i, CCMD_SPEED], hold,
+                                        car_params, dt)
+    car[i, CX] = x
+    car[i, CY] = y
+    car[i, CYAW] = yaw
+    car[i, CV] = v
+    car[i, CSTEER] = steer
+    car[i, CBETA] = beta
+
+
+@njit(cache=True)
+def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dt, after_action, max_steps,
+             truncated, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
+    """One step for every active car; params[i] receives the measurement the reward sees."""
+    for i in range(car.shape[0]):
+        truncated[i] = False
+        if not active[i]:
+            continue
+        ctr[i, KSTEPS] += 1
+        if ctr[i, KPHASE] == PREPARE:
+            # prepare step: the action is ignored, the car is held; reward 0, no rules
+            car[i, CCMD_STEER] = 0.0
+            car[i, CCMD_SPEED] = 0.0
+            params[i, :] = meas[i, :]
+            move(i, car, True, car_params, dt)
+            measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
+            ctr[i, KSTATUS] = STATUS_PREPARE
+            ctr[i, KPHASE] = RUN
+            continue
+        car[i, CCMD_STEER] = steer_deg[i]
+        car[i, CCMD_SPEED] = speed[i]
+        if after_action:
+            move(i, car, False, car_params, dt)
+            measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
+            status = judge(i, car, ctr, meas)
+            params[i, :] = meas[i, :]
+        else:
+            status = judge(i, car, ctr, meas)
+            params[i, :] = meas[i, :]
+            move(i, car, False, car_params, dt)
+            measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
+        ctr[i, KSTATUS] = status
+        truncated[i] = status == IN_PROGRESS and ctr[i, KSTEPS] >= max_steps
+
+
+@njit(cache=True)
+def place(i, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
+    """Put car i at a start pose (zero speed) and begin a new episode in the prepare phase."""
+    car[i, CX] = px
+    car[i, CY] = py
+    car[i, CYAW] = yaw
+    car[i, CV] = 0.0
+    car[i, CSTEER] = 0.0
+    car[i, CBETA] = 0.0
+    car[i, CSTART] = start_ndist
+    car[i, CBPX] = px
+    car[i, CBPY] = py
+    car[i, CCMD_STEER] = 0.0
+    car[i, CCMD_SPEED] = 0.0
+    ctr[i, KSTEPS] = 0
+    ctr[i, KPHASE] = PREPARE
+    ctr[i, KIMMOB] = 0
+    ctr[i, KREVCNT] = 0
+    ctr[i, KSTATUS] = IN_PROGRESS
+    meas[i, MPROG] = 0.0
+    meas[i, MSEG] = -1.0
+    measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
+
+
+@njit(cache=True)
+def features(car, ctr, meas, trk_f, trk_r, closed, length, lookahead, car_params, out):
+    """`features` observation: speed, steering, offset, heading error and centre points ahead.
+
+    out[i] = [v / vmax, steer / max_steer, lateral / (width / 2), sin(heading error),
+    cos(heading error), width, then for each lookahead distance d the centre point at arc
+    length s + d in the car's frame (x ahead, y left), divided by 2 m].
+    """
+    vmax = car_params[3]
+    smax = car_params[1]
+    nla = lookahead.shape[0]
+    for i in range(car.shape[0]):
+        rev = ctr[i, KREV] != 0
+        center, seg_len, cum_s, inner, outer, wp_ndist = trk_r if rev else trk_f
+        x = car[i, CX]
+        y = car[i, CY]
+        yaw = car[i, CYAW]
+        c = math.cos(yaw)
+        s = math.sin(yaw)
+        half_w = max(0.5 * meas[i, MWIDTH], 1e-3)
+        err = yaw - meas[i, MTHEAD]
+        out[i, 0] = car[i, CV] / vmax
+        out[i, 1] = car[i, CSTEER] / smax
+        out[i, 2] = meas[i, MLAT] / half_w
+        out[i, 3] = math.sin(err)
+        out[i, 4] = math.cos(err)
+        out[i, 5] = meas[i, MWIDTH]
+        for k in range(nla):
+            sa = meas[i, MS] + lookahead[k]
+            if closed:
+                sa = sa % length
+            else:
+                sa = min(sa, length)
+            j = np.searchsorted(cum_s, sa, side="right") - 1
+            if j < 0:
+                j = 0
+            if j > seg_len.shape[0] - 1:
+                j = seg_len.shape[0] - 1
+            f = (sa - cum_s[j]) / seg_len[j] if seg_len[j] > 0 else 0.0
+            qx = center[j, 0] + f * (center[j + 1, 0] - center[j, 0]) - x
+            qy = center[j, 1] + f * (center[j + 1, 1] - center[j, 1]) - y
+            out[i, 6 + 2 * k] = (qx * c + qy * s) * 0.5
+            out[i, 7 + 2 * k] = (-qx * s + qy * c) * 0.5
+
+
+@njit(cache=True)
+def place_many(idx, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length,
+               ccw_f):
+    for j in range(idx.shape[0]):
+        place(idx[j], px[j], py[j], yaw[j], start_ndist[j], car, ctr, meas, trk_f, trk_r, road, wheel_off, closed,
+              length, ccw_f)

@@ -1,0 +1,112 @@
+"""The car: geometry as in the AWS URDF and racerlab's dynamics model with its defaults.
+
+Geometry (facts §3): wheelbase 0.164 m, wheel track 0.16 m, both front wheels steered by the
+same angle clipped to ±30°, commanded speed clipped to [0.1, 4.0] m/s. The pose (x, y, yaw) is
+the `base_link` origin, midway between the axles; AWS reports positions for the point 0.14 m
+ahead of it (`model_point`).
+
+Dynamics. Gazebo's velocity and position controllers make the v5+ car respond almost at once,
+but the physical tyres still limit how hard it can turn. racerlab models both explicitly:
+
+* speed follows the commanded speed with a first-order lag (time constant `speed_tau_s`),
+  bounded by an acceleration limit `accel_mps2` and a braking limit `brake_mps2`;
+* the steering angle follows the command with a first-order lag `steer_tau_s`;
+* the base point moves as a kinematic bicycle (slip angle β with sin β = κ·wheelbase/2 for path
+  curvature κ = cos β · tan δ / wheelbase), except that the lateral acceleration v²·κ cannot
+  exceed the grip limit `grip_mps2`: beyond it the path curvature is capped at grip / v², so a
+  car that enters a corner too fast runs wide (understeers) and leaves the track.
+
+The defaults are calibrated so that the theoretical best lap on `reInvent2019_track` with the
+4 m/s cap lands near the all-time best human-trained lap in the AWS simulator (7.198 s); see
+the README's "Car model" section. Each step of 1/15 s is integrated in `substeps` sub-steps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+STEP_S = 1.0 / 15.0  # one environment step: one camera frame at 15 Hz of simulated time
+MODEL_POINT_AHEAD_M = 0.14  # AWS RELATIVE_POSITION_OF_FRONT_OF_CAR
+
+
+@dataclass(frozen=True)
+class CarParams:
+    wheelbase_m: float = 0.164
+    track_m: float = 0.16
+    max_steer_deg: float = 30.0
+    min_speed_mps: float = 0.1
+    max_speed_mps: float = 4.0
+    speed_tau_s: float = 0.1
+    accel_mps2: float = 6.0
+    brake_mps2: float = 8.0
+    steer_tau_s: float = 0.03
+    grip_mps2: float = 6.5
+    substeps: int = 4
+
+    def __post_init__(self):
+        for name in ("wheelbase_m", "track_m", "max_steer_deg", "max_speed_mps", "accel_mps2", "brake_mps2",
+                     "grip_mps2"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"CarParams.{name} must be > 0")
+        if not 0 <= self.min_speed_mps <= self.max_speed_mps:
+            raise ValueError("CarParams needs 0 <= min_speed_mps <= max_speed_mps")
+        if self.substeps < 1:
+            raise ValueError("CarParams.substeps must be >= 1")
+
+    def as_array(self) -> np.ndarray:
+        """Packed for the compiled step: see `advance` for the order."""
+        return np.array([self.wheelbase_m, math.radians(self.max_steer_deg), self.min_speed_mps,
+                         self.max_speed_mps, self.speed_tau_s, self.accel_mps2, self.brake_mps2,
+                         self.steer_tau_s, self.grip_mps2, float(self.substeps)], dtype=np.float64)
+
+    def wheel_offsets(self) -> np.ndarray:
+        """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
+        hx, hy = self.wheelbase_m / 2, self.track_m / 2
+        return np.array([[-hx, hy], [hx, hy], [-hx, -hy], [hx, -hy]], dtype=np.float64)
+
+
+@njit(cache=True)
+def advance(x, y, yaw, v, steer, steer_cmd_rad, speed_cmd, hold, car, dt):
+    """Integrate one car over `dt`; returns the new (x, y, yaw, v, steer, slip β).
+
+    `car` is `CarParams.as_array()`. `hold` keeps the car still (prepare and pause steps).
+    """
+    if hold:
+        return x, y, yaw, 0.0, steer, 0.0
+    wb = car[0]
+    max_steer = car[1]
+    vc = min(max(speed_cmd, car[2]), car[3])
+    dc = min(max(steer_cmd_rad, -max_steer), max_steer)
+    n = int(car[9])
+    h = dt / n
+    a_speed = 1.0 - math.exp(-h / car[4]) if car[4] > 0 else 1.0
+    a_steer = 1.0 - math.exp(-h / car[7]) if car[7] > 0 else 1.0
+    beta = 0.0
+    for _ in range(n):
+        dv = (vc - v) * a_speed
+        dv = min(max(dv, -car[6] * h), car[5] * h)
+        v_mid = v + 0.5 * dv
+        v = v + dv
+        steer = steer + (dc - steer) * a_steer
+        tan_d = math.tan(steer)
+        cos_b = 1.0 / math.sqrt(1.0 + 0.25 * tan_d * tan_d)
+        kappa = cos_b * tan_d / wb
+        if v_mid > 1e-6:
+            k_max = car[8] / (v_mid * v_mid)
+            kappa = min(max(kappa, -k_max), k_max)
+        sb = min(max(0.5 * kappa * wb, -1.0), 1.0)
+        beta = math.asin(sb)
+        dyaw = v_mid * kappa * h
+        head = yaw + 0.5 * dyaw + beta
+        x += v_mid * h * math.cos(head)
+        y += v_mid * h * math.sin(head)
+        yaw += dyaw
+    if yaw > math.pi:
+        yaw -= 2.0 * math.pi
+    elif yaw <= -math.pi:
+        yaw += 2.0 * math.pi
+    return x, y, yaw, v, steer, beta

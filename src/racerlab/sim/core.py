@@ -1,0 +1,200 @@
+"""`Simulator`: many DeepRacer cars on one track, stepped together at 15 steps per simulated second.
+
+State is struct-of-arrays with the car axis first (tables `car`, `ctr`, `meas` whose named
+columns are in `racerlab.sim._kernels`); one compiled function steps every car, so no Python
+runs per car in the step path. The reward function is not called here: `racerlab.sim.reward`
+turns the `params` table into the AWS params dicts when one is configured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from racerlab.sim import _kernels as K
+from racerlab.sim.car import STEP_S, CarParams
+from racerlab.track import Track
+from racerlab.track import load as load_track
+
+DEFAULT_LOOKAHEAD_M = (0.25, 0.5, 0.8, 1.2, 1.6, 2.2, 3.0)
+AFTER_ACTION = "after_action"
+REWARD_ORDERS = ("aws", AFTER_ACTION)
+
+
+@dataclass(frozen=True)
+class StartRules:
+    """Where training episodes start (simapp's round robin, facts §2).
+
+    Each new episode takes the next start in one sequence shared by all cars of the simulator:
+    episode k starts at `offset + k * advance` (mod 1) of the lap; with one car this is exactly
+    AWS's per-worker round robin, with many it spreads the cars evenly over the lap.
+    """
+
+    change_start: bool = True
+    advance: float = 0.05
+    offset: float = 0.0
+    reverse: bool = False
+    alternate_direction: bool = False
+
+    def __post_init__(self):
+        if not 0.0 <= self.offset < 1.0 or not 0.0 <= self.advance < 1.0:
+            raise ValueError("StartRules: offset and advance are fractions of the lap in [0, 1)")
+
+
+class Simulator:
+    """A batch of `num_cars` cars on `track`. See the module docstring of `_kernels` for the step order."""
+
+    def __init__(self, track: Track | str, num_cars: int = 1, car: CarParams | None = None, *,
+                 start: StartRules | None = None, max_episode_steps: int = 10_000, reward_order: str = "aws",
+                 lookahead_m=DEFAULT_LOOKAHEAD_M, seed: int | None = None):
+        if reward_order not in REWARD_ORDERS:
+            raise ValueError(f"reward_order must be one of {REWARD_ORDERS}, got {reward_order!r}")
+        self.track = track if isinstance(track, Track) else load_track(track)
+        self.track_reversed = self.track.reverse()
+        self.num_cars = int(num_cars)
+        self.car_params = car or CarParams()
+        self.start_rules = start or StartRules()
+        self.max_episode_steps = int(max_episode_steps)
+        self.after_action = reward_order == AFTER_ACTION
+        self.dt = STEP_S
+        self.rng = np.random.default_rng(seed)
+        self.lookahead = np.asarray(lookahead_m, dtype=np.float64)
+        self._pack_track()
+        n = self.num_cars
+        self.car = np.zeros((n, K.N_CAR))
+        self.ctr = np.zeros((n, K.N_CTR), dtype=np.int64)
+        self.meas = np.zeros((n, K.N_MEAS))
+        self.params = np.zeros((n, K.N_MEAS))
+        self.truncated = np.zeros(n, dtype=np.bool_)
+        self.episode_start_time = np.zeros(n)
+        self.episodes_started = 0
+        self.time = 0.0
+        self._all = np.ones(n, dtype=np.bool_)
+        self.reset()
+
+    # ---- track arrays for the compiled step -----------------------------------------------------
+    def _pack_track(self):
+        def pack(t: Track):
+            return (t.center, t.segment_lengths, t.waypoint_s, t.inner, t.outer, t.waypoint_s / t.length)
+
+        t = self.track
+        self._trk_f = pack(t)
+        self._trk_r = pack(self.track_reversed)
+        bs, be, y0, bh = t.road_index
+        self._road = (t.road_edges, bs, be, float(y0), float(bh))
+        self._wheels = self.car_params.wheel_offsets()
+        self._car_arr = self.car_params.as_array()
+        self._geom = (self._trk_f, self._trk_r, self._road, self._wheels, t.closed, t.length, t.is_ccw)
+
+    # ---- episodes ------------------------------------------------------------------------------
+    def reset(self, mask=None, start_ndist=None, reverse=None) -> np.ndarray:
+        """Start new episodes for the cars in `mask` (all by default); returns their indices.
+
+        Without overrides each car takes the next round-robin start (and direction); evaluation
+        passes `start_ndist` (a fraction of the lap, scalar or per car) and `reverse` to place
+        cars without advancing the sequence.
+        """
+        idx = np.flatnonzero(self._all if mask is None else np.asarray(mask, dtype=bool))
+        if idx.size == 0:
+            return idx
+        r = self.start_rules
+        if start_ndist is None:
+            k = self.episodes_started + np.arange(idx.size)
+            self.episodes_started += idx.size
+            nd = np.mod(r.offset + (k * r.advance if r.change_start else 0.0), 1.0)
+            rev = np.full(idx.size, r.reverse) ^ ((k % 2 == 1) & r.alternate_direction)
+        else:
+            nd = np.broadcast_to(np.asarray(start_ndist, dtype=np.float64), idx.shape)
+            rev = np.broadcast_to(np.asarray(r.reverse if reverse is None else reverse, dtype=bool), idx.shape)
+        self.ctr[idx, K.KREV] = rev
+        s = nd * self.track.length
+        pts = np.empty((idx.size, 2))
+        yaw = np.empty(idx.size)
+        for flag, t in ((False, self.track), (True, self.track_reversed)):
+            sel = rev == flag
+            if sel.any():
+                pts[sel] = t.point_at(s[sel])
+                yaw[sel] = t.heading_at(s[sel])
+        K.place_many(idx, pts[:, 0].copy(), pts[:, 1].copy(), yaw, np.ascontiguousarray(nd, dtype=np.float64),
+                     self.car, self.ctr, self.meas, *self._geom)
+        self.episode_start_time[idx] = self.time
+        return idx
+
+    def _place(self, i, x, y, yaw, start_ndist):
+        K.place(i, x, y, yaw, start_ndist, self.car, self.ctr, self.meas, *self._geom)
+
+    def set_pose(self, i: int, x: float, y: float, yaw_rad: float, speed: float = 0.0, start_ndist=None,
+                 reverse: bool | None = None):
+        """Put car i at an arbitrary base pose, starting a new episode there (tests, analysis, evaluation)."""
+        if reverse is not None:
+            self.ctr[i, K.KREV] = bool(reverse)
+        t = self.track_reversed if self.ctr[i, K.KREV] else self.track
+        if start_ndist is None:
+            start_ndist = float(t.project([[x, y]]).s[0] / t.length)
+        self._place(i, x, y, yaw_rad, start_ndist)
+        self.car[i, K.CV] = speed
+        self.episode_start_time[i] = self.time
+
+    # ---- stepping -----------------------------------------------------------------------------
+    def step(self, steering_deg, speed, active=None) -> np.ndarray:
+        """Advance every active car one step with commanded steering (°) and speed (m/s).
+
+        Returns the status code per car (`STATUS_NAMES`); `self.params` holds what each car's
+        reward function sees this step and `self.truncated` the step-cap flags.
+        """
+        n = self.num_cars
+        steer = np.broadcast_to(np.asarray(steering_deg, dtype=np.float64), (n,))
+        spd = np.broadcast_to(np.asarray(speed, dtype=np.float64), (n,))
+        act = self._all if active is None else np.asarray(active, dtype=np.bool_)
+        K.step_all(act, np.ascontiguousarray(steer), np.ascontiguousarray(spd), self.car, self.ctr, self.meas,
+                   self.params, self._car_arr, self.dt, self.after_action, self.max_episode_steps,
+                   self.truncated, *self._geom)
+        self.time += self.dt
+        return self.ctr[:, K.KSTATUS]
+
+    def features(self, out=None) -> np.ndarray:
+        """(num_cars, feature_size) float32 `features` observation of the current poses."""
+        buf = np.empty((self.num_cars, self.feature_size)) if out is None else out
+        K.features(self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed, self.track.length,
+                   self.lookahead, self._car_arr, buf)
+        return buf.astype(np.float32, copy=False)
+
+    @property
+    def feature_size(self) -> int:
+        return 6 + 2 * len(self.lookahead)
+
+    # ---- views -------------------------------------------------------------------------------
+    @property
+    def status(self) -> np.ndarray:
+        return self.ctr[:, K.KSTATUS]
+
+    @property
+    def steps(self) -> np.ndarray:
+        return self.ctr[:, K.KSTEPS]
+
+    @property
+    def reversed(self) -> np.ndarray:
+        return self.ctr[:, K.KREV].astype(bool)
+
+    @property
+    def progress(self) -> np.ndarray:
+        return self.meas[:, K.MPROG]
+
+    def status_names(self, codes=None) -> list[str]:
+        codes = self.status if codes is None else codes
+        return [K.STATUS_NAMES[c] for c in np.asarray(codes).tolist()]
+
+    def terminated_mask(self, codes=None) -> np.ndarray:
+        c = self.status if codes is None else np.asarray(codes)
+        return (c != K.IN_PROGRESS) & (c != K.STATUS_PREPARE) & (c != K.PAUSE)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(num_cars, 3) base-link x, y, yaw (rad)."""
+        return self.car[:, [K.CX, K.CY, K.CYAW]].copy()
+
+    @property
+    def speed(self) -> np.ndarray:
+        """Actual ground speed, m/s (the reward param `speed` is the commanded one)."""
+        return self.car[:, K.CV].copy()

@@ -1,0 +1,199 @@
+"""Gymnasium adapters: `racerlab/DeepRacer-v0` for one car and its batched vector version.
+
+## Action Space
+From `model_metadata`: `Discrete(n)` for a discrete AWS action list, or `Box(-1, 1, (2,))` for a
+continuous one (`[steering, speed]`, clipped and rescaled linearly to the configured ranges as
+AWS does). The simulator then clips steering to ±30° and speed to [0.1, 4] m/s.
+
+## Observation Space
+Chosen by `observation` ("features", or a sensor such as "camera" once registered), else by the
+model's `sensor` list; with neither, `features`.
+
+## Rewards
+`reward_function(params)` (a callable or a path to an AWS `reward_function.py`) gets the AWS
+params dict (`info["params"]`); the first step of every episode is AWS's prepare step: the
+action is ignored, the reward is 0 and the function is not called. Without a reward function
+the reward is 0 and no params are built (the fastest path).
+
+## Episode Termination
+`terminated` on lap_complete, off_track, immobilized or reversed (`info["episode_status"]`, the
+AWS names); `truncated` at `max_episode_steps`. Rewards and termination are judged on the pose
+the observation was taken in, as AWS does, unless `reward_order="after_action"`.
+
+`reset(seed=...)` reseeds and restarts the round-robin start sequence, so seeded runs repeat.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode
+from gymnasium.vector.utils import batch_space
+
+from racerlab.metadata import DiscreteActions, as_model_metadata
+from racerlab.sim import _kernels as K
+from racerlab.sim.car import CarParams
+from racerlab.sim.core import Simulator, StartRules
+from racerlab.sim.observations import make_observation
+from racerlab.sim.reward import ParamsBuilder, RewardCaller, as_reward_function
+from racerlab.track import DEFAULT_TRACK
+
+
+def _start_rules(start):
+    if start is None or isinstance(start, StartRules):
+        return start
+    return StartRules(**start)
+
+
+def _car_params(car):
+    if car is None or isinstance(car, CarParams):
+        return car
+    return CarParams(**car)
+
+
+class _Engine:
+    """What both adapters share: the simulator, action mapping, observation and reward calls."""
+
+    def __init__(self, num_cars, track, reward_function, model_metadata, observation, car, start,
+                 max_episode_steps, reward_order, seed):
+        self.sim = Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
+                             max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed)
+        self.metadata = as_model_metadata(model_metadata)
+        if observation is None and model_metadata is None:
+            observation = "features"
+        self.observation = make_observation(observation, self.sim, self.metadata)
+        fn = as_reward_function(reward_function)
+        self.reward = RewardCaller(fn) if fn is not None else None
+        self.params_builder = ParamsBuilder(self.sim) if fn is not None else None
+        acts = self.metadata.actions
+        if isinstance(acts, DiscreteActions):
+            self.action_space = gym.spaces.Discrete(acts.n)
+        else:
+            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+
+    def commands(self, actions) -> tuple[np.ndarray, np.ndarray]:
+        acts = self.metadata.actions
+        if isinstance(acts, DiscreteActions):
+            return acts.lookup(np.asarray(actions).reshape(self.sim.num_cars))
+        return acts.rescale(np.asarray(actions, dtype=np.float64).reshape(self.sim.num_cars, 2))
+
+    def step(self, actions):
+        sim = self.sim
+        codes = sim.step(*self.commands(actions)).copy()
+        rewards = np.zeros(sim.num_cars)
+        params = None
+        if self.reward is not None:
+            run = np.flatnonzero(codes != K.STATUS_PREPARE)
+            params = [None] * sim.num_cars
+            if run.size:
+                plist = self.params_builder.build(run)
+                rewards[run] = self.reward(plist, run)
+                for j, i in enumerate(run.tolist()):
+                    params[i] = plist[j]
+        terminated = sim.terminated_mask(codes)
+        return rewards, terminated, sim.truncated.copy(), codes, params
+
+
+_ENGINE_DEFAULTS = dict(track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, car=None,
+                        start=None, max_episode_steps=10_000, reward_order="aws")
+
+
+class DeepRacerEnv(gym.Env):
+    """One DeepRacer car (see the module docstring)."""
+
+    metadata = {"render_modes": [], "render_fps": 15}
+
+    def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
+                 car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None):
+        self._engine = _Engine(1, track, reward_function, model_metadata, observation, car, start,
+                               max_episode_steps, reward_order, seed)
+        self.sim = self._engine.sim
+        self.action_space = self._engine.action_space
+        self.observation_space = self._engine.observation.space
+        self.render_mode = render_mode
+
+    def _obs(self):
+        o = self._engine.observation()
+        return {k: v[0] for k, v in o.items()} if isinstance(o, dict) else o[0]
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.sim.rng = np.random.default_rng(seed)
+            self.sim.episodes_started = 0
+        options = options or {}
+        self.sim.reset(start_ndist=options.get("start_ndist"), reverse=options.get("reverse"))
+        return self._obs(), self._info(None)
+
+    def step(self, action):
+        rewards, term, trunc, codes, params = self._engine.step(np.asarray(action)[None])
+        return self._obs(), float(rewards[0]), bool(term[0]), bool(trunc[0]), self._info(params, codes)
+
+    def _info(self, params, codes=None):
+        sim = self.sim
+        code = int(sim.status[0] if codes is None else codes[0])
+        prog = sim.meas[0, K.MPROG] if codes is None else sim.params[0, K.MPROG]
+        info = {"episode_status": K.STATUS_NAMES[code], "progress": float(prog),
+                "steps": int(sim.steps[0])}
+        if params is not None and params[0] is not None:
+            info["params"] = params[0]
+        return info
+
+
+class DeepRacerVectorEnv(gym.vector.VectorEnv):
+    """`num_envs` cars in one batched simulator, with same-step autoreset.
+
+    A finished car is reset in the step that ends its episode: the returned observation is its
+    next episode's first, and `info["final_obs"]` / `info["final_info"]` (masked by
+    `info["_final_obs"]`) hold the last observation and info of the episode that ended.
+    `info["params"]` is a list with each car's params dict (None on prepare steps).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 1, track=DEFAULT_TRACK, reward_function=None, model_metadata=None,
+                 observation=None, *, car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None,
+                 render_mode=None):
+        self._engine = _Engine(num_envs, track, reward_function, model_metadata, observation, car, start,
+                               max_episode_steps, reward_order, seed)
+        self.sim = self._engine.sim
+        self.num_envs = num_envs
+        self.single_action_space = self._engine.action_space
+        self.single_observation_space = self._engine.observation.space
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.render_mode = render_mode
+
+    def reset(self, *, seed=None, options=None):
+        if seed is not None:
+            self.sim.rng = np.random.default_rng(seed)
+            self.sim.episodes_started = 0
+            self.action_space.seed(seed)
+        options = options or {}
+        self.sim.reset(options.get("reset_mask"), start_ndist=options.get("start_ndist"),
+                       reverse=options.get("reverse"))
+        return self._engine.observation(), self._info(self.sim.status.copy(), None, self.sim.meas[:, K.MPROG])
+
+    def step(self, actions):
+        rewards, term, trunc, codes, params = self._engine.step(actions)
+        obs = self._engine.observation()
+        info = self._info(codes, params, self.sim.params[:, K.MPROG])
+        done = term | trunc
+        if done.any():
+            final_obs = np.empty(self.num_envs, dtype=object)
+            final_info = np.empty(self.num_envs, dtype=object)
+            for i in np.flatnonzero(done).tolist():
+                final_obs[i] = {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
+                final_info[i] = {"episode_status": info["episode_status"][i], "progress": info["progress"][i]}
+            self.sim.reset(done)
+            obs = self._engine.observation()
+            info["final_obs"], info["_final_obs"] = final_obs, done
+            info["final_info"], info["_final_info"] = final_info, done
+        return obs, rewards, term, trunc, info
+
+    def _info(self, codes, params, progress):
+        info = {"episode_status": np.array([K.STATUS_NAMES[c] for c in codes.tolist()], dtype=object),
+                "progress": progress.copy(), "steps": self.sim.steps.copy()}
+        if params is not None:
+            info["params"] = params
+        return info

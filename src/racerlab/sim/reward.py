@@ -1,0 +1,210 @@
+"""Reward functions: loading a racer's `reward_function.py`, building AWS params, checking results.
+
+The params dict holds every key the AWS simulator passes (facts §1) with the code's semantics;
+`ParamsBuilder` makes one dict per car from the simulator's params table in bulk (columns are
+turned into Python lists once, then each dict is a literal), and `RewardCaller` calls the
+function, checks the value and turns any failure into a `RewardFunctionError` that names the
+file and line and shows the step's params.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib.util
+import math
+import numbers
+import sys
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from racerlab.errors import RewardFunctionError
+from racerlab.sim import _kernels as K
+
+MAX_ABS_REWARD = 1e5
+
+
+def load_reward_function(path) -> Callable[[dict], float]:
+    """Import `reward_function` from a .py file; syntax errors and a missing function are one-line errors."""
+    p = Path(path)
+    if not p.is_file():
+        raise RewardFunctionError(f"{p}: reward function file not found")
+    name = f"racerlab_reward_{abs(hash(str(p.resolve())))}"
+    spec = importlib.util.spec_from_file_location(name, p)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        raise RewardFunctionError(f"{p}:{exc.lineno}: syntax error: {exc.msg}") from None
+    except Exception as exc:  # noqa: BLE001 - the user's module failed to import
+        where = _user_frame(exc, p) or str(p)
+        raise RewardFunctionError(f"{where}: importing the reward function raised "
+                                  f"{type(exc).__name__}: {exc}") from None
+    fn = getattr(module, "reward_function", None)
+    if not callable(fn):
+        raise RewardFunctionError(f"{p}: defines no function `reward_function(params)`; "
+                                  "add `def reward_function(params): ... return float(reward)`")
+    fn.__racerlab_source__ = str(p)
+    sys.modules.pop(name, None)
+    return fn
+
+
+def as_reward_function(value) -> Callable[[dict], float] | None:
+    """A callable, a path to a .py file, or None (no reward and no params: the fastest path)."""
+    if value is None or callable(value):
+        return value
+    return load_reward_function(value)
+
+
+def _user_frame(exc: BaseException, path: Path | None) -> str | None:
+    """'file:line' of the deepest traceback frame inside the reward file (or the deepest frame)."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return None
+    if path is not None:
+        target = str(Path(path).resolve())
+        mine = [f for f in frames if str(Path(f.filename).resolve()) == target]
+        if mine:
+            return f"{mine[-1].filename}:{mine[-1].lineno}"
+    f = frames[-1]
+    return f"{f.filename}:{f.lineno}"
+
+
+def describe_params(params: dict) -> str:
+    """Params on one line each key, with `waypoints` shortened, for error messages."""
+    parts = []
+    for k, v in params.items():
+        if k == "waypoints":
+            v = f"[{len(v)} waypoints]"
+        elif isinstance(v, float):
+            v = round(v, 4)
+        parts.append(f"{k}={v}")
+    return ", ".join(parts)
+
+
+class ParamsBuilder:
+    """Builds the AWS reward params dicts for a simulator's cars."""
+
+    def __init__(self, sim):
+        self.sim = sim
+        self._waypoints = (sim.track.waypoints, sim.track_reversed.waypoints)
+        self._length = sim.track.length
+
+    def build(self, idx=None, status=None, actions=None) -> list[dict]:
+        """Params for cars `idx` (all by default) from `sim.params`, with the commanded actions."""
+        sim = self.sim
+        idx = np.arange(sim.num_cars) if idx is None else np.asarray(idx)
+        p = sim.params[idx]
+        st = sim.status[idx] if status is None else np.asarray(status)[idx]
+        steer = sim.car[idx, K.CCMD_STEER] if actions is None else actions[0][idx]
+        speed = sim.car[idx, K.CCMD_SPEED] if actions is None else actions[1][idx]
+        cols = p.T.tolist()
+        x, y, arc, dist, left, width, wprev, wnext, _, wheels, prog, _, head = cols[:13]
+        steps = sim.ctr[idx, K.KSTEPS].astype(np.float64).tolist()
+        rev = sim.ctr[idx, K.KREV].astype(bool).tolist()
+        offtrack = (st == K.OFF_TRACK).tolist()
+        # sim_time of the measured pose: the step's start (AWS order) or its end (after_action)
+        t = sim.time if sim.after_action else sim.time - sim.dt
+        length = self._length
+        wps = self._waypoints
+        steer = np.asarray(steer, dtype=np.float64).tolist()
+        speed = np.asarray(speed, dtype=np.float64).tolist()
+        out = []
+        for j in range(len(x)):
+            out.append({
+                "all_wheels_on_track": wheels[j] == 4.0,
+                "x": x[j],
+                "y": y[j],
+                "heading": head[j],
+                "distance_from_center": dist[j],
+                "is_left_of_center": left[j] > 0.5,
+                "is_reversed": rev[j],
+                "progress": prog[j],
+                "steps": steps[j],
+                "speed": speed[j],
+                "steering_angle": steer[j],
+                "track_width": width[j],
+                "track_length": length,
+                "waypoints": list(wps[rev[j]]),
+                "closest_waypoints": [int(wprev[j]), int(wnext[j])],
+                "projection_distance": arc[j],
+                "is_offtrack": offtrack[j],
+                "is_crashed": False,
+                "sim_time": t,
+                "closest_objects": [0, 0],
+                "objects_location": [],
+                "objects_left_of_center": [],
+                "objects_distance": [],
+                "objects_distance_from_center": [],
+                "objects_heading": [],
+                "objects_speed": [],
+                "object_in_camera": False,
+            })
+        return out
+
+
+class RewardCaller:
+    """Calls a reward function on params dicts and enforces AWS's validity rule (finite, |r| ≤ 1e5)."""
+
+    def __init__(self, fn: Callable[[dict], float]):
+        self.fn = fn
+        src = getattr(fn, "__racerlab_source__", None)
+        self.source = Path(src) if src else None
+        self.name = str(self.source) if self.source else getattr(fn, "__qualname__", repr(fn))
+
+    def __call__(self, params_list: list[dict], cars=None) -> np.ndarray:
+        fn = self.fn
+        out = np.empty(len(params_list))
+        for j, params in enumerate(params_list):
+            try:
+                r = fn(params)
+            except Exception as exc:  # noqa: BLE001 - report the user's error with its params
+                car = j if cars is None else int(cars[j])
+                where = _user_frame(exc, self.source) or self.name
+                raise RewardFunctionError(
+                    f"{where}: reward_function raised {type(exc).__name__}: {exc} (car {car}, step "
+                    f"{params.get('steps')})\n  params: {describe_params(params)}") from exc
+            if type(r) is not float:  # fast path for the common case
+                r = self._coerce(r, params, j if cars is None else int(cars[j]))
+            elif not (-MAX_ABS_REWARD <= r <= MAX_ABS_REWARD):
+                self._bad(f"returned {r!r}, which is not finite or beyond ±1e5", params, j)
+            out[j] = r
+        return out
+
+    def _coerce(self, r, params, car) -> float:
+        if isinstance(r, bool) or not isinstance(r, numbers.Real):
+            self._bad(f"returned {r!r} of type {type(r).__name__}; it must return a number (float)", params, car)
+        r = float(r)
+        if not math.isfinite(r) or abs(r) > MAX_ABS_REWARD:
+            self._bad(f"returned {r!r}, which is not finite or beyond ±1e5", params, car)
+        return r
+
+    def _bad(self, what: str, params: dict, car: int):
+        where = self._return_location(params)
+        raise RewardFunctionError(f"{where}: reward_function {what} (car {car}, step {params.get('steps')})\n"
+                                  f"  params: {describe_params(params)}")
+
+    def _return_location(self, params: dict) -> str:
+        """File and line of the `return` that produced the bad value: the call is replayed once with a
+        profile hook (only on this error path), falling back to the function's `def` line."""
+        code = getattr(self.fn, "__code__", None)
+        if code is None:
+            return self.name
+        line = code.co_firstlineno
+
+        def hook(frame, event, arg):
+            nonlocal line
+            if event == "return" and frame.f_code is code:
+                line = frame.f_lineno
+
+        old = sys.getprofile()
+        sys.setprofile(hook)
+        try:
+            self.fn(copy.deepcopy(params))
+        except Exception:  # noqa: BLE001 - only replaying to find the line
+            pass
+        finally:
+            sys.setprofile(old)
+        return f"{code.co_filename}:{line}"
