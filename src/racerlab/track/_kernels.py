@@ -11,6 +11,7 @@ from numba import njit
 
 # Segments examined on either side of a hint before falling back to a full search.
 LOCAL_WINDOW = 6
+LOCAL_MAX_DIST_M = 0.5
 
 
 @njit(cache=True, inline="always")
@@ -62,7 +63,9 @@ def nearest_segment(px, py, line, seg_len, closed, hint):
         if closed:
             edge_lo = edge_lo % nseg
             edge_hi = edge_hi % nseg
-        if best_i != edge_lo and best_i != edge_hi:
+        # a hit inside the window and close to the line is the global nearest for any track whose
+        # separate parts are further apart than LOCAL_MAX_DIST_M; otherwise search everything
+        if best_i != edge_lo and best_i != edge_hi and best_d < LOCAL_MAX_DIST_M * LOCAL_MAX_DIST_M:
             return best_i, best_t, best_d
     best_d = np.inf
     for i in range(nseg):
