@@ -84,8 +84,8 @@ def measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, cc
     # nearest points on each border, then which of the two the model point is nearer to.
     cpx = ax + t * dx
     cpy = ay + t * dy
-    ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 3)
-    ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 3)
+    ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 2)
+    ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 2)
     nearer_inner = math.hypot(mx - ix, my - iy) < math.hypot(mx - ox, my - oy)
     driving_ccw = ccw_f != rev
     # closest_waypoints by arc length: next = bisect_right(waypoint positions, ndist)
@@ -216,8 +216,8 @@ def place(i, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road, wheel
 
 
 @njit(cache=True)
-def features(car, ctr, meas, trk_f, trk_r, closed, length, lookahead, car_params, out):
-    """`features` observation: speed, steering, offset, heading error and centre points ahead.
+def features(rows, car, ctr, meas, trk_f, trk_r, closed, length, lookahead, car_params, out):
+    """`features` observation of cars `rows`: speed, steering, offset, heading error, centre points ahead.
 
     out[i] = [v / vmax, steer / max_steer, lateral / (width / 2), sin(heading error),
     cos(heading error), width, then for each lookahead distance d the centre point at arc
@@ -226,7 +226,7 @@ def features(car, ctr, meas, trk_f, trk_r, closed, length, lookahead, car_params
     vmax = car_params[3]
     smax = car_params[1]
     nla = lookahead.shape[0]
-    for i in range(car.shape[0]):
+    for i in rows:
         rev = ctr[i, KREV] != 0
         center, seg_len, cum_s, inner, outer, wp_ndist = trk_r if rev else trk_f
         x = car[i, CX]

@@ -153,12 +153,16 @@ class Simulator:
         self.time += self.dt
         return self.ctr[:, K.KSTATUS]
 
-    def features(self, out=None) -> np.ndarray:
-        """(num_cars, feature_size) float32 `features` observation of the current poses."""
+    def features(self, out=None, rows=None) -> np.ndarray:
+        """(num_cars, feature_size) `features` observation of the current poses (float64 in `out`).
+
+        With `rows` only those cars' rows of `out` are recomputed (after a partial reset).
+        """
         buf = np.empty((self.num_cars, self.feature_size)) if out is None else out
-        K.features(self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed, self.track.length,
-                   self.lookahead, self._car_arr, buf)
-        return buf.astype(np.float32, copy=False)
+        idx = np.arange(self.num_cars) if rows is None else np.asarray(rows, dtype=np.int64)
+        K.features(idx, self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed,
+                   self.track.length, self.lookahead, self._car_arr, buf)
+        return buf
 
     @property
     def feature_size(self) -> int:

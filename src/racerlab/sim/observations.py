@@ -22,6 +22,7 @@ class FeaturesObservation:
     """The `features` vector: speed, steering, offset, heading error, width and centre points ahead."""
 
     name = "features"
+    partial_update = True
 
     def __init__(self, sim, metadata: ModelMetadata | None = None):
         self.sim = sim
@@ -31,12 +32,15 @@ class FeaturesObservation:
     def space(self) -> gym.Space:
         return gym.spaces.Box(-FEATURE_LIMIT, FEATURE_LIMIT, shape=(self.sim.feature_size,), dtype=np.float32)
 
-    def __call__(self) -> np.ndarray:
+    def __call__(self, rows=None) -> np.ndarray:
         # a car far off the track has a large offset; clipping keeps the vector inside its space
-        return np.clip(self.sim.features(self._buf), -FEATURE_LIMIT, FEATURE_LIMIT).astype(np.float32)
+        self.sim.features(self._buf, rows)
+        return np.clip(self._buf, -FEATURE_LIMIT, FEATURE_LIMIT).astype(np.float32)
 
 
-# name -> factory(sim, metadata) returning an object with `.space` (one car) and `__call__()` (batch)
+# name -> factory(sim, metadata) returning an object with `.space` (one car) and `__call__(rows=None)`
+# giving the batch; with `partial_update = True` it also accepts `rows` (indices of the only cars that
+# changed since the last call, after a partial reset)
 OBSERVATIONS: dict[str, Callable] = {"features": FeaturesObservation}
 
 

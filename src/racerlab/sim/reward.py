@@ -94,6 +94,10 @@ class ParamsBuilder:
 
     def build(self, idx=None, status=None, actions=None) -> list[dict]:
         """Params for cars `idx` (all by default) from `sim.params`, with the commanded actions."""
+        return list(self.each(idx, status, actions))
+
+    def each(self, idx=None, status=None, actions=None):
+        """Yield the params dict of each car in `idx` in turn (streaming keeps memory warm for big batches)."""
         sim = self.sim
         idx = np.arange(sim.num_cars) if idx is None else np.asarray(idx)
         p = sim.params[idx]
@@ -111,9 +115,8 @@ class ParamsBuilder:
         wps = self._waypoints
         steer = np.asarray(steer, dtype=np.float64).tolist()
         speed = np.asarray(speed, dtype=np.float64).tolist()
-        out = []
         for j in range(len(x)):
-            out.append({
+            yield {
                 "all_wheels_on_track": wheels[j] == 4.0,
                 "x": x[j],
                 "y": y[j],
@@ -141,8 +144,7 @@ class ParamsBuilder:
                 "objects_heading": [],
                 "objects_speed": [],
                 "object_in_camera": False,
-            })
-        return out
+            }
 
 
 class RewardCaller:
@@ -154,10 +156,14 @@ class RewardCaller:
         self.source = Path(src) if src else None
         self.name = str(self.source) if self.source else getattr(fn, "__qualname__", repr(fn))
 
-    def __call__(self, params_list: list[dict], cars=None) -> np.ndarray:
+    def __call__(self, params_list, cars=None, keep: list | None = None) -> np.ndarray:
+        """Rewards for an iterable of params dicts (`cars` names them in errors); dicts are appended
+        to `keep` when given."""
         fn = self.fn
-        out = np.empty(len(params_list))
+        out = []
         for j, params in enumerate(params_list):
+            if keep is not None:
+                keep.append(params)
             try:
                 r = fn(params)
             except Exception as exc:  # noqa: BLE001 - report the user's error with its params
@@ -170,8 +176,8 @@ class RewardCaller:
                 r = self._coerce(r, params, j if cars is None else int(cars[j]))
             elif not (-MAX_ABS_REWARD <= r <= MAX_ABS_REWARD):
                 self._bad(f"returned {r!r}, which is not finite or beyond ±1e5", params, j)
-            out[j] = r
-        return out
+            out.append(r)
+        return np.array(out, dtype=np.float64)
 
     def _coerce(self, r, params, car) -> float:
         if isinstance(r, bool) or not isinstance(r, numbers.Real):
