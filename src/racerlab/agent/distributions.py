@@ -57,7 +57,8 @@ def epsilon_schedule(step: int, final: float, steps: int, initial: float = 1.0) 
     return float(initial + (final - initial) * frac)
 
 
-def epsilon_greedy(dist: Categorical, epsilon: float, generator: torch.Generator | None = None) -> torch.Tensor:
+def epsilon_greedy(dist: Categorical, epsilon: float,
+                   generator: torch.Generator | None = None) -> torch.Tensor:
     """[B] actions: uniform with probability ε, else the most probable action."""
     probs = dist.probs
     b, n = probs.shape
@@ -84,7 +85,8 @@ class DiagGaussian:
         return (0.5 + _HALF_LOG_2PI + self.log_std).sum(-1)  # [B]
 
     def sample(self, generator: torch.Generator | None = None) -> torch.Tensor:
-        noise = torch.randn(self.mean.shape, generator=generator, device=self.mean.device, dtype=self.mean.dtype)
+        m = self.mean
+        noise = torch.randn(m.shape, generator=generator, device=m.device, dtype=m.dtype)
         return self.mean + self.std * noise  # unclipped: the ratio needs the action actually drawn
 
     def mode(self) -> torch.Tensor:

@@ -1,0 +1,54 @@
+"""The learning core: action distributions, the AWS network topologies, clipped PPO and SAC.
+
+It knows nothing about tracks or files: observations come in as numpy arrays (batch axis first), actions
+go out as numpy arrays, and `state_dict()` / `load_state_dict()` are plain dicts for `racerlab.train`
+to save.
+
+    >>> from racerlab.agent import PPO, make_batch
+    >>> ppo = PPO({"features": (12,)}, metadata, hyperparameters, device="auto", seed=0)
+    >>> actions, log_probs, values = ppo.act(obs)            # obs: (B, 12) float32
+    >>> ...                                                   # collect [T, B] or flat whole episodes
+    >>> metrics = ppo.update(make_batch(obs, actions, log_probs, values, rewards, next_values,
+    ...                                 terminated, truncated, gamma=hyperparameters.discount_factor))
+"""
+
+from racerlab.agent.common import resolve_device
+from racerlab.agent.distributions import (
+    Categorical,
+    DiagGaussian,
+    TanhGaussian,
+    epsilon_greedy,
+    epsilon_schedule,
+)
+from racerlab.agent.networks import (
+    build_networks,
+    build_ppo_networks,
+    build_sac_networks,
+    count_parameters,
+    observation_shapes,
+    parameter_summary,
+)
+from racerlab.agent.ppo import (
+    PPO,
+    PPOBatch,
+    compute_gae,
+    episode_next_values,
+    make_batch,
+    minibatch_size,
+    ppo_losses,
+)
+from racerlab.agent.sac import SAC, ReplayBuffer
+
+
+def make_agent(obs, metadata, hyperparameters=None, **kwargs) -> PPO | SAC:
+    """PPO or SAC per `metadata.training_algorithm`; keyword arguments go to the constructor."""
+    cls = SAC if metadata.training_algorithm == "sac" else PPO
+    return cls(obs, metadata, hyperparameters, **kwargs)
+
+
+__all__ = [
+    "PPO", "PPOBatch", "SAC", "Categorical", "DiagGaussian", "ReplayBuffer", "TanhGaussian", "build_networks",
+    "build_ppo_networks", "build_sac_networks", "compute_gae", "count_parameters", "episode_next_values",
+    "epsilon_greedy", "epsilon_schedule", "make_agent", "make_batch", "minibatch_size", "observation_shapes",
+    "parameter_summary", "ppo_losses", "resolve_device",
+]

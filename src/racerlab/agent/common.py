@@ -1,0 +1,58 @@
+"""Small helpers PPO and SAC share: device choice, seeded construction, numpy observations to tensors."""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Mapping
+
+import numpy as np
+import torch
+
+# An observation batch as the simulator gives it: one array with the batch axis first, or a dict of them
+# for combined sensors ({"camera": (B,120,160,1) uint8, "lidar": (B,64) float32}).
+Obs = np.ndarray | Mapping[str, np.ndarray]
+
+
+def resolve_device(device: str | torch.device = "auto") -> torch.device:
+    """"auto" is CUDA when PyTorch sees a GPU, else CPU; anything else is passed to `torch.device`."""
+    if isinstance(device, str) and device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+@contextlib.contextmanager
+def seeded(seed: int) -> Iterator[None]:
+    """Seed PyTorch's CPU generator for a block (network initialisation) and restore it afterwards."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        yield
+
+
+def make_generator(seed: int, device: torch.device) -> torch.Generator:
+    return torch.Generator(device=device).manual_seed(seed)
+
+
+def to_tensors(obs: Obs, keys: tuple[str, ...], device: torch.device) -> dict[str, torch.Tensor]:
+    """numpy observations -> {input name: tensor on device}, dtypes kept (uint8 images stay uint8)."""
+    if isinstance(obs, Mapping):
+        missing = [k for k in keys if k not in obs]
+        if missing:
+            raise KeyError(f"observation lacks input(s) {missing}; the network takes {list(keys)}")
+        return {k: torch.as_tensor(obs[k], device=device) for k in keys}
+    if len(keys) != 1:
+        raise TypeError(f"the network takes a dict of inputs {list(keys)}, got one array")
+    return {keys[0]: torch.as_tensor(obs, device=device)}
+
+
+def batch_size_of(obs: Mapping[str, torch.Tensor]) -> int:
+    return next(iter(obs.values())).shape[0]
+
+
+def generator_state(gen: torch.Generator) -> dict:
+    return {"device": gen.device.type, "state": gen.get_state()}
+
+
+def restore_generator(gen: torch.Generator, saved: dict | None) -> None:
+    """Restore a generator saved on the same kind of device; a CPU/GPU switch keeps the fresh one."""
+    if saved is not None and saved.get("device") == gen.device.type:
+        gen.set_state(saved["state"].cpu())
