@@ -1,0 +1,356 @@
+"""Clipped PPO as AWS DeepRacer configures it (facts §6), in one file, top to bottom.
+
+What AWS does, and so what this does:
+- separate policy and value networks (`networks.py`); Adam with lr, eps 1e-5, betas (0.9, 0.999);
+  no gradient clipping, no value clipping, no L2;
+- GAE with λ = 0.95 and γ = discount_factor, value targets = advantage + V(s), computed once per
+  iteration with the networks that collected the data; advantages standardised over the whole iteration;
+- loss = clipped surrogate (ε = 0.2) + value loss (Huber δ=1 or MSE per loss_type, weight 1)
+  − beta_entropy · entropy;
+- num_epochs passes; each shuffles and runs int(N / batch_size) minibatches, the remainder dropped; when
+  the iteration has fewer than batch_size steps, the minibatch is the largest power of 2 ≤ N;
+- strictly on-policy: the caller throws the batch away after `update`.
+
+Where racerlab differs from AWS, on purpose: AWS bootstraps 0 at every episode end. We keep
+*termination* (crash, off-track, lap complete, ...: bootstrap 0, exactly AWS's rule) apart from
+*truncation* (a step limit, or an episode cut by the end of a rollout: bootstrap with V of the
+observation after the last step) — a timeout is not a wall.
+
+How the training loop feeds it (the batch representation):
+1. `actions, log_probs, values = ppo.act(obs)` for each step of B cars (numpy in, numpy out).
+2. Keep whole episodes. Either as [T, B] arrays (time-major, one column per car) or as *flat* [N]
+   arrays: completed episodes concatenated one after another, each in time order. In both, a step where
+   the episode ended has `terminated` or `truncated` True; `next_values[t]` is V(obs after step t):
+   values[t + 1] inside an episode, `ppo.value(final_obs)` at a truncation, anything (ignored) at a
+   termination. `episode_next_values` builds it for the flat form.
+3. `batch = make_batch(obs, actions, log_probs, values, rewards, next_values, terminated, truncated, gamma)`
+   computes GAE and flattens [T, B] to [N].
+4. `metrics = ppo.update(batch)`.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from racerlab.agent.common import (
+    Obs,
+    batch_size_of,
+    generator_state,
+    make_generator,
+    resolve_device,
+    restore_generator,
+    seeded,
+    to_tensors,
+)
+from racerlab.agent.distributions import epsilon_greedy, epsilon_schedule
+from racerlab.agent.networks import MLP_HIDDEN, build_ppo_networks
+from racerlab.errors import ConfigError
+from racerlab.hyperparameters import Hyperparameters
+
+CLIP_EPSILON = 0.2
+GAE_LAMBDA = 0.95
+ADAM_EPS = 1e-5
+VALUE_LOSS_WEIGHT = 1.0
+STATE_FORMAT = "racerlab.ppo/1"
+
+
+# ---------------------------------------------------------------------------------------------------
+# Generalised advantage estimation
+# ---------------------------------------------------------------------------------------------------
+
+
+def compute_gae(rewards, values, next_values, terminated, truncated, gamma: float,
+                lam: float = GAE_LAMBDA) -> tuple[np.ndarray, np.ndarray]:
+    """Advantages and value targets, arrays [T, B] (or flat [N], see the module docstring).
+
+    δ_t = r_t + γ·(0 if terminated_t else next_values_t) − values_t
+    A_t = δ_t + γλ·A_{t+1}, the recursion cut where the episode ended (terminated or truncated).
+    A step at the end of the arrays that did not end its episode bootstraps from next_values, like a
+    truncation. Returns (advantages, returns = advantages + values), float32, same shape as rewards.
+    """
+    rewards = np.asarray(rewards, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    next_values = np.asarray(next_values, dtype=np.float64)
+    terminated = np.asarray(terminated, dtype=bool)
+    ended = terminated | np.asarray(truncated, dtype=bool)
+    advantages = np.zeros_like(rewards)
+    last = np.zeros_like(rewards[0]) if rewards.ndim > 1 else 0.0
+    for t in reversed(range(rewards.shape[0])):
+        delta = rewards[t] + gamma * np.where(terminated[t], 0.0, next_values[t]) - values[t]
+        last = delta + gamma * lam * np.where(ended[t], 0.0, last)
+        advantages[t] = last
+    return advantages.astype(np.float32), (advantages + values).astype(np.float32)
+
+
+def episode_next_values(values, ended, end_values) -> np.ndarray:
+    """next_values [N] for flat concatenated episodes.
+
+    values [N]: V(s_t) from `act`; ended [N] bool: last step of each episode (terminated or truncated);
+    end_values [number of episodes]: V(final observation) of each episode in order (use 0 for
+    terminated episodes; it is ignored). The flat arrays must end with a completed episode.
+    """
+    values = np.asarray(values, dtype=np.float32)
+    ended = np.asarray(ended, dtype=bool)
+    if len(ended) and not ended[-1]:
+        raise ValueError("flat episodes must end with a completed episode (ended[-1] is False)")
+    next_values = np.empty_like(values)
+    next_values[:-1] = values[1:]
+    next_values[ended] = np.asarray(end_values, dtype=np.float32)
+    return next_values
+
+
+class PPOBatch(NamedTuple):
+    """One iteration's data, flat [N] (numpy). Made by `make_batch`; consumed by `PPO.update`."""
+
+    obs: Obs  # [N, ...] array or {input: [N, ...]}
+    actions: np.ndarray  # [N] int64 indices, or [N, 2] float32 unclipped continuous actions
+    log_probs: np.ndarray  # [N] log π_old(a|s) from act()
+    values: np.ndarray  # [N] V_old(s) from act()
+    advantages: np.ndarray  # [N] raw GAE advantages (update() standardises them)
+    returns: np.ndarray  # [N] value targets
+
+
+def _flatten(x: Obs, n: int):
+    if isinstance(x, Mapping):
+        return {k: _flatten(v, n) for k, v in x.items()}
+    x = np.asarray(x)
+    return x.reshape(n, *x.shape[2:])
+
+
+def make_batch(obs: Obs, actions, log_probs, values, rewards, next_values, terminated, truncated,
+               gamma: float, lam: float = GAE_LAMBDA) -> PPOBatch:
+    """GAE + flattening: inputs [T, B, ...] (time-major) or flat [N, ...] whole episodes."""
+    advantages, returns = compute_gae(rewards, values, next_values, terminated, truncated, gamma, lam)
+    if advantages.ndim == 2:
+        n = advantages.size
+        obs, actions, log_probs, values = (_flatten(x, n) for x in (obs, actions, log_probs, values))
+        advantages, returns = advantages.reshape(n), returns.reshape(n)
+    return PPOBatch(obs, np.asarray(actions), np.asarray(log_probs, dtype=np.float32),
+                    np.asarray(values, dtype=np.float32), advantages, returns)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Losses (pure)
+# ---------------------------------------------------------------------------------------------------
+
+
+class PPOLosses(NamedTuple):
+    loss: torch.Tensor  # what is minimised
+    pg_loss: torch.Tensor
+    v_loss: torch.Tensor
+    entropy: torch.Tensor
+    approx_kl: torch.Tensor  # E[(r − 1) − log r], Schulman's low-variance estimator of KL(old ‖ new)
+    clipfrac: torch.Tensor  # share of samples with |r − 1| > ε
+
+
+def value_loss(predicted: torch.Tensor, target: torch.Tensor, loss_type: str) -> torch.Tensor:
+    """Huber (δ = 1, TF's default) or mean squared error, averaged; AWS's `replace_mse_with_huber_loss`."""
+    if loss_type == "huber":
+        return F.huber_loss(predicted, target, delta=1.0)
+    return F.mse_loss(predicted, target)
+
+
+def ppo_losses(new_log_probs, old_log_probs, advantages, new_values, returns, entropy, *,
+               clip: float = CLIP_EPSILON, loss_type: str = "huber", beta_entropy: float = 0.01) -> PPOLosses:
+    """The clipped-PPO loss on a minibatch; every input is [M]."""
+    logratio = new_log_probs - old_log_probs
+    ratio = logratio.exp()
+    pg_loss1 = -advantages * ratio
+    pg_loss2 = -advantages * ratio.clamp(1.0 - clip, 1.0 + clip)
+    pg_loss = torch.max(pg_loss1, pg_loss2).mean()
+    v_loss = value_loss(new_values, returns, loss_type)
+    entropy = entropy.mean()
+    loss = pg_loss + VALUE_LOSS_WEIGHT * v_loss - beta_entropy * entropy
+    with torch.no_grad():
+        approx_kl = ((ratio - 1.0) - logratio).mean()
+        clipfrac = ((ratio - 1.0).abs() > clip).float().mean()
+    return PPOLosses(loss, pg_loss, v_loss, entropy, approx_kl, clipfrac)
+
+
+def minibatch_size(n: int, batch_size: int) -> int:
+    """batch_size, or the largest power of 2 ≤ n when the iteration is smaller (AWS training_worker)."""
+    if n >= batch_size:
+        return batch_size
+    return 1 << (n.bit_length() - 1) if n > 0 else 0
+
+
+def explained_variance(predicted: np.ndarray, target: np.ndarray) -> float:
+    """1 − Var(target − predicted) / Var(target); 0.0 when the targets do not vary."""
+    var = float(np.var(target))
+    return 0.0 if var == 0.0 else float(1.0 - np.var(target - predicted) / var)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The agent
+# ---------------------------------------------------------------------------------------------------
+
+
+class PPO:
+    """Clipped PPO for a model's metadata (action space, network) and hyperparameters.
+
+    `obs` is the observation space or shapes (see `networks.observation_shapes`). `device` "auto" is
+    CUDA when present, else CPU. `seed` fixes the initial weights, sampling and shuffling.
+    """
+
+    def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
+                 device: str | torch.device = "auto", seed: int = 0, mlp_hidden=MLP_HIDDEN):
+        self.metadata = metadata
+        self.hp = hyperparameters or Hyperparameters()
+        self.discrete = metadata.action_space_type == "discrete"
+        if self.discrete and self.hp.exploration_type not in ("categorical", "e-greedy"):
+            raise ConfigError(f"{self.hp.source}: exploration_type must be \"categorical\" or \"e-greedy\" "
+                              f"for discrete actions, got {self.hp.exploration_type!r}")
+        self.device = resolve_device(device)
+        with seeded(seed):
+            policy, value = build_ppo_networks(obs, metadata, mlp_hidden)
+        self.policy_net, self.value_net = policy.to(self.device), value.to(self.device)
+        self.keys = self.policy_net.body.keys
+        params = [*self.policy_net.parameters(), *self.value_net.parameters()]
+        self.optimizer = torch.optim.Adam(params, lr=self.hp.lr, betas=(0.9, 0.999), eps=ADAM_EPS)
+        self.generator = make_generator(seed, self.device)
+        self.env_steps = 0  # car-steps acted while exploring: the ε-greedy schedule's clock
+
+    # -- settings -------------------------------------------------------------------------------------
+
+    @property
+    def lr(self) -> float:
+        return self.optimizer.param_groups[0]["lr"]
+
+    @lr.setter
+    def lr(self, value: float) -> None:
+        for group in self.optimizer.param_groups:
+            group["lr"] = float(value)
+
+    @property
+    def epsilon(self) -> float:
+        """Current ε of the e-greedy schedule (0 with categorical exploration)."""
+        if self.hp.exploration_type != "e-greedy":
+            return 0.0
+        return epsilon_schedule(self.env_steps, self.hp.e_greedy_value, self.hp.epsilon_steps)
+
+    # -- acting ---------------------------------------------------------------------------------------
+
+    @torch.inference_mode()
+    def act(self, obs: Obs, greedy: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(actions [B], log_probs [B], values [B]) for a batch of observations.
+
+        Training (greedy=False) samples: softmax or ε-greedy for discrete actions, N(mean, std) for
+        continuous ones (unclipped). Evaluation (greedy=True) takes the argmax or the mean, as AWS.
+        log_probs are the policy's own, even for an ε-greedy action: AWS's ratio uses the policy.
+        """
+        x = to_tensors(obs, self.keys, self.device)
+        dist = self.policy_net.distribution(x)
+        if greedy:
+            actions = dist.mode()
+        elif self.discrete and self.hp.exploration_type == "e-greedy":
+            actions = epsilon_greedy(dist, self.epsilon, self.generator)
+        else:
+            actions = dist.sample(self.generator)
+        log_probs = dist.log_prob(actions)
+        values = self.value_net(x)
+        if not greedy:
+            self.env_steps += batch_size_of(x)
+        return actions.cpu().numpy(), log_probs.cpu().numpy(), values.cpu().numpy()
+
+    @torch.inference_mode()
+    def value(self, obs: Obs) -> np.ndarray:
+        """V(s) [B], e.g. of the final observation of a truncated episode."""
+        return self.value_net(to_tensors(obs, self.keys, self.device)).cpu().numpy()
+
+    # -- learning -------------------------------------------------------------------------------------
+
+    def update(self, batch: PPOBatch) -> dict[str, float]:
+        """num_epochs passes of minibatch Adam over one iteration's batch; returns mean metrics.
+
+        If a loss turns non-finite, the update stops before applying that step and the metrics carry
+        `nonfinite = 1.0`; the caller's NaN guard decides what to do (roll back, lower the lr).
+        """
+        n = len(batch.advantages)
+        if n == 0:
+            raise ValueError("PPO.update got an empty batch")
+        dev = self.device
+        obs = to_tensors(batch.obs, self.keys, dev)
+        actions = torch.as_tensor(batch.actions, device=dev)
+        old_log_probs = torch.as_tensor(batch.log_probs, dtype=torch.float32, device=dev)
+        returns = torch.as_tensor(batch.returns, dtype=torch.float32, device=dev)
+        advantages = torch.as_tensor(batch.advantages, dtype=torch.float32, device=dev)
+        # AWS standardises over the whole iteration, once, before the epochs (population std, as numpy).
+        advantages = (advantages - advantages.mean()) / (advantages.std(unbiased=False) + 1e-8)
+
+        mb = minibatch_size(n, self.hp.batch_size)
+        history: list[torch.Tensor] = []
+        nonfinite = False
+        for _epoch in range(self.hp.num_epochs):
+            perm = torch.randperm(n, generator=self.generator, device=dev)
+            for start in range(0, (n // mb) * mb, mb):
+                idx = perm[start:start + mb]
+                losses = self._minibatch_losses(obs, idx, actions, old_log_probs, advantages, returns)
+                if not torch.isfinite(losses.loss):
+                    nonfinite = True
+                    break
+                self.optimizer.zero_grad(set_to_none=True)
+                losses.loss.backward()
+                self.optimizer.step()
+                history.append(torch.stack([x.detach() for x in losses[1:]]))
+            if nonfinite:
+                break
+        return self._metrics(history, batch, mb, nonfinite)
+
+    def _minibatch_losses(self, obs, idx, actions, old_log_probs, advantages, returns) -> PPOLosses:
+        mb_obs = {k: v[idx] for k, v in obs.items()}
+        dist = self.policy_net.distribution(mb_obs)
+        new_log_probs = dist.log_prob(actions[idx])
+        new_values = self.value_net(mb_obs)
+        return ppo_losses(new_log_probs, old_log_probs[idx], advantages[idx], new_values, returns[idx],
+                          dist.entropy(), clip=CLIP_EPSILON, loss_type=self.hp.loss_type,
+                          beta_entropy=self.hp.beta_entropy)
+
+    def _metrics(self, history, batch: PPOBatch, mb: int, nonfinite: bool) -> dict[str, float]:
+        means = torch.stack(history).mean(0).tolist() if history else [float("nan")] * 5
+        pg_loss, v_loss, entropy, approx_kl, clipfrac = means
+        return {
+            "losses/policy": pg_loss,
+            "losses/value": v_loss,
+            "losses/entropy": entropy,
+            "losses/approx_kl": approx_kl,
+            "losses/clipfrac": clipfrac,
+            "losses/explained_variance": explained_variance(batch.values, batch.returns),
+            "charts/learning_rate": self.lr,
+            "charts/minibatch_size": float(mb),
+            "charts/gradient_steps": float(len(history)),
+            "nonfinite": float(nonfinite),
+        }
+
+    # -- checkpoints ----------------------------------------------------------------------------------
+
+    def finite(self) -> bool:
+        """True when every weight of both networks is finite."""
+        params = [*self.policy_net.parameters(), *self.value_net.parameters()]
+        return bool(torch.stack([torch.isfinite(p).all() for p in params]).all())
+
+    def state_dict(self) -> dict:
+        """Everything to resume exactly: weights, optimizer, lr, ε clock and the random generator.
+
+        A snapshot (deep copy): training on does not change it, so it can serve as the NaN guard's
+        last good state in memory. (PyTorch's own state dicts share storage with the live tensors.)
+        """
+        return copy.deepcopy({"format": STATE_FORMAT, "policy": self.policy_net.state_dict(),
+                "value": self.value_net.state_dict(), "optimizer": self.optimizer.state_dict(),
+                "lr": self.lr, "env_steps": self.env_steps, "generator": generator_state(self.generator)})
+
+    def load_state_dict(self, state: dict) -> None:
+        if state.get("format") != STATE_FORMAT:
+            raise ValueError(f"not a PPO state (format {state.get('format')!r}, expected {STATE_FORMAT!r})")
+        self.policy_net.load_state_dict(state["policy"])
+        self.value_net.load_state_dict(state["value"])
+        # Optimizer.load_state_dict keeps the given tensors; copy them so the caller's dict stays apart.
+        self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
+        self.lr = state["lr"]
+        self.env_steps = int(state["env_steps"])
+        restore_generator(self.generator, state.get("generator"))
