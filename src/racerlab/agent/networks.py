@@ -212,8 +212,8 @@ def observation_shapes(obs, metadata=None) -> dict[str, tuple[int, ...]]:
     """Input name -> shape (without the batch axis) from a gymnasium space, a dict or a single shape.
 
     Accepts a `gymnasium.spaces.Dict`, a mapping of name -> shape or Box, or one Box or shape. A single
-    unnamed input is named by its shape: (H, W, 1) camera, (H, W, 2) stereo, and a vector is `lidar` /
-    `sector_lidar` when the metadata's sensor says so, else `features`.
+    unnamed input is named by its shape: (H, W, 1) camera, (H, W, 2) stereo, and a vector after the
+    metadata's lidar sensor (`lidar`, `sector_lidar`, `discretized_sector_lidar`), else `features`.
     """
     spaces = getattr(obs, "spaces", None)
     if isinstance(spaces, Mapping):
@@ -227,10 +227,9 @@ def observation_shapes(obs, metadata=None) -> dict[str, tuple[int, ...]]:
 def _name_for(shape: tuple[int, ...], metadata) -> str:
     if len(shape) == 3:
         return "stereo" if shape[-1] == 2 else "camera"
+    # Only the name differs: every vector gets the same embedder under a given network.
     lidar = getattr(metadata, "lidar", None)
-    if lidar == "SECTOR_LIDAR":
-        return "sector_lidar"
-    return "lidar" if lidar == "LIDAR" and getattr(metadata, "camera", None) is None else "features"
+    return lidar.lower() if lidar else "features"
 
 
 def _network_name(shapes: Mapping[str, tuple[int, ...]], metadata) -> str:

@@ -276,7 +276,8 @@ class PPO:
             raise ValueError("PPO.update got an empty batch")
         dev = self.device
         obs = to_tensors(batch.obs, self.keys, dev)
-        actions = torch.as_tensor(batch.actions, device=dev)
+        action_dtype = torch.int64 if self.discrete else torch.float32
+        actions = torch.as_tensor(batch.actions, dtype=action_dtype, device=dev)
         old_log_probs = torch.as_tensor(batch.log_probs, dtype=torch.float32, device=dev)
         returns = torch.as_tensor(batch.returns, dtype=torch.float32, device=dev)
         advantages = torch.as_tensor(batch.advantages, dtype=torch.float32, device=dev)
