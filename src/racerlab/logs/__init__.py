@@ -1,0 +1,71 @@
+"""Writing and reading the DeepRacer log formats, in a model folder that deepracer-utils reads as is.
+
+Model-folder layout (the DRfC single-worker layout; `deepracer.logs.DeepRacerLog(model_dir).load()`
+detects it as `DRFC_MODEL_SINGLE_WORKERS` because `training-simtrace/` sits at the top)::
+
+    <model>/
+      training-simtrace/<n>-iteration.csv     one per training iteration (19 AWS columns, header row)
+      metrics/TrainingMetrics.json            AWS schema, one entry per episode (deepracer-utils TrainingMetrics)
+      metrics/metrics.jsonl                   racerlab's own metrics, one JSON object per iteration
+      evaluation-<YYYYmmddHHMMSS>/            one per evaluation run (deepracer-utils: stream = the 14 digits)
+        evaluation-simtrace/0-iteration.csv
+        EvalMetrics.json                      AWS evaluation schema
+      model/model_metadata.json               copies made by `export_drfc_metadata`, so that deepracer-utils'
+      ip/hyperparameters.json                 action_space() and hyperparameters() work (optional for load())
+
+deepracer-utils 1.5.6 reads plain `.csv` only. Bounded logging that stays compatible: `SimtraceWriter(...,
+sample_episodes=k)` (every k-th episode, still plain CSV; deepracer-utils loads it, though its
+`unique_episode` numbering assumes no gaps) or logging only some iterations (always iteration 0, which
+deepracer-utils uses to count episodes per iteration). `compress=True` writes `.csv.gz`: about 4x smaller,
+read by `racerlab.analysis.load` but invisible to deepracer-utils.
+
+Writers:
+- `SimtraceWriter(path, compress=False, *, sample_episodes=1)`: `.write(columns)` appends a batch (the 19
+  `SIMTRACE_COLUMNS` as equal-length arrays, vectorised formatting), `.close()` publishes atomically.
+- `TrainingMetrics(path, best_model_metric="progress")`, `EvalMetrics(path)`: `.add(entries)`, `.save()`.
+- `MetricsLog(path, fsync=False)`: `.append(entry)` one JSON line, flushed.
+- `atomic_write_text`, `atomic_write_bytes`, `atomic_write_json`: temp name + rename.
+"""
+
+from racerlab.logs.atomic import (
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_write_text,
+    remove_stale_temps,
+)
+from racerlab.logs.layout import (
+    disk_bytes,
+    eval_metrics_path,
+    eval_simtrace_path,
+    evaluation_dir,
+    evaluation_dirs,
+    export_drfc_metadata,
+    metrics_jsonl_path,
+    new_evaluation_dir,
+    remove_training_simtrace_after,
+    simtrace_files,
+    training_metrics_path,
+    training_simtrace_dir,
+    training_simtrace_path,
+)
+from racerlab.logs.metrics import (
+    EPISODE_STATUS_LABELS,
+    EVAL_METRICS_KEYS,
+    TRAINING_METRICS_KEYS,
+    EvalMetrics,
+    LogFileError,
+    MetricsLog,
+    TrainingMetrics,
+    read_metrics_jsonl,
+)
+from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
+
+__all__ = [
+    "EPISODE_STATUS_LABELS", "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
+    "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceWriter", "TrainingMetrics",
+    "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_metrics_path",
+    "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
+    "format_rows", "metrics_jsonl_path", "new_evaluation_dir", "read_metrics_jsonl", "remove_stale_temps",
+    "remove_training_simtrace_after", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
+    "training_simtrace_path", "write_simtrace",
+]

@@ -1,0 +1,85 @@
+"""Atomic file writes: write to a hidden temporary name in the same folder, then rename.
+
+A reader (or a training resumed after a crash) sees either the old file or the whole new one, never
+half a file. Temporary names start with a dot and end with `.tmp-<pid>-<random>`, so the glob
+patterns of the DeepRacer tools (`*-iteration.csv`, `TrainingMetrics*.json`) never match them;
+`remove_stale_temps` deletes the ones a killed process left behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+from pathlib import Path
+
+TEMP_MARK = ".tmp-"
+
+
+def temp_path_for(path: str | os.PathLike) -> Path:
+    """A fresh hidden temporary name next to `path` (same folder, so the rename is atomic)."""
+    path = Path(path)
+    return path.with_name(f".{path.name}{TEMP_MARK}{os.getpid()}-{secrets.token_hex(4)}")
+
+
+def fsync_dir(folder: str | os.PathLike) -> None:
+    """Make a rename in `folder` durable (a no-op where directories cannot be opened, e.g. Windows)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def commit_temp(tmp: str | os.PathLike, path: str | os.PathLike, fsync: bool = True) -> Path:
+    """Rename the finished temporary file `tmp` onto `path` (replacing it) and return `path`."""
+    path = Path(path)
+    os.replace(tmp, path)
+    if fsync:
+        fsync_dir(path.parent)
+    return path
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, fsync: bool = True) -> Path:
+    """Write `data` to `path` atomically (parent folders are created); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_path_for(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            if fsync:
+                f.flush()
+                os.fsync(f.fileno())
+        return commit_temp(tmp, path, fsync)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, fsync: bool = True) -> Path:
+    """Write `text` (UTF-8) to `path` atomically; returns the path."""
+    return atomic_write_bytes(path, text.encode("utf-8"), fsync)
+
+
+def atomic_write_json(path: str | os.PathLike, obj, indent: int | None = None, fsync: bool = True) -> Path:
+    """Write `obj` as JSON to `path` atomically (NaN and inf are refused: they are not JSON)."""
+    return atomic_write_text(path, json.dumps(obj, indent=indent, allow_nan=False) + "\n", fsync)
+
+
+def remove_stale_temps(folder: str | os.PathLike) -> list[Path]:
+    """Delete temporary files left in `folder` by killed writers; returns what was removed."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    for p in folder.iterdir():
+        if p.name.startswith(".") and TEMP_MARK in p.name and p.is_file():
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed

@@ -1,0 +1,201 @@
+"""Per-episode metrics JSON in the AWS schemas, and racerlab's own per-iteration `metrics.jsonl`.
+
+- `TrainingMetrics`: `{"metrics": [...], "version": 2.0, "best_model_metric": ...}`, one entry per
+  episode with the keys of `TRAINING_METRICS_KEYS` (facts §7, `TrainingMetrics` in simapp `s3_metrics.py`).
+- `EvalMetrics`: `{"metrics": [...]}` with the keys of `EVAL_METRICS_KEYS` (facts §7, `EvalMetrics`).
+- `MetricsLog`: one JSON object per line, appended and flushed; a torn last line (a crash mid-write) is
+  ignored when reading.
+
+The JSON documents are rewritten atomically by `save()`; an existing file is loaded on construction so
+a resumed training continues the same document.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from racerlab.errors import RacerlabError
+from racerlab.logs.atomic import atomic_write_json, atomic_write_text
+
+TRAINING_METRICS_KEYS = ("reward_score", "metric_time", "start_time", "elapsed_time_in_milliseconds",
+                         "episode", "trial", "phase", "completion_percentage", "episode_status")
+EVAL_METRICS_KEYS = ("completion_percentage", "metric_time", "start_time", "elapsed_time_in_milliseconds",
+                     "episode_status", "crash_count", "immobilized_count", "off_track_count",
+                     "reversed_count", "reset_count", "trial")
+BEST_MODEL_METRICS = ("progress", "reward", "laptime")
+# AWS episode_status labels in the metrics JSON (simapp `EpisodeStatus` labels), keyed by the simtrace value.
+EPISODE_STATUS_LABELS = {"prepare": "Prepare", "in_progress": "In progress", "off_track": "Off track",
+                         "crashed": "Crashed", "immobilized": "Immobilized", "reversed": "Reversed",
+                         "lap_complete": "Lap complete", "pause": "Pause", "park": "Park", "time_up": "Time Up"}
+
+
+class LogFileError(RacerlabError, ValueError):
+    """A log or metrics file that cannot be read (the message names the file and, where known, the line)."""
+
+
+def _load_document(path: Path) -> dict | None:
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise LogFileError(f"{path}: not valid JSON ({e}); delete or repair it to continue") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), list):
+        raise LogFileError(f"{path}: expected an object with a 'metrics' list")
+    return doc
+
+
+def _check_entry(entry: dict, keys: tuple[str, ...], what: str) -> dict:
+    missing = [k for k in keys if k not in entry]
+    extra = [k for k in entry if k not in keys]
+    if missing or extra:
+        raise ValueError(f"{what} entry: missing keys {missing}, unknown keys {extra}")
+    return {k: entry[k] for k in keys}
+
+
+class _MetricsDocument:
+    keys: tuple[str, ...] = ()
+    what = ""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        doc = _load_document(self.path)
+        self.metrics: list[dict] = list(doc["metrics"]) if doc else []
+        self._doc_extra = {k: v for k, v in (doc or {}).items() if k != "metrics"}
+
+    def add(self, entries: list[dict]) -> None:
+        """Append entries (each must have exactly the schema's keys; order is normalised)."""
+        self.metrics.extend(_check_entry(e, self.keys, self.what) for e in entries)
+
+    def document(self) -> dict:
+        return {"metrics": self.metrics}
+
+    def save(self) -> Path:
+        """Write the whole document atomically."""
+        return atomic_write_json(self.path, self.document())
+
+    def __len__(self) -> int:
+        return len(self.metrics)
+
+
+class TrainingMetrics(_MetricsDocument):
+    """`TrainingMetrics.json`: `add(entries)` per finished episode (training and in-training evaluation
+    phases), `save()` atomically. An existing file is loaded so that a resumed training appends to it.
+
+    Entry keys (AWS): reward_score (int, rounded sum of rewards), metric_time and start_time (ms of sim
+    time), elapsed_time_in_milliseconds, episode (1-based count of training episodes), trial (1-based index
+    in the iteration), phase ("training" | "evaluation"), completion_percentage (int), episode_status (a
+    label of `EPISODE_STATUS_LABELS`, e.g. "Lap complete").
+    """
+
+    keys = TRAINING_METRICS_KEYS
+    what = "TrainingMetrics"
+
+    def __init__(self, path: str | os.PathLike, best_model_metric: str = "progress"):
+        if best_model_metric not in BEST_MODEL_METRICS:
+            raise ValueError(f"best_model_metric must be one of {BEST_MODEL_METRICS}, got {best_model_metric!r}")
+        super().__init__(path)
+        self.best_model_metric = best_model_metric
+
+    def document(self) -> dict:
+        return {"metrics": self.metrics, "version": 2.0, "best_model_metric": self.best_model_metric}
+
+    def truncate(self, last_episode: int) -> None:
+        """Drop entries of episodes after `last_episode` (resuming from an older checkpoint)."""
+        self.metrics = [m for m in self.metrics if m["episode"] <= last_episode]
+
+
+class EvalMetrics(_MetricsDocument):
+    """`EvalMetrics.json` of one evaluation run: `{"metrics": [...]}`, one entry per trial (lap).
+
+    Entry keys (AWS): completion_percentage, metric_time, start_time, elapsed_time_in_milliseconds,
+    episode_status, crash_count, immobilized_count, off_track_count, reversed_count, reset_count (their
+    sum) and trial (1-based).
+    """
+
+    keys = EVAL_METRICS_KEYS
+    what = "EvalMetrics"
+
+
+class MetricsLog:
+    """racerlab's `metrics.jsonl`: `append(entry)` writes one JSON line and flushes it (and fsyncs when
+    `fsync`). Non-finite floats are written as null so every line stays valid JSON."""
+
+    def __init__(self, path: str | os.PathLike, fsync: bool = False):
+        self.path = Path(path)
+        self.fsync = fsync
+        self._file = None
+
+    def append(self, entry: dict) -> None:
+        line = json.dumps(_finite(entry), allow_nan=False) + "\n"
+        if self._file is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._repair_torn_tail()
+            self._file = open(self.path, "a", encoding="utf-8")
+        self._file.write(line)
+        self._file.flush()
+        if self.fsync:
+            os.fsync(self._file.fileno())
+
+    def read(self) -> list[dict]:
+        """All complete entries (a torn last line is skipped; a bad line elsewhere is an error)."""
+        return read_metrics_jsonl(self.path)
+
+    def truncate(self, last_iteration: int, key: str = "iteration") -> None:
+        """Keep only entries with `entry[key] <= last_iteration` (atomic rewrite)."""
+        self.close()
+        kept = [e for e in self.read() if e.get(key, -math.inf) <= last_iteration]
+        atomic_write_text(self.path, "".join(json.dumps(e, allow_nan=False) + "\n" for e in kept))
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def _repair_torn_tail(self) -> None:
+        if self.path.is_file() and self.path.stat().st_size:
+            with open(self.path, "rb") as f:
+                f.seek(-1, os.SEEK_END)
+                ends_clean = f.read(1) == b"\n"
+            if not ends_clean:
+                self.truncate(math.inf)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def read_metrics_jsonl(path: str | os.PathLike) -> list[dict]:
+    """Entries of a `metrics.jsonl` ([] when missing); a torn final line is ignored."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    lines = path.read_text(encoding="utf-8").split("\n")
+    out = []
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            if i == len(lines):  # the last line has no newline: a write that was cut off
+                break
+            raise LogFileError(f"{path}:{i}: not valid JSON ({e.msg})") from None
+    return out
+
+
+def _finite(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if hasattr(obj, "item") and hasattr(obj, "dtype"):  # numpy scalar
+        return _finite(obj.item())
+    return obj
