@@ -266,3 +266,23 @@ def place_many(idx, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road
     for j in range(idx.shape[0]):
         place(idx[j], px[j], py[j], yaw[j], start_ndist[j], car, ctr, meas, trk_f, trk_r, road, wheel_off, closed,
               length, ccw_f)
+
+
+@njit(cache=True)
+def relocate(i, px, py, yaw, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
+    """Move car i within its episode (an evaluation reset after an incident): stopped, counters cleared,
+    progress continuing from where it was."""
+    car[i, CX] = px
+    car[i, CY] = py
+    car[i, CYAW] = yaw
+    car[i, CV] = 0.0
+    car[i, CSTEER] = 0.0
+    car[i, CBETA] = 0.0
+    car[i, CBPX] = px
+    car[i, CBPY] = py
+    ctr[i, KIMMOB] = 0
+    ctr[i, KREVCNT] = 0
+    ctr[i, KSTATUS] = IN_PROGRESS
+    meas[i, MSEG] = -1.0
+    measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
+    meas[i, MPROG_PREV] = meas[i, MPROG]

@@ -136,6 +136,11 @@ class Simulator:
         self.car[i, K.CV] = speed
         self.episode_start_time[i] = self.time
 
+    def relocate(self, i: int, x: float, y: float, yaw_rad: float) -> None:
+        """Move car i to a base pose inside its current episode (steps, start and progress continue),
+        stopped; used by evaluation to put a car back on the track after an off-track."""
+        K.relocate(i, x, y, yaw_rad, self.car, self.ctr, self.meas, *self._geom)
+
     # ---- stepping -----------------------------------------------------------------------------
     def step(self, steering_deg, speed, active=None) -> np.ndarray:
         """Advance every active car one step with commanded steering (°) and speed (m/s).

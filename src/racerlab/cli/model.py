@@ -1,0 +1,71 @@
+"""`racerlab init | train | clone`: model folders and training."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("init", help="create a model folder with AWS-default files",
+                       description="Write reward_function.py, model_metadata.json, hyperparameters.json and "
+                                   "training.toml into a new model folder.")
+    p.add_argument("model", type=Path)
+    p.add_argument("--track", help="training track (default: the bundled default track)")
+    p.add_argument("--sensor", choices=["features", "camera", "stereo", "lidar"], default="features")
+    p.add_argument("--action-space", choices=["discrete", "continuous"], default="discrete")
+    p.add_argument("--algorithm", choices=["clipped_ppo", "sac"], default="clipped_ppo")
+    p.add_argument("--max-speed", type=float, default=1.0, help="top action speed in m/s (console default 1)")
+    p.add_argument("--cars", type=int, help="cars simulated in parallel")
+    p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
+    p.set_defaults(func=run_init)
+
+    p = sub.add_parser("train", help="train a model folder (resumes when it has checkpoints)")
+    p.add_argument("model", type=Path)
+    p.add_argument("--minutes", type=float, help="stop after this many minutes")
+    p.add_argument("--episodes", type=int, help="stop after this many training episodes")
+    p.add_argument("--iterations", type=int, help="stop after this many iterations")
+    p.add_argument("--cars", type=int, help="cars simulated in parallel")
+    p.add_argument("--track", action="append", help="training track (repeat for several)")
+    p.add_argument("--device", help="auto, cpu, cuda or cuda:N")
+    p.add_argument("--seed", type=int)
+    p.set_defaults(func=run_train)
+
+    p = sub.add_parser("clone", help="start a new model from another model's checkpoint")
+    p.add_argument("src", type=Path)
+    p.add_argument("dst", type=Path)
+    p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
+    p.add_argument("--reward", type=Path, help="a new reward_function.py")
+    p.add_argument("--model-metadata", type=Path, help="a new model_metadata.json (same actions count and sensors)")
+    p.add_argument("--hyperparameters", type=Path, help="a new hyperparameters.json")
+    p.add_argument("--track", help="a new training track")
+    p.set_defaults(func=run_clone)
+
+
+def run_init(args) -> int:
+    from racerlab.train.init import init_model
+
+    folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
+                        algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars, force=args.force)
+    print(f"created {folder.path}: reward_function.py, model_metadata.json, hyperparameters.json, training.toml")
+    print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
+    return 0
+
+
+def run_train(args) -> int:
+    from racerlab.train import train
+
+    result = train(args.model, minutes=args.minutes, episodes=args.episodes, iterations=args.iterations,
+                   num_cars=args.cars, device=args.device, seed=args.seed, tracks=args.track)
+    print(f"model: {result.model_dir} (checkpoints in {result.model_dir / 'checkpoints'}, logs in "
+          f"{result.model_dir / 'logs'})")
+    return 0
+
+
+def run_clone(args) -> int:
+    from racerlab.train.clone import clone_model
+
+    folder = clone_model(args.src, args.dst, args.checkpoint, args.reward, args.model_metadata, args.hyperparameters,
+                         args.track)
+    print(f"cloned {args.src} ({args.checkpoint} checkpoint) into {folder.path}; train it with "
+          f"`racerlab train {folder.path}`")
+    return 0

@@ -1,0 +1,70 @@
+"""Greedy evaluation episodes inside training (AWS's MIN_EVAL_TRIALS) and the best-model metric."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from racerlab.sim import _kernels as K
+
+UNFINISHED_LAP_MS = 999_999  # AWS counts an unfinished lap as this when ranking by lap time
+
+
+@dataclass
+class EvalEpisode:
+    start_ndist: float
+    status: str
+    steps: int
+    progress: float
+    reward: float
+    lap_time: float  # s, NaN unless the lap was completed
+    start_time: float
+    end_time: float
+
+
+def run_greedy_episodes(agent, world, starts) -> list[EvalEpisode]:
+    """One greedy episode per car of `world`, car i starting at fraction `starts[i]` of the lap."""
+    sim = world.sim
+    n = sim.num_cars
+    starts = np.asarray(starts, dtype=np.float64)
+    sim.reset(start_ndist=starts, reverse=world.sim.start_rules.reverse)
+    active = np.ones(n, dtype=bool)
+    reward = np.zeros(n)
+    results: list[EvalEpisode | None] = [None] * n
+    t0 = sim.time
+    while active.any():
+        idx = np.flatnonzero(active)
+        obs = world.observe()
+        obs = {k: v[idx] for k, v in obs.items()} if isinstance(obs, dict) else obs[idx]
+        actions, _, _ = agent.act(obs, greedy=True)
+        codes, r = world.step(actions, active)
+        reward += r
+        done = active & (sim.terminated_mask(codes) | sim.truncated)
+        for i in np.flatnonzero(done).tolist():
+            status = K.STATUS_NAMES[int(codes[i])] if not sim.truncated[i] else "time_up"
+            steps = int(sim.steps[i])
+            results[i] = EvalEpisode(float(starts[i]), status, steps, float(sim.params[i, K.MPROG]), float(reward[i]),
+                                     steps * sim.dt if status == "lap_complete" else math.nan, t0, sim.time)
+        active &= ~done
+    return results
+
+
+def eval_metric(episodes: list[EvalEpisode], metric: str) -> float:
+    """Mean progress or reward (higher is better) or mean lap time in ms (lower is better)."""
+    if not episodes:
+        return float("nan")
+    if metric == "progress":
+        return float(np.mean([e.progress for e in episodes]))
+    if metric == "reward":
+        return float(np.mean([e.reward for e in episodes]))
+    return float(np.mean([e.lap_time * 1000 if e.status == "lap_complete" else UNFINISHED_LAP_MS
+                          for e in episodes]))
+
+
+def is_better(metric: str, value: float, best: float | None) -> bool:
+    """AWS keeps the newer checkpoint on ties (>= / <=)."""
+    if best is None or math.isnan(best):
+        return not math.isnan(value)
+    return value <= best if metric == "laptime" else value >= best

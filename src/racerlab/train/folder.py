@@ -1,0 +1,208 @@
+"""The model folder: the racer's three AWS files, racerlab's training.toml, checkpoints and lineage.
+
+Checkpoints follow AWS's scheme (facts §9): `checkpoints/<N>_Step-<S>.pt` for iteration N after S
+training env steps, N = 0 before any training; `deepracer_checkpoints.json` names the last and
+the best; the last 4 plus the best are kept. Every file is written atomically (temporary name,
+then rename), so a kill at any moment leaves the previous complete state.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from racerlab.errors import ConfigError, RacerlabError
+from racerlab.hyperparameters import Hyperparameters, load_hyperparameters
+from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_text
+from racerlab.metadata import ModelMetadata, load_model_metadata
+from racerlab.train.config import TrainingConfig, load_training_config
+
+KEEP_LAST = 4
+CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
+
+
+@dataclass(frozen=True)
+class CheckpointInfo:
+    name: str
+    iteration: int
+    steps: int
+
+    @classmethod
+    def parse(cls, name: str) -> CheckpointInfo | None:
+        m = CHECKPOINT_RE.match(name)
+        return cls(name, int(m.group(1)), int(m.group(2))) if m else None
+
+
+class ModelFolder:
+    """Paths and file I/O of one model folder."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+
+    # ---- paths -------------------------------------------------------------------------------
+    @property
+    def reward_path(self) -> Path:
+        return self.path / "reward_function.py"
+
+    @property
+    def metadata_path(self) -> Path:
+        return self.path / "model_metadata.json"
+
+    @property
+    def hyperparameters_path(self) -> Path:
+        return self.path / "hyperparameters.json"
+
+    @property
+    def config_path(self) -> Path:
+        return self.path / "training.toml"
+
+    @property
+    def checkpoints_dir(self) -> Path:
+        return self.path / "checkpoints"
+
+    @property
+    def checkpoints_json(self) -> Path:
+        return self.checkpoints_dir / "deepracer_checkpoints.json"
+
+    @property
+    def lineage_path(self) -> Path:
+        return self.path / "lineage.json"
+
+    @property
+    def evaluations_dir(self) -> Path:
+        return self.path / "evaluations"
+
+    # ---- loading -----------------------------------------------------------------------------
+    def require(self) -> None:
+        if not self.path.is_dir():
+            raise RacerlabError(f"{self.path}: no such model folder; create one with `racerlab init {self.path}`")
+        for p in (self.reward_path, self.metadata_path):
+            if not p.is_file():
+                raise RacerlabError(f"{p}: missing; a model folder needs reward_function.py and "
+                                    "model_metadata.json (hyperparameters.json and training.toml are optional)")
+
+    def metadata(self) -> ModelMetadata:
+        return load_model_metadata(self.metadata_path)
+
+    def hyperparameters(self) -> Hyperparameters:
+        if not self.hyperparameters_path.is_file():
+            return Hyperparameters(source=str(self.hyperparameters_path))
+        return load_hyperparameters(self.hyperparameters_path)
+
+    def config(self) -> TrainingConfig:
+        return load_training_config(self.config_path)
+
+    # ---- checkpoints -------------------------------------------------------------------------
+    def checkpoints(self) -> list[CheckpointInfo]:
+        if not self.checkpoints_dir.is_dir():
+            return []
+        found = [CheckpointInfo.parse(p.name) for p in self.checkpoints_dir.iterdir()]
+        return sorted((c for c in found if c), key=lambda c: c.iteration)
+
+    def checkpoint_index(self) -> dict:
+        if not self.checkpoints_json.is_file():
+            return {}
+        try:
+            return json.loads(self.checkpoints_json.read_text())
+        except json.JSONDecodeError:
+            return {}
+
+    def resolve_checkpoint(self, which: str | int = "last") -> CheckpointInfo:
+        """`best`, `last` or an iteration number; a clear error when there is none."""
+        cps = self.checkpoints()
+        if not cps:
+            raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with `racerlab train {self.path}`")
+        if str(which) in ("best", "last"):
+            entry = self.checkpoint_index().get(f"{which}_checkpoint", {})
+            hit = [c for c in cps if c.name == entry.get("name")]
+            return hit[0] if hit else cps[-1]
+        try:
+            n = int(which)
+        except ValueError:
+            raise RacerlabError(f"checkpoint must be best, last or an iteration number, got {which!r}") from None
+        hit = [c for c in cps if c.iteration == n]
+        if not hit:
+            raise RacerlabError(f"{self.path}: no checkpoint for iteration {n}; have "
+                                f"{', '.join(str(c.iteration) for c in cps)}")
+        return hit[0]
+
+    def load_checkpoint(self, info: CheckpointInfo) -> dict:
+        import torch
+
+        path = self.checkpoints_dir / info.name
+        try:
+            return torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # noqa: BLE001 - a damaged file is reported, not a traceback
+            raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {exc})") from None
+
+    def save_checkpoint(self, state: dict, iteration: int, steps: int) -> CheckpointInfo:
+        import io
+
+        import torch
+
+        info = CheckpointInfo(f"{iteration}_Step-{steps}.pt", iteration, steps)
+        buf = io.BytesIO()
+        torch.save(state, buf)
+        atomic_write_bytes(self.checkpoints_dir / info.name, buf.getvalue())
+        return info
+
+    def update_index(self, last: CheckpointInfo, last_metric: float, best: CheckpointInfo | None,
+                     best_metric: float | None) -> None:
+        now = time.time()
+        index = {"last_checkpoint": {"name": last.name, "avg_eval_metric": _json_number(last_metric),
+                                     "time_stamp": now}}
+        if best is not None:
+            index["best_checkpoint"] = {"name": best.name, "avg_eval_metric": _json_number(best_metric),
+                                        "time_stamp": now}
+        atomic_write_json(self.checkpoints_json, index, indent=2)
+        # .coach_checkpoint, as AWS keeps it: the current checkpoint's name
+        atomic_write_text(self.checkpoints_dir / ".coach_checkpoint", last.name + "\n")
+
+    def prune(self, best: CheckpointInfo | None, keep_last: int = KEEP_LAST) -> None:
+        cps = self.checkpoints()
+        keep = {c.name for c in cps[-keep_last:]}
+        if best is not None:
+            keep.add(best.name)
+        for c in cps:
+            if c.name not in keep:
+                (self.checkpoints_dir / c.name).unlink(missing_ok=True)
+
+    def drop_after(self, iteration: int) -> None:
+        """Remove checkpoints newer than `iteration` (after resuming from an older one)."""
+        for c in self.checkpoints():
+            if c.iteration > iteration:
+                (self.checkpoints_dir / c.name).unlink(missing_ok=True)
+
+
+def _json_number(x):
+    return None if x is None or not math.isfinite(x) else x
+
+
+def check_compatible(parent: ModelMetadata, child: ModelMetadata, where: str) -> None:
+    """Refuse weights whose shapes cannot carry over (facts §9): action count, sensors, network, algorithm."""
+    problems = []
+    if parent.action_space_type != child.action_space_type:
+        problems.append(f"action space type {parent.action_space_type} → {child.action_space_type}")
+    elif parent.action_space_type == "discrete" and parent.actions.n != child.actions.n:
+        problems.append(f"number of actions {parent.actions.n} → {child.actions.n}")
+    if tuple(parent.sensor) != tuple(child.sensor):
+        problems.append(f"sensors {list(parent.sensor)} → {list(child.sensor)}")
+    if parent.neural_network != child.neural_network:
+        problems.append(f"neural_network {parent.neural_network} → {child.neural_network}")
+    if parent.training_algorithm != child.training_algorithm:
+        problems.append(f"training_algorithm {parent.training_algorithm} → {child.training_algorithm}")
+    if problems:
+        raise ConfigError(f"{where}: cannot reuse the parent's weights: {'; '.join(problems)}. Action values, the "
+                          "reward, hyperparameters and track may change; these may not")
+
+
+def copy_model_files(src: ModelFolder, dst: ModelFolder) -> None:
+    dst.path.mkdir(parents=True, exist_ok=True)
+    for p in (src.reward_path, src.metadata_path, src.hyperparameters_path, src.config_path):
+        if p.is_file():
+            shutil.copy2(p, dst.path / p.name)

@@ -1,0 +1,87 @@
+"""`racerlab init`: a working model folder with AWS-default files and racerlab's run settings."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+from racerlab.errors import RacerlabError
+from racerlab.hyperparameters import Hyperparameters
+from racerlab.metadata import ContinuousActions, ModelMetadata, default_discrete_actions
+from racerlab.train.config import TrackSettings, TrainingConfig
+from racerlab.train.folder import ModelFolder
+
+EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
+SENSORS = {
+    "features": (("FEATURES",), "MLP"),
+    "camera": (("FRONT_FACING_CAMERA",), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
+    "stereo": (("STEREO_CAMERAS",), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
+    "lidar": (("FRONT_FACING_CAMERA", "LIDAR"), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
+}
+
+
+def make_metadata(sensor: str = "features", action_space: str = "discrete", algorithm: str = "clipped_ppo",
+                  max_speed: float = 1.0) -> ModelMetadata:
+    """AWS console defaults (facts §5) for the chosen sensor; `max_speed` scales the speeds."""
+    if sensor not in SENSORS:
+        raise RacerlabError(f"unknown sensor {sensor!r}; choose one of {', '.join(SENSORS)}")
+    if not 0.1 <= max_speed <= 4.0:
+        raise RacerlabError(f"max speed must be within [0.1, 4.0] m/s, got {max_speed}")
+    if algorithm == "sac" and action_space != "continuous":
+        raise RacerlabError("SAC needs a continuous action space: add --action-space continuous")
+    sensors, network = SENSORS[sensor]
+    if action_space == "discrete":
+        actions = default_discrete_actions(max_speed=max_speed)
+    elif action_space == "continuous":
+        actions = ContinuousActions(-30.0, 30.0, min(1.0, max_speed / 2), max(max_speed, 0.2))
+    else:
+        raise RacerlabError(f"action space must be discrete or continuous, got {action_space!r}")
+    return ModelMetadata(actions, sensors, network, algorithm, 5.0)
+
+
+def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
+               algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
+               force: bool = False) -> ModelFolder:
+    folder = ModelFolder(path)
+    existing = [p for p in (folder.reward_path, folder.metadata_path, folder.hyperparameters_path,
+                            folder.config_path) if p.exists()]
+    if existing and not force:
+        raise RacerlabError(f"{folder.path}: already holds {existing[0].name}; use another folder or --force")
+    meta = make_metadata(sensor, action_space, algorithm, max_speed)
+    hp = Hyperparameters()
+    if algorithm == "sac":
+        hp = hp.replace(num_episodes_between_training=1)  # DRoA's SAC default
+    cfg = TrainingConfig()
+    if track:
+        from racerlab import track as tracks
+
+        tracks.load(track)  # fail now, with the track's own message, not at training time
+        cfg = replace(cfg, track=TrackSettings(names=(track,)))
+    if num_cars:
+        cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars))
+    if sensor != "features":
+        # pixels cost more per step; fewer cars keep an iteration's memory and time moderate
+        cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars or 16))
+    folder.path.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(EXAMPLE_REWARD, folder.reward_path)
+    folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
+    folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
+    folder.config_path.write_text(_TOML_HEADER + cfg.to_toml())
+    return folder
+
+
+_TOML_HEADER = """\
+# racerlab run settings for this model (the AWS files beside it hold the reward function, action
+# space and hyperparameters). Command-line flags of `racerlab train` override these values.
+#   [track]  names: one or more tracks (bundled names, your own, or paths); cars are spread over them
+#            reverse / alternate_direction / change_start / round_robin_advance / start_offset: as DRfC
+#   [run]    num_cars in parallel, seed, device (auto|cpu|cuda), threads (0 = all cores),
+#            observation ("" follows model_metadata.json), reward_order (aws|after_action),
+#            max_steps_per_iteration (AWS: 10000), max_episode_steps
+#   [stop]   minutes, episodes, iterations (0 = no limit)
+#   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
+#   [logs]   simtrace_every: log every k-th training episode; compress: gzip the simtrace CSVs
+
+"""

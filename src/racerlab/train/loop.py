@@ -1,0 +1,330 @@
+"""`train(model_dir)`: the iteration loop — collect episodes, update, evaluate, checkpoint, log.
+
+One iteration, as DeepRacer runs it (facts §6, §9): the cars drive whole training episodes with
+the current policy (`num_episodes_between_training`, or one per car when there are more cars);
+PPO updates on them (SAC learns from its replay buffer); a few greedy evaluation episodes pick the
+best checkpoint; the checkpoint, the AWS-format logs and racerlab's metrics are written
+atomically. A training stopped at any moment (Ctrl-C, kill -9, a reward function that raises)
+resumes from the last complete iteration.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from racerlab.errors import RacerlabError
+from racerlab.sim.core import StartRules
+from racerlab.sim.reward import RewardCaller, load_reward_function
+from racerlab.track import load as load_track
+from racerlab.train.config import TrainingConfig
+from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episodes
+from racerlab.train.folder import ModelFolder, check_compatible
+from racerlab.train.progress import Progress
+from racerlab.train.records import TrainingLogs
+from racerlab.train.rollout import Collector, World
+
+MAX_ROLLBACKS = 3
+STATE_FORMAT = "racerlab.checkpoint/1"
+
+
+class TrainingDiverged(RacerlabError):
+    pass
+
+
+@dataclass
+class TrainResult:
+    model_dir: Path
+    iterations: int = 0
+    episodes: int = 0
+    env_steps: int = 0
+    wall_seconds: float = 0.0
+    best_checkpoint: str | None = None
+    best_metric: float | None = None
+    best_lap_time: float = math.nan
+    first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    stopped: str = ""
+    history: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class _State:
+    iteration: int = 0
+    episodes: int = 0
+    env_steps: int = 0
+    train_steps: int = 0  # kept (learned-on) steps: the S in N_Step-S
+    best_name: str | None = None
+    best_metric: float | None = None
+    best_lap_time: float = math.nan
+    rollbacks: int = 0
+    starts: list[int] = field(default_factory=list)  # each world's round-robin counter
+    first_lap: dict | None = None
+
+
+def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterations=None, num_cars=None,
+                    device=None, seed=None, tracks=None) -> TrainingConfig:
+    stop = cfg.stop
+    stop = replace(stop, minutes=stop.minutes if minutes is None else float(minutes),
+                   episodes=stop.episodes if episodes is None else int(episodes),
+                   iterations=stop.iterations if iterations is None else int(iterations))
+    run = cfg.run
+    run = replace(run, num_cars=run.num_cars if num_cars is None else int(num_cars),
+                  device=run.device if device is None else device, seed=run.seed if seed is None else int(seed))
+    track = cfg.track if not tracks else replace(cfg.track, names=tuple(tracks))
+    return replace(cfg, stop=stop, run=run, track=track)
+
+
+class Trainer:
+    """Holds the pieces of one training run; `run()` iterates until a stop condition."""
+
+    def __init__(self, model_dir, progress: bool = True, **overrides):
+        self.folder = ModelFolder(model_dir)
+        self.folder.require()
+        self.metadata = self.folder.metadata()
+        self.hp = self.folder.hyperparameters()
+        self.cfg = apply_overrides(self.folder.config(), **overrides)
+        self.reward = RewardCaller(load_reward_function(self.folder.reward_path))
+        self._set_threads()
+        self.worlds = self._make_worlds()
+        self.collector = Collector(self.worlds)
+        self.eval_world = self._make_world(self.cfg.track.names[0], max(self.cfg.evaluation.episodes, 1), seed=10_007)
+        from racerlab.agent import make_agent
+
+        self.agent = make_agent(self.worlds[0].observation.space, self.metadata, self.hp, device=self.cfg.run.device,
+                                seed=self.cfg.run.seed)
+        self.sac = self.metadata.training_algorithm == "sac"
+        self.logs = TrainingLogs(self.folder.path, self.cfg)
+        self.progress = Progress(enabled=progress)
+        self.state = _State()
+        self.last_good = None
+
+    # ---- set-up ------------------------------------------------------------------------------
+    def _set_threads(self):
+        import torch
+
+        n = self.cfg.run.threads or os.cpu_count() or 1
+        torch.set_num_threads(n)
+
+    def _make_world(self, track_name, cars, seed):
+        r = self.cfg.track
+        start = StartRules(change_start=r.change_start, advance=r.round_robin_advance, offset=r.start_offset,
+                           reverse=r.reverse, alternate_direction=r.alternate_direction)
+        return World(load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation, start,
+                     self.cfg.run.max_episode_steps, self.cfg.run.reward_order, seed)
+
+    def _make_worlds(self):
+        names = self.cfg.track.names
+        n = self.cfg.run.num_cars
+        counts = [n // len(names) + (1 if k < n % len(names) else 0) for k in range(len(names))]
+        pairs = enumerate(zip(names, counts, strict=True))
+        return [self._make_world(name, c, self.cfg.run.seed + k) for k, (name, c) in pairs]
+
+    # ---- checkpoints -------------------------------------------------------------------------
+    def _checkpoint_state(self) -> dict:
+        s = self.state
+        return {"format": STATE_FORMAT, "agent": self.agent.state_dict(), "metadata": self.metadata.to_json(),
+                "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps,
+                "train_steps": s.train_steps, "best_name": s.best_name, "best_metric": s.best_metric,
+                "best_lap_time": s.best_lap_time, "rollbacks": s.rollbacks,
+                "starts": [w.sim.episodes_started for w in self.worlds], "first_lap": s.first_lap,
+                "saved_at": time.time()}
+
+    def _resume_or_start(self):
+        cps = self.folder.checkpoints()
+        if not cps:
+            info = self.folder.save_checkpoint(self._checkpoint_state(), 0, 0)
+            self.folder.update_index(info, float("nan"), None, None)
+            self.last_good = self.agent.state_dict()
+            return False
+        info = self.folder.resolve_checkpoint("last")
+        ck = self.folder.load_checkpoint(info)
+        from racerlab.metadata import parse_model_metadata
+
+        check_compatible(parse_model_metadata(ck["metadata"], f"{info.name} (checkpoint)"), self.metadata,
+                         str(self.folder.metadata_path))
+        self.agent.load_state_dict(ck["agent"])
+        self.agent.lr = self.hp.lr if ck.get("cloned") else self.agent.lr
+        s = self.state
+        s.iteration, s.episodes, s.env_steps = ck["iteration"], ck["episodes"], ck["env_steps"]
+        s.train_steps = ck.get("train_steps", info.steps)
+        s.best_name, s.best_metric = ck.get("best_name"), ck.get("best_metric")
+        s.best_lap_time, s.rollbacks = ck.get("best_lap_time", math.nan), ck.get("rollbacks", 0)
+        s.first_lap = ck.get("first_lap")
+        for w, n in zip(self.worlds, ck.get("starts") or [], strict=False):
+            w.sim.episodes_started = int(n)
+        self.folder.drop_after(s.iteration)
+        self.logs.truncate(s.iteration, s.episodes)
+        self.last_good = self.agent.state_dict()
+        return not ck.get("cloned", False)
+
+    # ---- one iteration -----------------------------------------------------------------------
+    def _learn(self, ro) -> dict:
+        if self.sac:
+            return self._learn_sac(ro)
+        from racerlab.agent.ppo import make_batch
+
+        if ro.rewards.size == 0:
+            return {}
+        batch = make_batch(ro.obs, ro.actions, ro.log_probs, ro.values, ro.rewards, ro.next_values, ro.terminated,
+                           ro.truncated, self.hp.discount_factor)
+        return self.agent.update(batch)
+
+    def _learn_sac(self, ro) -> dict:
+        from racerlab.train.rollout import take
+
+        n = ro.rewards.size
+        if n == 0:
+            return {}
+        nxt = np.minimum(np.arange(n) + 1, n - 1)
+        ended = ro.terminated | ro.truncated
+        nxt[ended] = np.flatnonzero(ended)  # ignored for terminated; truncated: see below
+        self.agent.observe(ro.obs, ro.actions, ro.rewards, take(ro.obs, nxt), ro.terminated)
+        return self.agent.update(n)
+
+    def _guard(self, metrics) -> bool:
+        """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
+        bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
+            isinstance(v, float) and not math.isfinite(v) for k, v in metrics.items() if k.startswith("losses/"))
+        if not bad:
+            return True
+        s = self.state
+        s.rollbacks += 1
+        lr = self.agent.lr
+        self.agent.load_state_dict(self.last_good)
+        self.agent.lr = lr / 2
+        self.progress.note(f"non-finite loss or weights in iteration {s.iteration + 1}: rolled back to the last good "
+                           f"checkpoint, learning rate {lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS})")
+        if s.rollbacks >= MAX_ROLLBACKS:
+            raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks after non-finite "
+                                   "losses; lower lr in hyperparameters.json or check the reward function's scale")
+        return False
+
+    def _evaluate(self):
+        n = self.cfg.evaluation.episodes
+        if n == 0:
+            return []
+        offset = self.cfg.track.start_offset
+        starts = np.mod(offset + np.arange(n) / n, 1.0)
+        return run_greedy_episodes(self.agent, self.eval_world, starts)
+
+    def _record_best(self, evals, info, t_start):
+        s = self.state
+        metric_name = self.cfg.evaluation.best_model_metric
+        value = eval_metric(evals, metric_name)
+        if is_better(metric_name, value, s.best_metric):
+            s.best_name, s.best_metric = info.name, value
+        laps = [e.lap_time for e in evals if e.status == "lap_complete"]
+        if laps:
+            s.best_lap_time = min(laps) if math.isnan(s.best_lap_time) else min(s.best_lap_time, min(laps))
+            if s.first_lap is None:
+                s.first_lap = {"iteration": s.iteration, "wall_seconds": time.perf_counter() - t_start,
+                               "env_steps": s.env_steps}
+        return value
+
+    def iterate(self, t_start: float) -> dict:
+        s = self.state
+        target = max(self.hp.num_episodes_between_training, self.cfg.run.num_cars)
+        ro = self.collector.collect(self.agent, target, self.cfg.run.max_steps_per_iteration,
+                                    first_episode_number=s.episodes)
+        t_learn = time.perf_counter()
+        metrics = self._learn(ro)
+        learn_s = time.perf_counter() - t_learn
+        s.env_steps += ro.env_steps
+        if not self._guard(metrics):
+            return {}
+        s.iteration += 1
+        s.episodes += len(ro.episodes)
+        s.train_steps += int(ro.rewards.size)
+        evals = self._evaluate()
+        from racerlab.train.folder import CheckpointInfo
+
+        info = CheckpointInfo(f"{s.iteration}_Step-{s.train_steps}.pt", s.iteration, s.train_steps)
+        value = self._record_best(evals, info, t_start)
+        self.logs.write_iteration(s.iteration, ro, evals, s.episodes - len(ro.episodes))
+        saved = self.folder.save_checkpoint(self._checkpoint_state(), s.iteration, s.train_steps)
+        best = next((c for c in self.folder.checkpoints() if c.name == s.best_name), None)
+        self.folder.update_index(saved, value, best, s.best_metric)
+        self.folder.prune(best)
+        self.last_good = self.agent.state_dict()
+        entry = self._summary(ro, evals, metrics, learn_s, value)
+        self.logs.append_metrics(entry)
+        return entry
+
+    def _summary(self, ro, evals, metrics, learn_s, value) -> dict:
+        s = self.state
+        eps = ro.episodes
+        laps = [e.lap_time for e in eps if e.status == "lap_complete"]
+        return {
+            "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps, "train_steps": s.train_steps,
+            "time": time.time(), "collect_seconds": round(ro.seconds, 4), "learn_seconds": round(learn_s, 4),
+            "charts/env_steps_per_s": ro.env_steps / max(ro.seconds, 1e-9),
+            "charts/mean_reward": float(np.mean([e.reward for e in eps])) if eps else 0.0,
+            "charts/completion": float(np.mean([min(e.progress, 100.0) for e in eps])) if eps else 0.0,
+            "charts/laps": len(laps), "charts/best_lap_train": min(laps) if laps else None,
+            "eval/mean_progress": float(np.mean([e.progress for e in evals])) if evals else None,
+            "eval/laps": sum(e.status == "lap_complete" for e in evals),
+            "eval/best_lap": min((e.lap_time for e in evals if e.status == "lap_complete"), default=None),
+            "eval/metric": value, "best/lap_time": None if math.isnan(s.best_lap_time) else s.best_lap_time,
+            "best/checkpoint": s.best_name, "lr": self.agent.lr, "logs/disk_bytes": self.logs.disk_bytes(),
+            **{k: float(v) for k, v in metrics.items()},
+        }
+
+    # ---- the loop ----------------------------------------------------------------------------
+    def _limit_reached(self, t_start: float, start_iteration: int, start_episodes: int) -> str:
+        """The stop conditions given (flags or training.toml); with none, AWS's term_cond_max_episodes."""
+        stop, s = self.cfg.stop, self.state
+        if stop.minutes and time.perf_counter() - t_start >= stop.minutes * 60:
+            return f"time limit of {stop.minutes:g} min"
+        max_eps = stop.episodes or (0 if stop.minutes or stop.iterations else self.hp.term_cond_max_episodes)
+        if max_eps and s.episodes - start_episodes >= max_eps:
+            return f"episode limit of {max_eps}"
+        if stop.iterations and s.iteration - start_iteration >= stop.iterations:
+            return f"iteration limit of {stop.iterations}"
+        return ""
+
+    def run(self) -> TrainResult:
+        t_start = time.perf_counter()
+        resumed = self._resume_or_start()
+        s = self.state
+        start_iteration, start_episodes = s.iteration, s.episodes
+        self.progress.start(self, resumed)
+        result = TrainResult(self.folder.path)
+        try:
+            while not (reason := self._limit_reached(t_start, start_iteration, start_episodes)):
+                entry = self.iterate(t_start)
+                if entry:
+                    result.history.append(entry)
+                    self.progress.iteration(entry, self._eta(t_start, start_episodes))
+            result.stopped = reason
+        except KeyboardInterrupt:
+            result.stopped = "interrupted (Ctrl-C); the last complete iteration is saved"
+        finally:
+            self.logs.close()
+        result.iterations, result.episodes, result.env_steps = s.iteration, s.episodes, s.env_steps
+        result.wall_seconds = time.perf_counter() - t_start
+        result.best_checkpoint, result.best_metric = s.best_name, s.best_metric
+        result.best_lap_time, result.first_lap = s.best_lap_time, s.first_lap
+        self.progress.finish(result)
+        return result
+
+    def _eta(self, t_start, start_episodes) -> float | None:
+        stop, s = self.cfg.stop, self.state
+        elapsed = time.perf_counter() - t_start
+        if stop.minutes:
+            return max(stop.minutes * 60 - elapsed, 0.0)
+        max_eps = stop.episodes or (0 if stop.iterations else self.hp.term_cond_max_episodes)
+        done = s.episodes - start_episodes
+        if max_eps and done:
+            return elapsed / done * max(max_eps - done, 0)
+        return None
+
+
+def train(model_dir, *, progress: bool = True, **overrides) -> TrainResult:
+    """Train the model in `model_dir` (resuming if it has checkpoints). Keyword overrides: minutes,
+    episodes, iterations, num_cars, device, seed, tracks."""
+    return Trainer(model_dir, progress=progress, **overrides).run()

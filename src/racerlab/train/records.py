@@ -1,0 +1,96 @@
+"""What a training writes each iteration: the AWS simtrace and TrainingMetrics.json, and metrics.jsonl.
+
+Formats and the folder layout (the one deepracer-utils reads) belong to `racerlab.logs`; this
+module turns a rollout and its evaluation episodes into those records and keeps them consistent
+with the checkpoints when a training resumes.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from racerlab import logs
+from racerlab.sim import _kernels as K
+from racerlab.train.rollout import STATUS_LABELS
+
+_STATUS = np.array(K.STATUS_NAMES, dtype=object)
+
+
+class TrainingLogs:
+    def __init__(self, model_dir: Path, cfg):
+        self.model_dir = Path(model_dir)
+        self.cfg = cfg
+        self.metrics = logs.TrainingMetrics(logs.training_metrics_path(self.model_dir),
+                                            best_model_metric=cfg.evaluation.best_model_metric)
+        self.jsonl = logs.MetricsLog(logs.metrics_jsonl_path(self.model_dir))
+
+    # ---- per iteration ---------------------------------------------------------------------------
+    def write_iteration(self, iteration: int, ro, evals, first_episode: int) -> None:
+        self._simtrace(iteration, ro)
+        entries = [self._train_entry(ep, first_episode + n, n) for n, ep in enumerate(ro.episodes)]
+        entries += [self._eval_entry(e, first_episode + len(ro.episodes), n) for n, e in enumerate(evals)]
+        self.metrics.add(entries)
+        self.metrics.save()
+
+    def _simtrace(self, iteration: int, ro) -> None:
+        t = ro.trace
+        if not t or t["steps"].size == 0:
+            return
+        n = t["steps"].size
+        cols = {
+            "episode": t["episode"], "steps": t["steps"], "X": t["X"], "Y": t["Y"], "yaw": t["yaw"],
+            "steer": t["steer"], "throttle": t["throttle"], "action": t["actions"], "reward": t["rewards"],
+            "done": _episode_ends(t["episode"]), "all_wheels_on_track": t["all_wheels_on_track"],
+            "progress": t["progress"], "closest_waypoint": t["closest_waypoint"], "track_len": t["track_len"],
+            "tstamp": t["tstamp"], "episode_status": _STATUS[t["codes"]], "pause_duration": np.zeros(n),
+            "obstacle_crash_counter": np.zeros(n, int), "wall_clock": np.full(n, time.time()),
+        }
+        compress = self.cfg.logs.compress
+        writer = logs.SimtraceWriter(logs.training_simtrace_path(self.model_dir, iteration - 1, compress=compress),
+                                     compress=compress, sample_episodes=self.cfg.logs.simtrace_every)
+        writer.write(cols)
+        writer.close()
+
+    @staticmethod
+    def _train_entry(ep, number: int, trial: int) -> dict:
+        return {"reward_score": int(round(ep.reward)), "metric_time": int(round(ep.end_time * 1000)),
+                "start_time": int(round(ep.start_time * 1000)),
+                "elapsed_time_in_milliseconds": int(round((ep.end_time - ep.start_time) * 1000)),
+                "episode": number + 1, "trial": trial + 1, "phase": "training",
+                "completion_percentage": int(min(ep.progress, 100.0)),
+                "episode_status": STATUS_LABELS.get(ep.status, ep.status)}
+
+    @staticmethod
+    def _eval_entry(e, number: int, trial: int) -> dict:
+        return {"reward_score": int(round(e.reward)), "metric_time": int(round(e.end_time * 1000)),
+                "start_time": int(round(e.start_time * 1000)),
+                "elapsed_time_in_milliseconds": int(round((e.end_time - e.start_time) * 1000)),
+                "episode": number, "trial": trial + 1, "phase": "evaluation",
+                "completion_percentage": int(min(e.progress, 100.0)),
+                "episode_status": STATUS_LABELS.get(e.status, e.status)}
+
+    def append_metrics(self, entry: dict) -> None:
+        self.jsonl.append(entry)
+
+    # ---- resume ----------------------------------------------------------------------------------
+    def truncate(self, iteration: int, episodes: int) -> None:
+        """Forget what was logged after the checkpoint a training resumes from."""
+        logs.remove_training_simtrace_after(self.model_dir, iteration - 1)
+        self.metrics.truncate(episodes)
+        self.metrics.save()
+        self.jsonl.truncate(iteration)
+
+    def disk_bytes(self) -> int:
+        return sum(logs.disk_bytes(p) for p in (logs.training_simtrace_dir(self.model_dir),
+                                                logs.training_metrics_path(self.model_dir).parent))
+
+    def close(self) -> None:
+        self.jsonl.close()
+
+
+def _episode_ends(episode: np.ndarray) -> np.ndarray:
+    """True on each episode's last row (rows are grouped by episode, in step order)."""
+    return np.append(episode[1:] != episode[:-1], True) if episode.size else np.zeros(0, bool)

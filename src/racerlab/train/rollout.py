@@ -1,0 +1,322 @@
+"""Collecting whole episodes from many cars at once, on one or several tracks.
+
+A `World` is one track's simulator with its observation and reward; the `Collector` spreads the
+cars over the worlds, asks the agent for all cars' actions in one batch per step, and records
+every step as columns (no per-car Python in the step loop apart from the user's reward
+function). An iteration ends when its episodes are done; like AWS's trainer it keeps whole
+episodes only, in order of completion, while their steps fit under `max_steps` (facts §2).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from racerlab.metadata import DiscreteActions, ModelMetadata
+from racerlab.sim import _kernels as K
+from racerlab.sim.core import Simulator, StartRules
+from racerlab.sim.observations import make_observation
+from racerlab.sim.reward import ParamsBuilder, RewardCaller
+
+STATUS_LABELS = {"lap_complete": "Lap complete", "off_track": "Off track", "crashed": "Crashed",
+                 "immobilized": "Immobilized", "reversed": "Reversed", "in_progress": "In progress",
+                 "pause": "Pause", "time_up": "Time Up", "prepare": "Prepare"}
+
+
+class World:
+    """One track: a simulator of `num_cars` cars, its observation and the reward calls."""
+
+    def __init__(self, track, num_cars: int, metadata: ModelMetadata, reward: RewardCaller, observation: str,
+                 start: StartRules, max_episode_steps: int, reward_order: str, seed: int):
+        self.sim = Simulator(track, num_cars, start=start, max_episode_steps=max_episode_steps,
+                             reward_order=reward_order, seed=seed)
+        self.observation = make_observation(observation or None, self.sim, metadata)
+        self.builder = ParamsBuilder(self.sim)
+        self.reward = reward
+        self.metadata = metadata
+
+    def observe(self):
+        return self.observation()
+
+    def commands(self, actions):
+        acts = self.metadata.actions
+        if isinstance(acts, DiscreteActions):
+            return acts.lookup(actions)
+        return acts.rescale(actions)
+
+    def step(self, actions, active):
+        """Step the active cars; returns (codes, rewards) for all cars (zeros where inactive or prepare)."""
+        n = self.sim.num_cars
+        steer = np.zeros(n)
+        speed = np.zeros(n)
+        idx = np.flatnonzero(active)
+        s, v = self.commands(actions)
+        steer[idx], speed[idx] = s, v
+        codes = self.sim.step(steer, speed, active).copy()
+        rewards = np.zeros(n)
+        run = np.flatnonzero(active & (codes != K.STATUS_PREPARE))
+        if run.size and self.reward is not None:
+            rewards[run] = self.reward(self.builder.each(run), run)
+        return codes, rewards
+
+
+def concat_obs(parts):
+    if isinstance(parts[0], dict):
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return np.concatenate(parts)
+
+
+def take(obs, idx):
+    if isinstance(obs, dict):
+        return {k: v[idx] for k, v in obs.items()}
+    return obs[idx]
+
+
+@dataclass
+class Episode:
+    uid: int
+    world: int
+    car: int
+    steps: int = 0
+    reward: float = 0.0
+    status: str = "in_progress"
+    progress: float = 0.0
+    start_time: float = 0.0
+    end_time: float = 0.0
+    lap_time: float = float("nan")
+
+
+@dataclass
+class Rollout:
+    """One iteration's kept episodes as flat arrays, episodes concatenated in completion order."""
+
+    obs: object  # [N, ...] or dict; learning steps only (prepare steps excluded)
+    actions: np.ndarray
+    log_probs: np.ndarray
+    values: np.ndarray
+    rewards: np.ndarray
+    next_values: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    episodes: list[Episode]
+    trace: dict  # simtrace columns of every step of the kept episodes (prepare steps included)
+    env_steps: int  # all car-steps simulated, kept or not
+    seconds: float
+
+
+class Collector:
+    """Runs whole training episodes for an agent over one or more worlds."""
+
+    def __init__(self, worlds: list[World]):
+        self.worlds = worlds
+        self.offsets = np.cumsum([0] + [w.sim.num_cars for w in worlds])
+        self.num_cars = int(self.offsets[-1])
+        self.next_uid = 0
+
+    def collect(self, agent, target_episodes: int, max_steps: int, greedy: bool = False,
+                first_episode_number: int = 0) -> Rollout:
+        t0 = time.perf_counter()
+        state = _IterationState(self, target_episodes, max_steps)
+        for w in self.worlds:
+            w.sim.reset()
+        state.start_all()
+        while state.active.any():
+            self._step(agent, state, greedy)
+        return state.finish(agent, first_episode_number, time.perf_counter() - t0)
+
+    def _step(self, agent, state, greedy):
+        obs_all = concat_obs([w.observe() for w in self.worlds])
+        idx = np.flatnonzero(state.active)
+        obs = take(obs_all, idx)
+        actions, logp, values = agent.act(obs, greedy=greedy)
+        full_actions = np.zeros((self.num_cars, *actions.shape[1:]), dtype=actions.dtype)
+        full_actions[idx] = actions
+        codes = np.empty(self.num_cars, dtype=np.int64)
+        rewards = np.zeros(self.num_cars)
+        for k, w in enumerate(self.worlds):
+            lo, hi = self.offsets[k], self.offsets[k + 1]
+            act = state.active[lo:hi]
+            c, r = w.step(full_actions[lo:hi][act], act)
+            codes[lo:hi] = c
+            rewards[lo:hi] = r
+        state.record(idx, obs, actions, logp, values, codes, rewards)
+        done = np.zeros(self.num_cars, dtype=bool)
+        trunc = np.zeros(self.num_cars, dtype=bool)
+        for k, w in enumerate(self.worlds):
+            lo, hi = self.offsets[k], self.offsets[k + 1]
+            done[lo:hi] = w.sim.terminated_mask(codes[lo:hi]) | w.sim.truncated
+            trunc[lo:hi] = w.sim.truncated
+        done &= state.active
+        if done.any():
+            final_obs = take(concat_obs([w.observe() for w in self.worlds]), np.flatnonzero(done & trunc))
+            state.end_episodes(np.flatnonzero(done), trunc, codes, final_obs)
+
+
+class _IterationState:
+    """Bookkeeping of one collection: which car runs which episode, and the recorded columns."""
+
+    def __init__(self, col: Collector, target: int, max_steps: int):
+        self.col = col
+        self.target = target
+        self.max_steps = max_steps
+        n = col.num_cars
+        self.active = np.zeros(n, dtype=bool)
+        self.uid = np.full(n, -1, dtype=np.int64)
+        self.started = 0
+        self.kept_steps = 0
+        self.episodes: dict[int, Episode] = {}
+        self.completed: list[int] = []
+        self.final_obs: dict[int, object] = {}
+        self.blocks: list[dict] = []
+        self.env_steps = 0
+
+    def world_of(self, car: int) -> tuple[int, int]:
+        k = int(np.searchsorted(self.col.offsets, car, side="right") - 1)
+        return k, car - int(self.col.offsets[k])
+
+    def start_all(self):
+        cars = np.arange(self.col.num_cars)[: max(self.target, 0)]
+        self._start(cars)
+
+    def _start(self, cars):
+        for car in np.asarray(cars).tolist():
+            k, i = self.world_of(car)
+            sim = self.col.worlds[k].sim
+            uid = self.col.next_uid
+            self.col.next_uid += 1
+            self.uid[car] = uid
+            self.active[car] = True
+            self.episodes[uid] = Episode(uid, k, i, start_time=sim.time)
+            self.started += 1
+
+    def record(self, idx, obs, actions, logp, values, codes, rewards):
+        self.env_steps += idx.size
+        block = {"car": idx, "uid": self.uid[idx], "obs": obs, "actions": actions, "log_probs": logp,
+                 "values": values, "rewards": rewards[idx], "codes": codes[idx]}
+        block.update(self._trace_columns(idx, codes, rewards, actions))
+        self.blocks.append(block)
+
+    def _trace_columns(self, idx, codes, rewards, actions):
+        col = self.col
+        cols = {k: [] for k in ("steps", "X", "Y", "yaw", "steer", "throttle", "all_wheels_on_track", "progress",
+                                "closest_waypoint", "track_len", "tstamp")}
+        for k, w in enumerate(col.worlds):
+            lo, hi = col.offsets[k], col.offsets[k + 1]
+            sel = idx[(idx >= lo) & (idx < hi)] - lo
+            sim = w.sim
+            p = sim.params[sel]
+            cols["steps"].append(sim.steps[sel])
+            cols["X"].append(p[:, K.MX])
+            cols["Y"].append(p[:, K.MY])
+            cols["yaw"].append(p[:, K.MHEADING])
+            cols["steer"].append(sim.car[sel, K.CCMD_STEER])
+            cols["throttle"].append(sim.car[sel, K.CCMD_SPEED])
+            cols["all_wheels_on_track"].append(p[:, K.MWHEELS] == 4)
+            cols["progress"].append(p[:, K.MPROG])
+            cols["closest_waypoint"].append(p[:, K.MCLOSEST].astype(np.int64))
+            cols["track_len"].append(np.full(sel.size, sim.track.length))
+            cols["tstamp"].append(np.full(sel.size, sim.time))
+        return {k: np.concatenate(v) for k, v in cols.items()}
+
+    def end_episodes(self, cars, trunc, codes, final_obs):
+        j = 0
+        restart = []
+        for car in cars.tolist():
+            uid = int(self.uid[car])
+            ep = self.episodes[uid]
+            k, i = self.world_of(car)
+            sim = self.col.worlds[k].sim
+            ep.steps = int(sim.steps[i])
+            ep.status = K.STATUS_NAMES[int(codes[car])] if not trunc[car] else "time_up"
+            ep.progress = float(sim.params[i, K.MPROG])
+            ep.end_time = sim.time
+            if ep.status == "lap_complete":
+                ep.lap_time = ep.steps * sim.dt
+            if trunc[car]:
+                self.final_obs[uid] = take(final_obs, j)
+                j += 1
+            self.active[car] = False
+            if self.kept_steps + ep.steps <= self.max_steps:
+                self.kept_steps += ep.steps
+                self.completed.append(uid)
+            else:
+                # AWS drops whole episodes beyond the step cap; nothing more would be kept
+                self.target = self.started
+            if self.started < self.target:
+                restart.append(car)
+        if self.kept_steps >= self.max_steps:
+            self.target = self.started
+            self.active[:] = False
+            restart = []
+        if restart:
+            cars_arr = np.array(restart)
+            for k, w in enumerate(self.col.worlds):
+                lo, hi = self.col.offsets[k], self.col.offsets[k + 1]
+                mask = np.zeros(w.sim.num_cars, dtype=bool)
+                sel = cars_arr[(cars_arr >= lo) & (cars_arr < hi)] - lo
+                mask[sel] = True
+                if mask.any():
+                    w.sim.reset(mask)
+            self._start(cars_arr)
+
+    def finish(self, agent, first_episode_number: int, seconds: float) -> Rollout:
+        cols = _concat_blocks(self.blocks)
+        kept = np.array(self.completed, dtype=np.int64)
+        order_of = {uid: n for n, uid in enumerate(self.completed)}
+        rank = np.array([order_of.get(int(u), -1) for u in cols["uid"].tolist()]) if cols else np.zeros(0, int)
+        keep = rank >= 0
+        steps = cols["steps"] if cols else np.zeros(0, int)
+        order = np.flatnonzero(keep)[np.lexsort((steps[keep], rank[keep]))] if cols else np.zeros(0, int)
+        episodes = [self.episodes[int(u)] for u in kept]
+        trace = {k: cols[k][order] for k in ("steps", "X", "Y", "yaw", "steer", "throttle", "all_wheels_on_track",
+                                              "progress", "closest_waypoint", "track_len", "tstamp", "rewards",
+                                              "codes", "actions")} if cols else {}
+        if cols:
+            trace["episode"] = first_episode_number + rank[order]
+            for n, ep in enumerate(episodes):
+                ep.reward = float(trace["rewards"][trace["episode"] == first_episode_number + n].sum())
+        learn = order[cols["codes"][order] != K.STATUS_PREPARE] if cols else order
+        return self._learning_arrays(agent, cols, learn, episodes, trace, seconds)
+
+    def _learning_arrays(self, agent, cols, learn, episodes, trace, seconds) -> Rollout:
+        if not cols or learn.size == 0:
+            z = np.zeros(0, np.float32)
+            return Rollout(None, np.zeros(0), z, z, z, z, np.zeros(0, bool), np.zeros(0, bool), episodes, trace,
+                           self.env_steps, seconds)
+        uid = cols["uid"][learn]
+        ended = np.append(uid[1:] != uid[:-1], True)
+        status = {ep.uid: ep.status for ep in episodes}
+        truncated = ended & np.array([status[int(u)] == "time_up" for u in uid.tolist()])
+        terminated = ended & ~truncated
+        end_uids = uid[ended]
+        end_values = np.zeros(end_uids.size, dtype=np.float32)
+        tr = [n for n, u in enumerate(end_uids.tolist()) if u in self.final_obs]
+        if tr:
+            end_values[tr] = agent.value(concat_obs([_expand(self.final_obs[int(end_uids[n])]) for n in tr]))
+        values = cols["values"][learn].astype(np.float32)
+        from racerlab.agent.ppo import episode_next_values
+
+        next_values = episode_next_values(values, ended, end_values)
+        return Rollout(take(cols["obs"], learn), cols["actions"][learn], cols["log_probs"][learn], values,
+                       cols["rewards"][learn].astype(np.float32), next_values, terminated, truncated, episodes,
+                       trace, self.env_steps, seconds)
+
+
+def _expand(obs):
+    if isinstance(obs, dict):
+        return {k: v[None] for k, v in obs.items()}
+    return obs[None]
+
+
+def _concat_blocks(blocks: list[dict]) -> dict:
+    if not blocks:
+        return {}
+    out = {}
+    for key in blocks[0]:
+        if isinstance(blocks[0][key], dict):
+            out[key] = {k: np.concatenate([b[key][k] for b in blocks]) for k in blocks[0][key]}
+        else:
+            out[key] = np.concatenate([b[key] for b in blocks])
+    return out
