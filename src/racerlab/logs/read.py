@@ -1,0 +1,343 @@
+"""Parsing simtrace CSVs and `SIM_TRACE_LOG:` lines into Arrow tables with deepracer-utils' column names.
+
+Both carriers end up in the same columns (`RAW_COLUMNS`): the CSV names `X, Y, steer, throttle,
+all_wheels_on_track` become `x, y, steering_angle, speed, on_track` as deepracer-utils 1.5.6 names them
+(`yaw` keeps its name there too). Missing columns of older formats are filled: `episode_status` with
+nulls, `pause_duration`, `obstacle_crash_counter` and `wall_clock` with NaN. A continuous action
+(`[steer speed]`, or the older `[steer, speed]` with a comma) becomes `action = -1`, as in deepracer-utils;
+its values are in `steering_angle` and `speed`.
+
+`SIM_TRACE_LOG` field counts (facts §7): 15 (2019: ... track_len, tstamp), 16 (+ episode_status),
+17 (+ pause_duration), 18 (+ obstacle_crash_counter in simapp 5.3.3; some tools put wall_clock there, so
+a value above 1e6 is taken as a wall clock), 19 (+ obstacle_crash_counter, wall_clock).
+
+Garbled input raises `LogFileError` with one line naming the file and the line.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import math
+import re
+import zlib
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.csv as pacsv
+
+from racerlab.logs.metrics import LogFileError
+
+CSV_TO_FRAME = {"X": "x", "Y": "y", "steer": "steering_angle", "throttle": "speed", "all_wheels_on_track": "on_track"}
+RAW_COLUMNS = ("episode", "steps", "x", "y", "yaw", "steering_angle", "speed", "action", "reward", "done",
+               "on_track", "progress", "closest_waypoint", "track_len", "tstamp", "episode_status",
+               "pause_duration", "obstacle_crash_counter", "wall_clock")
+_INT_COLUMNS = ("episode", "steps", "closest_waypoint")
+_BOOL_COLUMNS = ("done", "on_track")
+_OPTIONAL = ("episode_status", "pause_duration", "obstacle_crash_counter", "wall_clock")
+_LOG_NAMES = {n: RAW_COLUMNS[:15] + _OPTIONAL[:n - 15] for n in (15, 16, 17, 18, 19)}
+_TRACE = re.compile(rb"SIM_TRACE_LOG:([^\n\t\r]*)")
+_OLD_CONTINUOUS = re.compile(rb"\[([^\],\n]*),\s*([^\]\n]*)\]")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# bytes -> Arrow
+
+
+def _column_types(names) -> dict:
+    types = {}
+    for n in names:
+        if n == "action":
+            types[n] = pa.string()
+        elif n in _BOOL_COLUMNS:
+            types[n] = pa.bool_()
+        elif n == "episode_status":
+            types[n] = pa.dictionary(pa.int32(), pa.string())
+        else:
+            types[n] = pa.float64()
+    return types
+
+
+def _parse(body: bytes, names: list[str], threads: bool) -> pa.Table:
+    """CSV text without header, columns `names` (frame names) -> table."""
+    return pacsv.read_csv(
+        io.BytesIO(body),
+        read_options=pacsv.ReadOptions(column_names=list(names), use_threads=threads, block_size=1 << 24),
+        parse_options=pacsv.ParseOptions(newlines_in_values=False),
+        convert_options=pacsv.ConvertOptions(column_types=_column_types(names), true_values=["True", "true"],
+                                             false_values=["False", "false"], strings_can_be_null=True))
+
+
+def normalise(table: pa.Table) -> pa.Table:
+    """Any parsed table -> exactly `RAW_COLUMNS` with their final types."""
+    n = table.num_rows
+    cols = []
+    for name in RAW_COLUMNS:
+        if name in table.column_names:
+            col = table.column(name)
+        elif name == "episode_status":
+            col = pa.nulls(n, pa.dictionary(pa.int32(), pa.string()))
+        else:
+            col = pa.array(np.full(n, np.nan))
+        if name in _INT_COLUMNS:
+            col = pc.cast(col, pa.int64())
+        elif name == "action":
+            col = _action_column(col)
+        cols.append(col)
+    return pa.table(cols, names=list(RAW_COLUMNS))
+
+
+def _action_column(col) -> pa.Array:
+    """Discrete indices stay; anything else (a continuous "[steer speed]") becomes -1."""
+    if pa.types.is_integer(col.type):
+        return pc.cast(col, pa.int64())
+    if pa.types.is_floating(col.type):
+        return pc.cast(col, pa.int64(), safe=False)
+    try:
+        return pc.cast(col, pa.int64())
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        numeric = pc.match_substring_regex(col, r"^\s*-?\d+\s*$")
+        as_int = pc.cast(pc.if_else(numeric, col, "-1"), pa.int64())
+        return pc.fill_null(as_int, -1)
+
+
+def decompress(data: bytes, name: str) -> bytes:
+    if name.endswith(".gz"):
+        try:
+            return gzip.decompress(data)
+        except (OSError, EOFError, zlib.error) as e:
+            raise LogFileError(f"{name}: not a readable gzip file ({e})") from None
+    return data
+
+
+def split_header(data: bytes, name: str) -> tuple[list[str], bytes]:
+    """(frame column names, body) of a simtrace CSV."""
+    end = data.find(b"\n")
+    head = (data if end < 0 else data[:end]).decode("utf-8", "replace").strip().lstrip("\ufeff")
+    names = [CSV_TO_FRAME.get(h.strip(), h.strip()) for h in head.split(",")]
+    missing = [c for c in RAW_COLUMNS[:15] if c not in names and c != "tstamp"]
+    if missing:
+        raise LogFileError(f"{name}:1: not a simtrace CSV header (missing {', '.join(missing)}): {head[:80]!r}")
+    body = b"" if end < 0 else data[end + 1:]
+    if body and not body.endswith(b"\n"):
+        body += b"\n"
+    return names, body
+
+
+def read_simtrace_csv(data: bytes, name: str, threads: bool = False) -> pa.Table:
+    """One simtrace CSV (plain or gzip bytes) -> a normalised table."""
+    names, body = split_header(decompress(data, name), name)
+    return normalise(parse_csv_body(body, names, name, threads))
+
+
+def parse_csv_body(body: bytes, names: list[str], name: str, threads: bool = False, first_line: int = 2) -> pa.Table:
+    if not body.strip():
+        return pa.table({n: pa.array([], t) for n, t in _column_types(names).items()})
+    try:
+        return _parse(body, names, threads)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
+        raise LogFileError(locate_error(body, names, name, first_line, str(e))) from None
+
+
+def read_simtrace_csvs(blobs: list[tuple[str, bytes]], threads: bool = True) -> tuple[pa.Table, np.ndarray]:
+    """Many simtrace CSVs parsed as one buffer per distinct header (much faster than one by one).
+
+    Returns the normalised table (files in the given order) and the row count of each file.
+    """
+    groups: dict[tuple, list[tuple[int, str, bytes]]] = {}
+    for i, (name, data) in enumerate(blobs):
+        names, body = split_header(decompress(data, name), name)
+        groups.setdefault(tuple(names), []).append((i, name, body))
+    counts = np.zeros(len(blobs), np.int64)
+    pieces: list[tuple[int, pa.Table]] = []
+    for names, files in groups.items():
+        table, rows = _parse_group(list(names), files, threads)
+        for (i, _, _), r in zip(files, rows, strict=True):
+            counts[i] = r
+        pieces.append((files[0][0], table, [f[0] for f in files], rows))
+    if len(pieces) == 1:
+        return pieces[0][1], counts
+    return _reorder(pieces, len(blobs)), counts
+
+
+def _parse_group(names: list[str], files, threads: bool) -> tuple[pa.Table, list[int]]:
+    rows = [body.count(b"\n") for _, _, body in files]
+    try:
+        table = normalise(_parse(b"".join(body for _, _, body in files), names, threads))
+        if table.num_rows == sum(rows):
+            return table, rows
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        pass
+    # a bad file, or blank lines that make row counts unreliable: one by one, to name the culprit
+    tables = [normalise(parse_csv_body(body, names, name, threads)) for _, name, body in files]
+    return pa.concat_tables(tables), [t.num_rows for t in tables]
+
+
+def _reorder(pieces, n_files: int) -> pa.Table:
+    """Tables of header groups -> one table with the files back in their original order."""
+    order = []
+    offset = 0
+    starts = {}
+    for _, table, idx, rows in pieces:
+        for i, r in zip(idx, rows, strict=True):
+            starts[i] = (offset, r)
+            offset += r
+        del table
+    for i in range(n_files):
+        s, r = starts[i]
+        order.append(np.arange(s, s + r))
+    whole = pa.concat_tables([p[1] for p in pieces])
+    return whole.take(pa.array(np.concatenate(order) if order else np.zeros(0, np.int64)))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# finding the bad line
+
+
+def locate_error(body: bytes, names: list[str], name: str, first_line: int, arrow_msg: str) -> str:
+    """One line naming the file, the line number and what is wrong with it."""
+    types = _column_types(names)
+    labels = {v: k for k, v in CSV_TO_FRAME.items()}  # name the column as the file's header does
+    for k, raw in enumerate(body.split(b"\n")):
+        if not raw.strip():
+            continue
+        problem = _line_problem(raw, names, types, labels)
+        if problem:
+            return f"{name}:{first_line + k}: {problem}: {raw[:100].decode('utf-8', 'replace')!r}"
+    return f"{name}: unreadable ({arrow_msg.splitlines()[0] if arrow_msg else 'unknown error'})"
+
+
+def _line_problem(raw: bytes, names: list[str], types: dict, labels: dict | None = None) -> str | None:
+    fields = raw.decode("utf-8", "replace").rstrip("\r").split(",")
+    if len(fields) != len(names):
+        return f"expected {len(names)} fields, got {len(fields)}"
+    for value, col in zip(fields, names, strict=True):
+        t = types[col]
+        label = (labels or {}).get(col, col)
+        if t == pa.float64():
+            try:
+                float(value)
+            except ValueError:
+                return f"{label} is not a number ({value!r})"
+        elif t == pa.bool_() and value not in ("True", "False", "true", "false"):
+            return f"{label} is not True/False ({value!r})"
+    return None
+
+
+# ---------------------------------------------------------------------------------------------------------
+# robomaker / simulation logs
+
+
+def read_sim_trace_log(data: bytes, name: str) -> tuple[pa.Table, dict]:
+    """`SIM_TRACE_LOG:` lines of a robomaker / DROA simulation log -> (normalised table, header info).
+
+    Lines may carry `[node]` prefixes or anything before the marker. The header info holds
+    `hyperparameters` (the JSON after "Using the following hyper-parameters") when present.
+    """
+    lines = _TRACE.findall(data)
+    info = {"hyperparameters": _hyperparameters(data)}
+    if not lines:
+        return normalise(pa.table({})), info
+    text = b"\n".join(line.strip() for line in lines) + b"\n"
+    if b"[" in text:
+        text = _OLD_CONTINUOUS.sub(rb"[\1 \2]", text)
+    fields = _fields_per_line(text)
+    tables = []
+    order = []
+    for count in np.unique(fields):
+        names = _LOG_NAMES.get(int(count))
+        where = np.flatnonzero(fields == count)
+        if names is None:
+            raise LogFileError(_log_line_error(data, name, int(where[0]), f"expected 15 to 19 fields, got {count}"))
+        body = text if len(tables) == 0 and where.size == fields.size else _select_lines(text, where)
+        try:
+            t = _parse(body, list(names), threads=True)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
+            k, problem = _bad_line(body, list(names))
+            if k is None:
+                raise LogFileError(f"{name}: unreadable SIM_TRACE_LOG lines ({str(e).splitlines()[0]})") from None
+            raise LogFileError(_log_line_error(data, name, int(where[k]), problem)) from None
+        if int(count) == 18 and _looks_like_wall_clock(t.column("obstacle_crash_counter")):
+            t = t.rename_columns([*names[:17], "wall_clock"])
+        tables.append(normalise(t))
+        order.append(where)
+    table = pa.concat_tables(tables)
+    if len(tables) > 1:
+        table = table.take(pa.array(np.argsort(np.concatenate(order), kind="stable")))
+    return table, info
+
+
+def _fields_per_line(text: bytes) -> np.ndarray:
+    arr = np.frombuffer(text, np.uint8)
+    commas = np.concatenate([[0], np.cumsum(arr == ord(","))])
+    ends = np.flatnonzero(arr == ord("\n"))
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    return commas[ends] - commas[starts] + 1
+
+
+def _select_lines(text: bytes, where: np.ndarray) -> bytes:
+    lines = text.split(b"\n")
+    return b"\n".join(lines[i] for i in where) + b"\n"
+
+
+def _bad_line(body: bytes, names: list[str]) -> tuple[int | None, str]:
+    types = _column_types(names)
+    labels = {v: k for k, v in CSV_TO_FRAME.items()}
+    for k, raw in enumerate(body.split(b"\n")):
+        problem = _line_problem(raw, names, types, labels) if raw.strip() else None
+        if problem:
+            return k, problem
+    return None, ""
+
+
+def _log_line_error(data: bytes, name: str, k: int, problem: str) -> str:
+    """Message for the k-th SIM_TRACE_LOG line, with its line number in the file."""
+    for i, m in enumerate(_TRACE.finditer(data)):
+        if i == k:
+            line_no = data.count(b"\n", 0, m.start()) + 1
+            return f"{name}:{line_no}: {problem.splitlines()[0]}: {m.group(1)[:100].decode('utf-8', 'replace')!r}"
+    return f"{name}: {problem.splitlines()[0]}"
+
+
+def _looks_like_wall_clock(col) -> bool:
+    top = pc.max(pc.abs(col)).as_py()
+    return top is not None and top > 1e6
+
+
+def _hyperparameters(data: bytes) -> dict | None:
+    at = data.find(b"Using the following hyper-parameters")
+    if at < 0:
+        return None
+    text = []
+    for raw in data[at:at + 20000].split(b"\n")[1:]:
+        line = re.sub(r"^\s*(?:\[[^\]]*\]\s+)+", "", raw.decode("utf-8", "replace"))
+        text.append(line)
+        if "}" in line:
+            break
+    try:
+        return json.loads("".join(text))
+    except json.JSONDecodeError:
+        return None
+
+
+# ---------------------------------------------------------------------------------------------------------
+# units
+
+
+def looks_like_radians(yaw: np.ndarray, steer: np.ndarray) -> bool:
+    """2019 logs carried radians: |steer| never above 0.6 (30° = 0.52 rad) and |yaw| within pi, while a
+    car driving in degrees turns through far more than 3.15° of heading."""
+    if yaw.size < 2:
+        return False
+    yaw_top = float(np.nanmax(np.abs(yaw))) if np.isfinite(yaw).any() else 0.0
+    steer_top = float(np.nanmax(np.abs(steer))) if np.isfinite(steer).any() else 0.0
+    return 0.0 < yaw_top <= math.pi + 1e-3 and steer_top < 0.6
+
+
+def to_degrees(table: pa.Table) -> pa.Table:
+    for col in ("yaw", "steering_angle"):
+        i = table.column_names.index(col)
+        table = table.set_column(i, col, pc.multiply(table.column(col), 180.0 / math.pi))
+    return table
