@@ -31,21 +31,32 @@ def emit(**fields) -> None:
     print(json.dumps(fields), flush=True)
 
 
-def timed(fn, repeat: int = 1):
-    best, out = float("inf"), None
+def timed(fn, repeat: int = 1, times: list | None = None):
+    """Best wall time of `repeat` runs (and the result); all times are appended to `times`."""
+    runs, out = [], None
     for _ in range(repeat):
         t = time.perf_counter()
         out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
+        runs.append(time.perf_counter() - t)
+    if times is not None:
+        times.extend(runs)
+    return min(runs), out
 
 
-def bench_writer() -> None:
+def bench_writer(tmp: Path) -> None:
     rng = np.random.default_rng(1)
     cols = episode_columns(np.arange(800), rng.integers(30, 210, 800), rng)
     n = len(cols["episode"])
     dt, _ = timed(lambda: format_rows(cols), repeat=3)
     emit(bench="simtrace_format", rows=n, seconds=round(dt, 4), rows_per_s=round(n / dt))
+    for compress in (False, True):
+        def write(compress=compress):
+            with SimtraceWriter(tmp / "w" / "0-iteration.csv", compress=compress) as w:
+                w.write(cols)
+            return w.path
+        dt, path = timed(write, repeat=3)
+        emit(bench="simtrace_write_gz" if compress else "simtrace_write", rows=n, seconds=round(dt, 4),
+             rows_per_s=round(n / dt), bytes_per_row=round(path.stat().st_size / n, 1))
 
 
 def main() -> None:
@@ -55,8 +66,8 @@ def main() -> None:
     ap.add_argument("--keep", help="generate into this folder and keep it")
     args = ap.parse_args()
 
-    bench_writer()
     tmp = Path(tempfile.mkdtemp(prefix="racerlab-bench-"))
+    bench_writer(tmp)
     folder = Path(args.keep) if args.keep else tmp / "model"
     cache = tmp / "cache"
     per_worker = max(1, round(args.rows / (args.workers * ITERATIONS * MEAN_STEPS)))
@@ -66,10 +77,14 @@ def main() -> None:
         emit(bench="write_drfc_folder", rows=rows, files=ITERATIONS * args.workers, mb=round(size / 1e6, 1),
              seconds=round(dt, 3), rows_per_s=round(rows / dt))
 
-        cold, df = timed(lambda: load(folder, cache=False), repeat=2)
-        emit(bench="load_cold", rows=len(df), seconds=round(cold, 3), budget_s=1.5, threads=os.cpu_count())
-        one, _ = timed(lambda: load(folder, cache=False, threads=False), repeat=2)
-        emit(bench="load_cold_one_thread", rows=len(df), seconds=round(one, 3), budget_s=1.5)
+        runs: list[float] = []
+        cold, df = timed(lambda: load(folder, cache=False), repeat=3, times=runs)
+        emit(bench="load_cold", rows=len(df), seconds=round(cold, 3), median_s=round(float(np.median(runs)), 3),
+             budget_s=1.5, threads=os.cpu_count())
+        runs = []
+        one, _ = timed(lambda: load(folder, cache=False, threads=False), repeat=3, times=runs)
+        emit(bench="load_cold_one_thread", rows=len(df), seconds=round(one, 3),
+             median_s=round(float(np.median(runs)), 3), budget_s=1.5)
         first, _ = timed(lambda: load(folder, cache_dir=cache))
         emit(bench="load_first_with_cache_write", rows=len(df), seconds=round(first, 3))
         warm, df2 = timed(lambda: load(folder, cache_dir=cache), repeat=3)
@@ -84,12 +99,17 @@ def main() -> None:
         newer, df3 = timed(lambda: load(folder, cache_dir=cache))
         emit(bench="load_cached_plus_new_iteration", rows=len(df3), new_rows=len(df3) - len(df),
              seconds=round(newer, 3))
-        shutil.rmtree(folder / str(0) / "training-simtrace" / f"{ITERATIONS}-iteration.csv", ignore_errors=True)
         for w in range(args.workers):
             base = folder / str(w) if args.workers > 1 else folder
             training_simtrace_path(base, ITERATIONS).unlink()
 
         bench_deepracer_utils(folder, cold, len(df))
+
+        gz = tmp / "model-gz"
+        write_training_folder(gz, ITERATIONS, per_worker, args.workers, MEAN_STEPS, compress=True)
+        dt, dfz = timed(lambda: load(gz, cache=False), repeat=2)
+        emit(bench="load_cold_gz", rows=len(dfz), seconds=round(dt, 3), budget_s=1.5,
+             mb=round(sum(p.stat().st_size for p in gz.rglob("*.gz")) / 1e6, 1))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
