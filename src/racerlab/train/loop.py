@@ -82,7 +82,8 @@ def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterati
 class Trainer:
     """Holds the pieces of one training run; `run()` iterates until a stop condition."""
 
-    def __init__(self, model_dir, progress: bool = True, **overrides):
+    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, **overrides):
+        self.stop_at_first_lap = stop_at_first_lap
         self.folder = ModelFolder(model_dir)
         self.folder.require()
         self.metadata = self.folder.metadata()
@@ -285,6 +286,8 @@ class Trainer:
             return f"episode limit of {max_eps}"
         if stop.iterations and s.iteration - start_iteration >= stop.iterations:
             return f"iteration limit of {stop.iterations}"
+        if self.stop_at_first_lap and s.first_lap is not None:
+            return "first complete evaluation lap"
         return ""
 
     def run(self) -> TrainResult:
@@ -324,7 +327,7 @@ class Trainer:
         return None
 
 
-def train(model_dir, *, progress: bool = True, **overrides) -> TrainResult:
+def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, **overrides) -> TrainResult:
     """Train the model in `model_dir` (resuming if it has checkpoints). Keyword overrides: minutes,
     episodes, iterations, num_cars, device, seed, tracks."""
-    return Trainer(model_dir, progress=progress, **overrides).run()
+    return Trainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, **overrides).run()
