@@ -10,8 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from racerlab.analysis import FRAME_COLUMNS, load
+from racerlab.analysis import FRAME_COLUMNS, load, load_metrics
 from racerlab.logs import (
+    EvalMetrics,
+    LogFileError,
     SimtraceWriter,
     TrainingMetrics,
     eval_simtrace_path,
@@ -173,3 +175,59 @@ def test_deepracer_utils_reads_a_folder_written_by_the_writers(tmp_path):
 
     tm = log_mod.TrainingMetrics(None, fname=str(training_metrics_path(folder)))
     assert tm.metrics["iteration"].tolist() == [e // 3 for e in range(12)]
+
+
+def test_a_single_csv_file(tmp_path, cache):
+    path = write(tmp_path / "downloads" / "7-iteration.csv", csv_text([0, 1]))
+    df = load(path, cache_dir=cache)
+    assert len(df) == 6 and set(df["iteration"]) == {7}
+    other = write(tmp_path / "trace.csv", csv_text([0]))
+    assert len(load(other, cache_dir=cache)) == 3
+
+
+def test_many_reloads_compact_the_cache(tmp_path, cache):
+    rng = np.random.default_rng(5)
+    for it in range(15):
+        with SimtraceWriter(training_simtrace_path(tmp_path, it)) as w:
+            w.write(episode_columns(np.array([it]), np.array([3]), rng))
+        df = load(tmp_path, cache_dir=cache)
+    assert len(df) == 45 and df["unique_episode"].max() == 14
+    assert len(list(cache.rglob("*.parquet"))) <= 13
+    pd.testing.assert_frame_equal(df, load(tmp_path, cache=False))
+
+
+def test_stale_orphan_segments_are_removed(tmp_path, cache):
+    write_training_folder(tmp_path / "m", iterations=1, episodes_per_worker=1, mean_steps=4)
+    load(tmp_path / "m", cache_dir=cache)
+    folder = next(cache.iterdir())
+    orphan = folder / "segment-000000000000.parquet"
+    orphan.write_bytes(b"x")
+    os.utime(orphan, (1, 1))
+    load(tmp_path / "m", cache_dir=cache)
+    assert not orphan.exists()
+
+
+def test_unknown_kind_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="kind"):
+        load(tmp_path, "races")
+
+
+def test_load_metrics_training_workers_and_evaluations(tmp_path):
+    for worker in (0, 1):
+        m = TrainingMetrics(training_metrics_path(tmp_path, worker))
+        m.add([{"reward_score": 1, "metric_time": 2, "start_time": 1, "elapsed_time_in_milliseconds": 1,
+                "episode": e, "trial": (e - 1) % 4 + 1, "phase": "training", "completion_percentage": 10,
+                "episode_status": "Off track"} for e in range(1, 9)])
+        m.save()
+    df = load_metrics(tmp_path)
+    assert len(df) == 16 and sorted(set(df["worker"])) == [0, 1]
+    assert df.loc[df["worker"] == 0, "iteration"].tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    ev = EvalMetrics(evaluation_dir(tmp_path, "20260101000000") / "EvalMetrics.json")
+    ev.add([{"completion_percentage": 100, "metric_time": 2, "start_time": 1, "elapsed_time_in_milliseconds": 9000,
+             "episode_status": "Lap complete", "crash_count": 0, "immobilized_count": 0, "off_track_count": 0,
+             "reversed_count": 0, "reset_count": 0, "trial": t} for t in (1, 2, 3)])
+    ev.save()
+    evals = load_metrics(tmp_path, "evaluation")
+    assert evals["stream"].tolist() == ["20260101000000"] * 3 and evals["trial"].tolist() == [1, 2, 3]
+    with pytest.raises(LogFileError, match="no EvalMetrics.json"):
+        load_metrics(tmp_path / "metrics", "evaluation")

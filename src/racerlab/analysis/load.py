@@ -20,7 +20,10 @@ converted are listed in `df.attrs["converted_to_degrees"]`.
 
 from __future__ import annotations
 
+import json
 import os
+import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -154,6 +157,68 @@ def _append(table: pa.Table, iteration, worker, streams: list[str], stream_codes
 
 
 # ---------------------------------------------------------------------------------------------------------
+# metrics JSON
+
+
+def load_metrics(path: str | os.PathLike, kind: str = "training") -> pd.DataFrame:
+    """Per-episode metrics as a DataFrame: `TrainingMetrics*.json` (kind "training": a file, or a model
+    folder's `metrics/`, one worker per `_k` suffix) or `EvalMetrics.json` (kind "evaluation": a file, or
+    every `evaluation-<stamp>/` of a model folder, with `stream`).
+
+    Training rows get `worker` and `iteration` = (episode - 1) // episodes per iteration, where the latter is
+    the largest `trial` (deepracer-utils' rule); missing files are a `LogFileError`.
+    """
+    path = Path(path)
+    if kind not in (TRAINING, EVALUATION):
+        raise ValueError(f"kind must be 'training' or 'evaluation', got {kind!r}")
+    files = _metrics_files(path, kind)
+    if not files:
+        raise LogFileError(f"{path}: no {'TrainingMetrics*.json' if kind == TRAINING else 'EvalMetrics.json'} found")
+    frames = []
+    for f, label in files:
+        entries = _metrics_entries(f)
+        df = pd.DataFrame(entries)
+        if kind == TRAINING:
+            df["worker"] = int(label)
+        else:
+            df["stream"] = label
+        frames.append(df)
+    df = pd.concat(frames, ignore_index=True)
+    if kind == TRAINING and len(df):
+        per_iteration = max(int(df.loc[df["worker"] == df["worker"].min(), "trial"].max()), 1)
+        df["iteration"] = (df["episode"] - 1) // per_iteration
+    return df
+
+
+def _metrics_files(path: Path, kind: str) -> list[tuple[Path, str]]:
+    if path.is_file():
+        return [(path, _metrics_label(path, kind))]
+    if kind == TRAINING:
+        found = sorted(path.glob("metrics/TrainingMetrics*.json")) or sorted(path.glob("TrainingMetrics*.json"))
+    else:
+        found = sorted(path.glob("evaluation-*/EvalMetrics.json")) or sorted(path.glob("EvalMetrics.json"))
+    return [(f, _metrics_label(f, kind)) for f in found]
+
+
+def _metrics_label(f: Path, kind: str) -> str:
+    if kind == TRAINING:
+        m = re.search(r"_(\d+)\.json$", f.name)
+        return m.group(1) if m else "0"
+    m = re.match(r"evaluation-(\d{14})$", f.parent.name)
+    return m.group(1) if m else f.parent.name
+
+
+def _metrics_entries(f: Path) -> list[dict]:
+    try:
+        doc = json.loads(f.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise LogFileError(f"{f}: not readable metrics JSON ({e})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), list):
+        raise LogFileError(f"{f}: expected an object with a 'metrics' list")
+    return doc["metrics"]
+
+
+# ---------------------------------------------------------------------------------------------------------
 # the frame
 
 
@@ -228,4 +293,4 @@ def _columns_in_order(df: pd.DataFrame) -> pd.DataFrame:
     return df[cols]
 
 
-__all__ = ["FRAME_COLUMNS", "load"]
+__all__ = ["FRAME_COLUMNS", "load", "load_metrics"]

@@ -17,6 +17,7 @@ import hashlib
 import json
 import os
 import secrets
+import time
 from pathlib import Path
 
 import pyarrow as pa
@@ -76,7 +77,21 @@ class SegmentCache:
                 continue
             entries.append(seg)
             covered.update(seg["keys"])
+        self._remove_orphans()
         return tables, entries, covered
+
+    def _remove_orphans(self, min_age_s: float = 3600.0) -> None:
+        """Segments no manifest names (a concurrent load won the manifest race) once they are old."""
+        if not self.folder.is_dir():
+            return
+        named = {s["file"] for s in self.segments}
+        now = time.time()
+        for p in self.folder.glob("segment-*.parquet"):
+            try:
+                if p.name not in named and now - p.stat().st_mtime > min_age_s:
+                    p.unlink()
+            except OSError:
+                pass
 
     def add(self, keys: list[str], table: pa.Table, info: dict | None = None) -> None:
         """Store `table` (the rows of the sources `keys`) as a new segment; merge when there are many."""
