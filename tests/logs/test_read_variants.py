@@ -111,6 +111,17 @@ def test_seventeen_column_csv_and_gzip_csv(tmp_path, cache):
     assert (df["pause_duration"] == 0).all()
 
 
+def test_mixed_headers_keep_file_order(tmp_path, cache):
+    folder = tmp_path / "model" / "training-simtrace"
+    write(folder / "0-iteration.csv", csv_text([0], HEADER_17, 17))
+    write(folder / "1-iteration.csv", csv_text([1, 2]))
+    write(folder / "2-iteration.csv", csv_text([3], HEADER_17, 17))
+    write(folder / "3-iteration.csv", "\n".join(csv_text([4]).splitlines()[:2]) + "\n\n" + rows(19, 4)[1] + "\n")
+    df = load(folder.parent, cache_dir=cache)
+    assert df["episode"].tolist() == [0] * 3 + [1] * 3 + [2] * 3 + [3] * 3 + [4] * 2
+    assert df["wall_clock"].isna().tolist() == [True] * 3 + [False] * 6 + [True] * 3 + [False] * 2
+
+
 def test_old_console_tar_gz_read_in_place(tmp_path, cache):
     hyper = {"num_episodes_between_training": 2}
     members = {

@@ -154,15 +154,20 @@ def read_simtrace_csvs(blobs: list[tuple[str, bytes]], threads: bool = True) -> 
         names, body = split_header(plain[i], name)
         groups.setdefault(tuple(names), []).append((i, name, body))
     counts = np.zeros(len(blobs), np.int64)
-    pieces: list[tuple[int, pa.Table]] = []
+    tables, order = [], []
     for names, files in groups.items():
         table, rows = _parse_group(list(names), files, threads)
         for (i, _, _), r in zip(files, rows, strict=True):
             counts[i] = r
-        pieces.append((files[0][0], table, [f[0] for f in files], rows))
-    if len(pieces) == 1:
-        return pieces[0][1], counts
-    return _reorder(pieces, len(blobs)), counts
+        tables.append(table)
+        order.extend(i for i, _, _ in files)
+    if len(tables) == 1:
+        return tables[0], counts
+    # header groups were parsed apart: put the files back in the order given
+    starts = np.zeros(len(blobs), np.int64)
+    starts[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]])
+    rows = np.concatenate([np.arange(starts[i], starts[i] + counts[i]) for i in range(len(blobs))])
+    return pa.concat_tables(tables).take(pa.array(rows)), counts
 
 
 def _decompress_all(blobs: list[tuple[str, bytes]], threads: bool) -> list[bytes]:
@@ -185,23 +190,6 @@ def _parse_group(names: list[str], files, threads: bool) -> tuple[pa.Table, list
     # a bad file, or blank lines that make row counts unreliable: one by one, to name the culprit
     tables = [normalise(parse_csv_body(body, names, name, threads)) for _, name, body in files]
     return pa.concat_tables(tables), [t.num_rows for t in tables]
-
-
-def _reorder(pieces, n_files: int) -> pa.Table:
-    """Tables of header groups -> one table with the files back in their original order."""
-    order = []
-    offset = 0
-    starts = {}
-    for _, table, idx, rows in pieces:
-        for i, r in zip(idx, rows, strict=True):
-            starts[i] = (offset, r)
-            offset += r
-        del table
-    for i in range(n_files):
-        s, r = starts[i]
-        order.append(np.arange(s, s + r))
-    whole = pa.concat_tables([p[1] for p in pieces])
-    return whole.take(pa.array(np.concatenate(order) if order else np.zeros(0, np.int64)))
 
 
 # ---------------------------------------------------------------------------------------------------------
