@@ -1,0 +1,22 @@
+"""Evaluation under race rules: trials, continuous laps, penalties and resets, race results, videos.
+
+    >>> from racerlab.evaluate import evaluate, race
+    >>> res = evaluate("my-model", trials=3, continuous=True, off_track_penalty=5.0)
+    >>> print(res.report())                  # each lap's time, off-tracks and resets, best lap, result
+    >>> res.text                             # "3 laps, average 9.613 s"
+    >>> board = race(["a", "b", "c"], track="reInvent2019_track")
+    >>> print(board.table())
+
+Parts: `rules` (RaceRules, where a car is put back), `runner` (driving one car under the rules),
+`results` (laps, DeepRacer's ranking numbers), `api` (model folders in, evaluation folders out),
+`race` (leaderboards), `video` (MP4 of a run).
+"""
+
+from racerlab.evaluate.api import EvaluationResult, evaluate
+from racerlab.evaluate.race import Leaderboard, race
+from racerlab.evaluate.results import Lap, RaceResult, race_result
+from racerlab.evaluate.rules import RaceRules
+from racerlab.evaluate.runner import EvalRun, run_evaluation
+
+__all__ = ["EvalRun", "EvaluationResult", "Lap", "Leaderboard", "RaceResult", "RaceRules", "evaluate", "race",
+           "race_result", "run_evaluation"]

@@ -1,0 +1,245 @@
+"""`evaluate(model_dir)`: a model folder's checkpoint driven under race rules, with its logs and result.
+
+Loads the checkpoint (best by default, as simapp's EVAL_CHECKPOINT), checks that it matches the
+folder's model_metadata.json, builds a one-car world on the chosen track (the model's training
+track by default; any track works for every sensor, since observations are computed from the
+track's geometry) and drives greedy actions under `RaceRules`. Writes, in a new
+`<model>/evaluation-<YYYYmmddHHMMSS>/` folder (the DRfC layout deepracer-utils reads, see
+`racerlab.logs`): `evaluation-simtrace/0-iteration.csv`, `EvalMetrics.json`, `summary.json` and,
+when asked, `evaluation.mp4`.
+
+Rules are judged in AWS order (`reward_order="aws"`) whatever the training used, so that every
+model is timed the same way.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+
+from racerlab import logs
+from racerlab.errors import RacerlabError
+from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
+from racerlab.evaluate.rules import RaceRules
+from racerlab.evaluate.runner import EvalRun, run_evaluation
+
+SUMMARY_NAME = "summary.json"
+VIDEO_NAME = "evaluation.mp4"
+
+
+@dataclass
+class EvaluationResult:
+    """One model's evaluation: its laps, race numbers and where the files are."""
+
+    model: str  # the model folder's name
+    model_dir: Path
+    checkpoint: str
+    track: str
+    rules: RaceRules
+    laps: list[Lap]
+    result: RaceResult
+    out_dir: Path | None = None
+    files: dict[str, Path] = field(default_factory=dict)  # simtrace, eval_metrics, summary, video
+    steps: int = 0
+    wall_seconds: float = 0.0
+    run: EvalRun | None = field(default=None, repr=False)
+
+    @property
+    def text(self) -> str:
+        """The result in the league's words."""
+        return self.result.text
+
+    def header(self) -> str:
+        r = self.rules
+        mode = "continuous" if r.continuous else "separate"
+        direction = ", reversed" if r.reverse else ""
+        return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {r.trials} trials, {mode} laps, "
+                f"off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
+
+    def table(self) -> str:
+        return lap_table(self.laps)
+
+    def report(self) -> str:
+        """Header, the lap table and the result lines, as the command prints them."""
+        return "\n".join([self.header(), self.table(), *result_lines(self.result)])
+
+    def summary(self) -> dict:
+        return {
+            "model": self.model, "model_dir": str(self.model_dir), "checkpoint": self.checkpoint,
+            "track": self.track, "rules": self.rules.to_json(), "result": self.result.to_json(),
+            "laps": [lap.to_json() for lap in self.laps], "steps": self.steps,
+            "wall_seconds": round(self.wall_seconds, 3),
+            "files": {k: str(v.relative_to(self.out_dir)) for k, v in self.files.items()} if self.out_dir else {},
+            "created": datetime.now().isoformat(timespec="seconds"),
+        }
+
+
+# ---- loading a model ------------------------------------------------------------------------------
+
+
+@dataclass
+class LoadedModel:
+    folder: object  # ModelFolder
+    metadata: object  # ModelMetadata
+    checkpoint: str
+    state: dict
+    observation: str
+    reward_path: Path
+
+
+def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
+    """The folder's files and the checkpoint's weights, refusing a checkpoint that does not fit."""
+    from racerlab.train.folder import ModelFolder
+
+    folder = ModelFolder(model_dir)
+    folder.require()
+    meta = folder.metadata()
+    cfg = folder.config()
+    info = folder.resolve_checkpoint(checkpoint)
+    ck = folder.load_checkpoint(info)
+    where = folder.checkpoints_dir / info.name
+    if not isinstance(ck, dict) or "agent" not in ck:
+        raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+    if ck.get("metadata") is not None:
+        _check_same_model(ck["metadata"], meta, where, folder.metadata_path)
+    return LoadedModel(folder, meta, info.name, ck, cfg.run.observation, folder.reward_path)
+
+
+def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
+    from racerlab.metadata import parse_model_metadata
+
+    trained = parse_model_metadata(ck_meta, f"{where} (its model_metadata)")
+    diffs = []
+    if trained.action_space_type != meta.action_space_type:
+        diffs.append(f"action space {trained.action_space_type} vs {meta.action_space_type}")
+    elif meta.action_space_type == "discrete" and trained.actions.n != meta.actions.n:
+        diffs.append(f"{trained.actions.n} actions vs {meta.actions.n}")
+    for name in ("sensor", "neural_network", "training_algorithm"):
+        a, b = getattr(trained, name), getattr(meta, name)
+        if a != b:
+            diffs.append(f"{name} {list(a) if name == 'sensor' else a} vs {list(b) if name == 'sensor' else b}")
+    if diffs:
+        raise RacerlabError(f"{where} does not match {meta_path}: it was trained with {'; '.join(diffs)}; restore "
+                            "the model_metadata.json it was trained with or train again")
+
+
+def make_policy(model: LoadedModel, world, device: str = "cpu"):
+    """Greedy actions of the checkpoint's agent (argmax for discrete, the mean for continuous, as AWS)."""
+    from racerlab.agent import make_agent
+
+    agent = make_agent(world.observation.space, model.metadata, model.folder.hyperparameters(), device=device,
+                       seed=0)
+    obs_name = getattr(world.observation, "name", None) or model.observation or "default"
+    try:
+        agent.load_state_dict(model.state["agent"])
+    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RacerlabError(f"{model.folder.checkpoints_dir / model.checkpoint}: its weights do not fit the network "
+                            f"built from {model.folder.metadata_path} and the '{obs_name}' observation "
+                            f"({first}); evaluate with the settings it was trained with or train again") from None
+
+    def policy(obs):
+        out = agent.act(obs, greedy=True)
+        return out[0] if isinstance(out, tuple) else out
+
+    return policy
+
+
+def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0):
+    from racerlab.sim.core import StartRules
+    from racerlab.sim.reward import RewardCaller, load_reward_function
+    from racerlab.train.rollout import World
+
+    reward = RewardCaller(load_reward_function(model.reward_path))
+    # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
+    start = StartRules(reverse=rules.reverse)
+    return World(track, 1, model.metadata, reward, model.observation, start, rules.max_episode_steps, "aws", seed)
+
+
+def resolve_track(model: LoadedModel, track=None):
+    from racerlab.track import load as load_track
+
+    name = track if track is not None else model.folder.config().track.names[0]
+    return load_track(name)
+
+
+# ---- evaluate -------------------------------------------------------------------------------------
+
+
+def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, off_track_penalty: float = 5.0,
+             collision_penalty: float = 5.0, max_resets: int = 100, checkpoint: str | int = "best",
+             reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
+             ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
+             progress: bool = False, on_lap=None) -> EvaluationResult:
+    """Evaluate the model in `model_dir` under race rules (DRfC defaults) and write its evaluation folder.
+
+    `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
+    or an iteration number. `rules` replaces the individual rule arguments. With `video` an MP4 of
+    the run is written too (`progress` shows rendering progress on stderr). `write=False` keeps
+    everything in memory. `on_lap(lap)` is called as each lap ends.
+    """
+    rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
+                               collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
+    model = load_model(model_dir, checkpoint)
+    track_obj = resolve_track(model, track)
+    world = make_world(model, track_obj, rules)
+    policy = make_policy(model, world, device)
+    image_of = None
+    if video:
+        from racerlab.evaluate.video import camera_image
+
+        image_of = camera_image
+    run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
+    result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
+                              rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
+                              wall_seconds=run.wall_seconds, run=run)
+    if write:
+        _write(result, world, video, progress)
+    return result
+
+
+def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None:
+    out = logs.new_evaluation_dir(result.model_dir)
+    result.out_dir = out
+    run = result.run
+    result.files["simtrace"] = logs.write_simtrace(logs.eval_simtrace_path(out), run.trace)
+    metrics = logs.EvalMetrics(logs.eval_metrics_path(out))
+    metrics.add([lap.eval_metrics_entry() for lap in result.laps])
+    result.files["eval_metrics"] = metrics.save()
+    # the summary first: a video that fails (or is interrupted) leaves a complete evaluation
+    _write_summary(result)
+    if video:
+        from racerlab.evaluate.video import render_video
+
+        sim = world.sim
+        track = sim.track_reversed if result.rules.reverse else sim.track
+        t0 = time.perf_counter()
+        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=f"{result.model} on {result.track}",
+                                             max_speed=_top_speed(world.metadata), progress=progress)
+        result.wall_seconds += time.perf_counter() - t0
+        _write_summary(result)
+
+
+def _write_summary(result: EvaluationResult) -> None:
+    result.files["summary"] = result.out_dir / SUMMARY_NAME
+    logs.atomic_write_json(result.files["summary"], finite_json(result.summary()), indent=2)
+
+
+def _top_speed(metadata) -> float:
+    acts = metadata.actions
+    top = max(acts.speed) if hasattr(acts, "speed") else acts.speed_high
+    return float(min(max(top, 0.5), 4.0))
+
+
+def finite_json(obj):
+    """NaN and inf become null: summary.json stays strict JSON."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite_json(v) for v in obj]
+    return obj

@@ -1,0 +1,96 @@
+"""`race(models)`: several models evaluated on one track under the same rules, and the leaderboard.
+
+Each model gets its own evaluation folder (as `evaluate` writes it); the leaderboard ranks them
+by `results.rank_key`: the best average over `ranking_laps` consecutive completed laps, as
+DeepRacer on AWS ranks, then more completed laps, the best lap and progress for the rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+from racerlab import logs
+from racerlab.errors import RacerlabError
+from racerlab.evaluate.api import EvaluationResult, evaluate, finite_json, load_model
+from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, rank_key
+from racerlab.evaluate.rules import RaceRules
+from racerlab.logs.layout import STAMP_FORMAT
+
+
+@dataclass
+class Leaderboard:
+    track: str
+    rules: RaceRules
+    ranking_laps: int
+    entries: list[EvaluationResult]  # best first
+    path: Path | None = None
+
+    def rows(self) -> list[dict]:
+        out = []
+        for rank, e in enumerate(self.entries, 1):
+            r = e.result
+            out.append({"rank": rank, "model": e.model, "model_dir": str(e.model_dir), "checkpoint": e.checkpoint,
+                        "result": r.text, "best_lap": r.best_lap, "ranking_average": r.ranking_average,
+                        "mean_lap": r.mean_lap, "laps_completed": r.laps_completed, "laps": r.laps,
+                        "completed_streak": r.completed_streak, "off_track": r.off_track, "resets": r.resets,
+                        "total_time": r.total_time, "mean_progress": round(r.mean_progress, 2),
+                        "evaluation": str(e.out_dir) if e.out_dir else None})
+        return out
+
+    def to_json(self) -> dict:
+        return {"track": self.track, "rules": self.rules.to_json(), "ranking_laps": self.ranking_laps,
+                "created": datetime.now().isoformat(timespec="seconds"), "leaderboard": self.rows()}
+
+    def table(self) -> str:
+        def sec(x):
+            return "-" if x is None else f"{x:.3f}"
+
+        width = max([5, *(len(e.model) for e in self.entries)])
+        avg = f"avg {self.ranking_laps}"
+        lines = [f"{'rank':>4}  {'model':<{width}}  {'best lap':>8}  {avg:>8}  {'laps':>5}  {'off-track':>9}  "
+                 f"{'resets':>6}  result"]
+        for row in self.rows():
+            laps = f"{row['laps_completed']}/{row['laps']}"
+            lines.append(f"{row['rank']:>4}  {row['model']:<{width}}  {sec(row['best_lap']):>8}  "
+                         f"{sec(row['ranking_average']):>8}  {laps:>5}  {row['off_track']:>9}  {row['resets']:>6}  "
+                         f"{row['result']}")
+        return "\n".join(lines)
+
+
+def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
+         ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
+         on_result=None, device: str = "cpu") -> Leaderboard:
+    """Evaluate every model on `track` (default: the first model's training track) under `rules` and
+    rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the current
+    folder; `out=False` writes nothing). `on_result(result)` is called after each model."""
+    model_dirs = [Path(m) for m in model_dirs]
+    if not model_dirs:
+        raise RacerlabError("race needs at least one model folder")
+    rules = rules or RaceRules()
+    if track is None:
+        track = load_model(model_dirs[0], checkpoint).folder.config().track.names[0]
+    results = []
+    for m in model_dirs:
+        res = evaluate(m, track=track, rules=rules, checkpoint=checkpoint, ranking_laps=ranking_laps, video=video,
+                       progress=progress, device=device)
+        results.append(res)
+        if on_result:
+            on_result(res)
+    _disambiguate(results)
+    board = Leaderboard(results[0].track, rules, results[0].result.ranking_laps,
+                        sorted(results, key=lambda r: rank_key(r.result)))
+    if out is not False:
+        path = Path(out) if out else Path(f"race-{datetime.now().strftime(STAMP_FORMAT)}.json")
+        board.path = logs.atomic_write_json(path, finite_json(board.to_json()), indent=2)
+    return board
+
+
+def _disambiguate(results: list[EvaluationResult]) -> None:
+    """Two folders with the same name are told apart by their paths."""
+    names = [r.model for r in results]
+    for r in results:
+        if names.count(r.model) > 1:
+            r.model = str(r.model_dir)
+

@@ -1,0 +1,260 @@
+"""Lap videos: the evaluation seen from above, one frame per simulator step (15 fps = real time).
+
+The track is drawn once with matplotlib (`racerlab.track.plot.draw_track`) into an RGB picture;
+each frame copies it, adds the newest piece of the car's trail (coloured by ground speed; the
+trail picture persists, so nothing is redrawn) and then draws the car to scale (0.196 m × 0.324 m,
+AWS's collision box), the lap timer and, for camera models, what the camera saw. During a penalty
+the car blinks, as in the AWS simulator. Frames go to an MP4 through imageio's ffmpeg writer.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from racerlab.errors import RacerlabError
+from racerlab.track.core import Track
+
+FPS = 15
+CAR_LENGTH_M = 0.324  # BOT_CAR_DIMENSION (facts §2), centred on the base pose
+CAR_WIDTH_M = 0.196
+SPEED_CMAP = "plasma"
+MAX_TRAIL_JUMP_M = 0.5  # longer moves between rows are resets: no trail line
+PANEL = (255, 255, 255, 215)
+TEXT = (20, 20, 20)
+
+
+def camera_image(obs) -> np.ndarray | None:
+    """The first car's camera picture in an observation, as a greyscale uint8 image (stereo side by side);
+    None when the observation has no image (features, lidar)."""
+    arrays = obs.values() if isinstance(obs, dict) else [obs]
+    for a in arrays:
+        a = np.asarray(a)
+        if a.ndim < 3:
+            continue
+        img = a[0]
+        if img.ndim == 3:
+            if not (img.shape[0] <= 4 and img.shape[0] < img.shape[-1]):
+                img = np.moveaxis(img, -1, 0)  # channels last -> first
+            img = np.concatenate(list(img), axis=1)
+        if img.dtype != np.uint8:
+            img = np.asarray(img, dtype=np.float64)
+            img = img * 255.0 if img.max(initial=0.0) <= 1.0 else img
+            img = np.clip(img, 0, 255).astype(np.uint8)
+        return img
+    return None
+
+
+class TrackCanvas:
+    """The static top-down picture of a track and the metres → pixels mapping."""
+
+    def __init__(self, track: Track, width_px: int = 960, margin_m: float = 0.3):
+        pts = np.vstack([track.inner, track.outer])
+        lo = pts.min(axis=0) - margin_m
+        hi = pts.max(axis=0) + margin_m
+        span = hi - lo
+        self.width = _even16(width_px)
+        self.scale = self.width / span[0]
+        self.height = _even16(span[1] * self.scale)
+        # stretch the y range so that pixels stay square after rounding the height
+        self.x0, self.x1 = lo[0], hi[0]
+        mid_y = 0.5 * (lo[1] + hi[1])
+        half_h = 0.5 * self.height / self.scale
+        self.y0, self.y1 = mid_y - half_h, mid_y + half_h
+        self.background = self._render(track)
+
+    def _render(self, track: Track) -> np.ndarray:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+        from racerlab.track.plot import draw_track
+
+        dpi = 100
+        fig = Figure(figsize=(self.width / dpi, self.height / dpi), dpi=dpi)
+        ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+        draw_track(track, ax, waypoint_numbers=False, title=False)
+        ax.set_aspect("auto")
+        ax.set_xlim(self.x0, self.x1)
+        ax.set_ylim(self.y0, self.y1)
+        ax.set_axis_off()
+        agg = FigureCanvasAgg(fig)
+        agg.draw()
+        return np.asarray(agg.buffer_rgba())[..., :3].copy()
+
+    def px(self, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates (column, row) of points in metres."""
+        return (np.asarray(x) - self.x0) * self.scale, (self.y1 - np.asarray(y)) * self.scale
+
+
+def _even16(x: float) -> int:
+    """Round a frame size to a multiple of 16 (what H.264 encoders want)."""
+    return max(16, int(round(x / 16.0)) * 16)
+
+
+def _speed_colours(speed: np.ndarray, vmax: float) -> list[tuple[int, int, int]]:
+    from matplotlib import colormaps
+
+    cmap = colormaps[SPEED_CMAP]
+    rgb = cmap(np.clip(speed / max(vmax, 1e-6), 0.0, 1.0))[:, :3]
+    return [tuple(int(round(c * 255)) for c in row) for row in rgb]
+
+
+def car_polygon(canvas: TrackCanvas, x: float, y: float, yaw: float) -> list[tuple[float, float]]:
+    """The car's footprint corners in pixels (front first)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    hl, hw = 0.5 * CAR_LENGTH_M, 0.5 * CAR_WIDTH_M
+    corners = [(hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw)]
+    xs = [x + a * c - b * s for a, b in corners]
+    ys = [y + a * s + b * c for a, b in corners]
+    px, py = canvas.px(xs, ys)
+    return list(zip(px.tolist(), py.tolist(), strict=True))
+
+
+class _Hud:
+    """Text and pictures drawn over each frame."""
+
+    def __init__(self, title: str, laps_wanted: int, vmax: float, scale: int):
+        from PIL import ImageFont
+
+        self.font = ImageFont.load_default(size=16 * scale)
+        self.small = ImageFont.load_default(size=12 * scale)
+        self.title = title
+        self.laps_wanted = laps_wanted
+        self.vmax = vmax
+        self.scale = scale
+
+    def draw(self, draw, lines: list[str]) -> None:
+        s = self.scale
+        width = max(draw.textlength(t, font=self.font) for t in lines) + 16 * s
+        draw.rectangle((6 * s, 6 * s, 6 * s + width, 12 * s + 21 * s * len(lines)), fill=PANEL)
+        for i, t in enumerate(lines):
+            draw.text((14 * s, 10 * s + 21 * s * i), t, fill=TEXT, font=self.font)
+
+    def speed_bar(self, draw, width: int, height: int, colours: list) -> None:
+        s = self.scale
+        x0, y0, w, h = width - 190 * s, height - 34 * s, 170 * s, 10 * s
+        draw.rectangle((x0 - 8 * s, y0 - 22 * s, x0 + w + 8 * s, y0 + h + 6 * s), fill=PANEL)
+        for i in range(w):
+            draw.line((x0 + i, y0, x0 + i, y0 + h), fill=colours[int(i / w * (len(colours) - 1))])
+        draw.text((x0, y0 - 19 * s), f"trail: speed 0 to {self.vmax:.1f} m/s", fill=TEXT, font=self.small)
+
+
+def render_video(path, track: Track, run, *, title: str = "", max_speed: float = 4.0, width_px: int = 960,
+                 progress: Callable[[int, int], None] | bool = False) -> Path:
+    """Write the evaluation `run` (an `EvalRun`) on `track` (driving direction) as an MP4 at `path`."""
+    from PIL import Image, ImageDraw
+
+    path = Path(path)
+    canvas = TrackCanvas(track, width_px)
+    scale = max(1, int(round(canvas.width / 960)))
+    extra, trace = run.extra, run.trace
+    n = run.rows
+    colours = _speed_colours(extra["speed"], max_speed)
+    hud = _Hud(title, int(trace["episode"].max(initial=0)) + 1, max_speed, scale)
+    bar = _speed_colours(np.linspace(0, max_speed, 64), max_speed)
+    report = _progress_printer(progress)
+    trail = Image.fromarray(canvas.background)
+    tdraw = ImageDraw.Draw(trail)
+    px, py = canvas.px(extra["base_x"], extra["base_y"])
+    lap_of = trace["episode"]
+    lap_times: list[str] = []
+    tmp = path.with_name(f".{path.stem}.partial{path.suffix}")  # published by rename when complete
+    writer = _open_writer(tmp)
+    try:
+        for i in range(n):
+            if i and lap_of[i] != lap_of[i - 1] and trace["episode_status"][i] == "prepare":
+                trail = Image.fromarray(canvas.background)  # a new trial from the line: a clean track
+                tdraw = ImageDraw.Draw(trail)
+            if i and trace["episode_status"][i] != "pause" and math.hypot(
+                    extra["base_x"][i] - extra["base_x"][i - 1], extra["base_y"][i] - extra["base_y"][i - 1]) \
+                    < MAX_TRAIL_JUMP_M:
+                tdraw.line((px[i - 1], py[i - 1], px[i], py[i]), fill=colours[i], width=3 * scale)
+            frame = trail.copy()
+            draw = ImageDraw.Draw(frame, "RGBA")
+            _draw_car(draw, canvas, extra, trace, i)
+            if trace["episode_status"][i] == "lap_complete":
+                lap_times.append(f"lap {len(lap_times) + 1}: {extra['lap_clock'][i]:.3f} s")
+            hud.draw(draw, _hud_lines(hud, trace, extra, i, lap_times))
+            hud.speed_bar(draw, canvas.width, canvas.height, bar)
+            if run.frames is not None and run.frames[i] is not None:
+                _inset(frame, run.frames[i], canvas.width, scale)
+            writer.append_data(np.asarray(frame))
+            report(i + 1, n)
+        writer.close()
+        os.replace(tmp, path)
+    finally:
+        writer.close()
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _hud_lines(hud: _Hud, trace, extra, i: int, lap_times: list[str]) -> list[str]:
+    lap = min(int(trace["episode"][i]) + 1, hud.laps_wanted)
+    status = str(trace["episode_status"][i])
+    state = {"pause": f"penalty: {trace['pause_duration'][i]:.1f} s left", "off_track": "off track!",
+             "reversed": "reversed!", "immobilized": "immobilized!", "crashed": "crashed!",
+             "lap_complete": "lap complete", "prepare": "ready"}.get(status, "")
+    lines = [hud.title] if hud.title else []
+    lines += [f"lap {lap}/{hud.laps_wanted}   {extra['lap_clock'][i]:6.2f} s",
+              f"speed {extra['speed'][i]:.2f} m/s   progress {trace['progress'][i]:5.1f} %"]
+    if state:
+        lines.append(state)
+    return lines + lap_times[-4:]
+
+
+def _draw_car(draw, canvas: TrackCanvas, extra, trace, i: int) -> None:
+    x, y, yaw = extra["base_x"][i], extra["base_y"][i], extra["base_yaw"][i]
+    poly = car_polygon(canvas, x, y, yaw)
+    paused = trace["episode_status"][i] == "pause"
+    if paused and (i // 3) % 2:  # blink while held, as AWS's BlinkEffect
+        fill, edge = (30, 120, 255, 70), (30, 120, 255, 120)
+    else:
+        fill, edge = (30, 120, 255, 255), (0, 0, 0, 255)
+    draw.polygon(poly, fill=fill, outline=edge)
+    (fx1, fy1), (fx2, fy2) = poly[0], poly[1]
+    draw.line((fx1, fy1, fx2, fy2), fill=(255, 255, 255, 255), width=2)  # the front
+
+
+def _inset(frame, image: np.ndarray, width: int, scale: int) -> None:
+    """What the camera saw, top right, at twice its size."""
+    from PIL import Image
+
+    pic = Image.fromarray(image).convert("RGB")
+    factor = 2 * scale if image.shape[1] <= 200 else scale
+    pic = pic.resize((image.shape[1] * factor, image.shape[0] * factor), Image.NEAREST)
+    x = width - pic.width - 10 * scale
+    frame.paste((20, 20, 20), (x - 3, 7, x + pic.width + 3, 13 + pic.height))
+    frame.paste(pic, (x, 10))
+
+
+def _open_writer(path: Path):
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg  # noqa: F401 - imageio's ffmpeg plugin needs it
+    except ImportError:
+        raise RacerlabError("writing a video needs imageio-ffmpeg: pip install imageio-ffmpeg") from None
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return imageio.get_writer(str(path), fps=FPS, codec="libx264", quality=7, macro_block_size=16,
+                              ffmpeg_log_level="error")
+
+
+def _progress_printer(progress) -> Callable[[int, int], None]:
+    if callable(progress):
+        return progress
+    if not progress:
+        return lambda done, total: None
+    state = {"shown": -1}
+
+    def show(done: int, total: int) -> None:
+        pct = int(100 * done / max(total, 1))
+        if pct != state["shown"] and (pct % 5 == 0 or done == total):
+            state["shown"] = pct
+            end = "\n" if done == total else ""
+            print(f"\rrendering video: {done}/{total} frames ({pct} %)", end=end, file=sys.stderr, flush=True)
+
+    return show
