@@ -1,0 +1,83 @@
+"""`racerlab evaluate MODEL` and `racerlab race A B C`: race-rule evaluations and leaderboards."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _rule_flags(p) -> None:
+    p.add_argument("--track", help="track name or path (default: the (first) model's training track)")
+    p.add_argument("--trials", type=int, default=3, help="laps (continuous) or trials to drive (default 3)")
+    p.add_argument("--continuous", action=argparse.BooleanOptionalAction, default=True,
+                   help="drive the trials as consecutive laps of one episode (default) or each from the start line")
+    p.add_argument("--off-track-penalty", type=float, default=5.0, metavar="S",
+                   help="seconds held after an off-track or reversal (default 5, as DRfC)")
+    p.add_argument("--collision-penalty", type=float, default=5.0, metavar="S", help="seconds held after a crash")
+    p.add_argument("--max-resets", type=int, default=100, metavar="N",
+                   help="resets per episode; the next incident ends it (default 100)")
+    p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
+    p.add_argument("--reverse", action="store_true", help="drive the track the other way round")
+    p.add_argument("--ranking-laps", type=int, default=3, metavar="N",
+                   help="consecutive completed laps whose best average ranks a model (default 3)")
+    p.add_argument("--video", action="store_true", help="also write an MP4 of the run (evaluation.mp4)")
+    p.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("evaluate", help="evaluate a model under race rules (trials, penalties, resets)",
+                       description="Drive a model's checkpoint with greedy actions under AWS race rules (DRfC "
+                                   "defaults: 3 continuous laps, 5 s off-track penalty, 100 resets) and write the "
+                                   "evaluation simtrace, EvalMetrics.json and summary.json into the model folder.")
+    p.add_argument("model", type=Path, help="model folder")
+    _rule_flags(p)
+    p.set_defaults(func=run_evaluate)
+
+    p = sub.add_parser("race", help="evaluate several models under the same rules and rank them",
+                       description="Evaluate every model on one track under the same race rules and print a "
+                                   "leaderboard ranked as DeepRacer ranks (best average of consecutive laps).")
+    p.add_argument("models", type=Path, nargs="+", help="model folders")
+    _rule_flags(p)
+    p.add_argument("--out", type=Path, help="leaderboard JSON file (default race-<stamp>.json here)")
+    p.set_defaults(func=run_race)
+
+
+def _rules(args):
+    from racerlab.evaluate import RaceRules
+
+    return RaceRules(trials=args.trials, continuous=args.continuous, off_track_penalty=args.off_track_penalty,
+                     collision_penalty=args.collision_penalty, max_resets=args.max_resets, reverse=args.reverse)
+
+
+def _print_lap(lap) -> None:
+    how = f"{lap.time:.3f} s" if lap.completed else f"{lap.status.replace('_', ' ')} at {lap.progress:.1f} %"
+    print(f"  lap {lap.trial}: {how}", file=sys.stderr, flush=True)
+
+
+def run_evaluate(args) -> int:
+    from racerlab.evaluate import evaluate
+
+    res = evaluate(args.model, track=args.track, rules=_rules(args), checkpoint=args.checkpoint, video=args.video,
+                   ranking_laps=args.ranking_laps, device=args.device, progress=True, on_lap=_print_lap)
+    print(res.report())
+    names = ", ".join(str(p.relative_to(res.out_dir)) for p in res.files.values())
+    print(f"written to {res.out_dir}: {names}")
+    return 0
+
+
+def run_race(args) -> int:
+    from racerlab.evaluate import race
+
+    def done(res):
+        print(f"{res.model}: {res.text}", file=sys.stderr, flush=True)
+
+    board = race(args.models, track=args.track, rules=_rules(args), checkpoint=args.checkpoint,
+                 ranking_laps=args.ranking_laps, out=args.out, video=args.video, progress=True, on_result=done,
+                 device=args.device)
+    r = board.rules
+    print(f"race on {board.track}: {r.trials} {'continuous laps' if r.continuous else 'trials'}, off-track penalty "
+          f"{r.off_track_penalty:g} s, up to {r.max_resets} resets")
+    print(board.table())
+    print(f"leaderboard written to {board.path}")
+    return 0
