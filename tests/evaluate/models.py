@@ -9,17 +9,24 @@ from racerlab.train.folder import ModelFolder
 
 REWARD = "def reward_function(params):\n    return 1.0 if params['all_wheels_on_track'] else 1e-3\n"
 SENSORS = {"features": (["FEATURES"], "MLP"), "camera": (["FRONT_FACING_CAMERA"], "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
+           "stereo": (["STEREO_CAMERAS"], "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
            "lidar": (["LIDAR"], "MLP"), "camera+lidar": (["FRONT_FACING_CAMERA", "LIDAR"],
                                                          "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")}
 
 
-def write_model(path: Path, track: Path | str, actions=((0.0, 1.0),), sensor: str = "features") -> ModelFolder:
-    """A model folder whose discrete actions are `actions` ((steering °, speed m/s), ...), trained on `track`."""
+def write_model(path: Path, track: Path | str, actions=((0.0, 1.0),), sensor: str = "features",
+                algorithm: str = "clipped_ppo") -> ModelFolder:
+    """A model folder trained on `track` whose actions are `actions`: discrete ((steering °, speed m/s), ...)
+    or continuous {"steering_angle": {"low": .., "high": ..}, "speed": {...}}."""
     path.mkdir(parents=True, exist_ok=True)
     sensors, network = SENSORS[sensor]
-    meta = {"action_space": [{"steering_angle": s, "speed": v, "index": i} for i, (s, v) in enumerate(actions)],
-            "action_space_type": "discrete", "sensor": sensors, "neural_network": network,
-            "training_algorithm": "clipped_ppo", "version": "5"}
+    if isinstance(actions, dict):
+        space, kind = actions, "continuous"
+    else:
+        space = [{"steering_angle": s, "speed": v, "index": i} for i, (s, v) in enumerate(actions)]
+        kind = "discrete"
+    meta = {"action_space": space, "action_space_type": kind, "sensor": sensors, "neural_network": network,
+            "training_algorithm": algorithm, "version": "5"}
     (path / "model_metadata.json").write_text(json.dumps(meta))
     (path / "reward_function.py").write_text(REWARD)
     (path / "training.toml").write_text(f'[track]\nnames = ["{track}"]\n[run]\nnum_cars = 1\n')

@@ -29,8 +29,8 @@ def wide():
     return aws_track_path("reInvent2019_wide")
 
 
-def model(tmp_path, track, name="m", actions=((0.0, 1.0),), sensor="features"):
-    folder = write_model(tmp_path / name, track, actions, sensor)
+def model(tmp_path, track, name="m", actions=((0.0, 1.0),), sensor="features", algorithm="clipped_ppo"):
+    folder = write_model(tmp_path / name, track, actions, sensor, algorithm)
     write_checkpoint(folder)
     return folder
 
@@ -106,7 +106,21 @@ def test_weights_that_do_not_fit_are_one_line(tmp_path, wide):
     assert "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize("sensor", ["features", "lidar", "camera", "camera+lidar"])
+@pytest.mark.parametrize("algorithm", ["clipped_ppo", "sac"])
+def test_continuous_actions_are_logged_as_commanded_values(tmp_path, straight, algorithm):
+    narrow = {"steering_angle": {"low": -1.0, "high": 1.0}, "speed": {"low": 0.8, "high": 1.2}}
+    folder = model(tmp_path, straight, actions=narrow, algorithm=algorithm)
+    res = evaluate(folder.path, trials=1)
+    assert res.laps[0].completed
+    trace = pd.read_csv(res.files["simtrace"])
+    steer, speed = np.array([a.strip("[]").split(" ") for a in trace.action], dtype=float).T
+    run = trace.episode_status == "in_progress"
+    assert np.allclose(steer[run], trace.steer[run], atol=0.006)
+    assert np.allclose(speed[run], trace.throttle[run], atol=0.006)
+    assert np.all((speed[run] >= 0.8) & (speed[run] <= 1.2))
+
+
+@pytest.mark.parametrize("sensor", ["features", "lidar", "camera", "stereo", "camera+lidar"])
 def test_any_sensor_on_a_track_it_never_trained_on(tmp_path, straight, wide, sensor):
     for part in sensor.split("+"):
         if part not in OBSERVATIONS:

@@ -1,0 +1,48 @@
+"""Video pieces: the camera picture found in any observation layout, the track canvas, the camera inset."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from racerlab.evaluate.rules import RaceRules
+from racerlab.evaluate.runner import run_evaluation
+from racerlab.evaluate.video import TrackCanvas, camera_image, car_polygon, render_video
+from tests.evaluate.test_runner import pursuit, world_on
+
+
+def test_camera_image_from_any_layout():
+    grey = np.arange(120 * 160, dtype=np.uint8).reshape(1, 120, 160)
+    assert camera_image(grey).shape == (120, 160)
+    assert camera_image(np.ones((1, 1, 120, 160), np.float32)).max() == 255  # [0, 1] floats, channels first
+    stereo = camera_image(np.zeros((1, 2, 120, 160), np.uint8))
+    assert stereo.shape == (120, 320)  # the two cameras side by side
+    assert camera_image(np.zeros((1, 120, 160, 2), np.uint8)).shape == (120, 320)  # channels last
+    both = {"lidar": np.zeros((1, 64), np.float32), "camera": grey}
+    assert camera_image(both) is not None and camera_image(np.zeros((1, 20), np.float32)) is None
+
+
+def test_canvas_keeps_metres_square_and_sizes_even(aws_track):
+    track = aws_track("reInvent2019_wide")
+    c = TrackCanvas(track, width_px=640)
+    assert c.width % 16 == 0 and c.height % 16 == 0 and c.background.shape == (c.height, c.width, 3)
+    px, py = c.px([c.x0, c.x1], [c.y1, c.y0])
+    assert px == pytest.approx([0, c.width]) and py == pytest.approx([0, c.height])
+    poly = np.array(car_polygon(c, 0.0, 0.0, 0.0))
+    assert np.ptp(poly[:, 0]) == pytest.approx(0.324 * c.scale) and np.ptp(poly[:, 1]) == pytest.approx(0.196 * c.scale)
+
+
+def test_video_with_a_camera_inset(tmp_path, aws_track):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    track = aws_track("reInvent2019_wide")
+    w = world_on(track)
+    white = np.full((1, 120, 160), 255, np.uint8)
+    run = run_evaluation(w, pursuit(w, 3.0), RaceRules(trials=1), keep_frames=True, image_of=lambda obs: white[0])
+    seen = []
+    path = render_video(tmp_path / "v.mp4", track, run, width_px=640, progress=lambda done, total: seen.append(done))
+    frames = imageio.mimread(path, memtest=False)
+    assert len(frames) == run.rows and seen[-1] == run.rows
+    top_right = np.asarray(frames[5])[20:200, -300:-30]
+    assert (top_right > 240).all(axis=-1).mean() > 0.8  # the white camera picture, twice its size
+    assert not list(tmp_path.glob(".*partial*"))
