@@ -240,10 +240,13 @@ def read_sim_trace_log(data: bytes, name: str) -> tuple[pa.Table, dict]:
     info = {"hyperparameters": _hyperparameters(data)}
     if not lines:
         return normalise(pa.table({})), info
-    text = b"\n".join(line.strip() for line in lines) + b"\n"
+    lines = [line.strip() for line in lines]
+    text = b"\n".join(lines)
     if b"[" in text:
         text = _OLD_CONTINUOUS.sub(rb"[\1 \2]", text)
-    fields = _fields_per_line(text)
+        lines = text.split(b"\n")
+    text += b"\n"
+    fields = np.fromiter((line.count(b",") + 1 for line in lines), np.int64, len(lines))
     tables = []
     order = []
     for count in np.unique(fields):
@@ -267,14 +270,6 @@ def read_sim_trace_log(data: bytes, name: str) -> tuple[pa.Table, dict]:
     if len(tables) > 1:
         table = table.take(pa.array(np.argsort(np.concatenate(order), kind="stable")))
     return table, info
-
-
-def _fields_per_line(text: bytes) -> np.ndarray:
-    arr = np.frombuffer(text, np.uint8)
-    commas = np.concatenate([[0], np.cumsum(arr == ord(","))])
-    ends = np.flatnonzero(arr == ord("\n"))
-    starts = np.concatenate([[0], ends[:-1] + 1])
-    return commas[ends] - commas[starts] + 1
 
 
 def _select_lines(text: bytes, where: np.ndarray) -> bytes:
