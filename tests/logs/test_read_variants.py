@@ -60,6 +60,18 @@ def test_node_prefixes_and_hyperparameters_from_the_header(tmp_path, cache):
     assert df["unique_episode"].tolist() == [e for e in range(6) for _ in range(3)]
 
 
+def test_several_training_logs_are_workers_sharing_each_iteration(tmp_path, cache):
+    hyper = {"num_episodes_between_training": 4}
+    for w in range(2):
+        write(tmp_path / "logs" / f"robomaker-{w + 1}.log", log_text([r for e in range(4) for r in rows(19, e)],
+                                                                     hyper=hyper))
+    df = load(tmp_path / "logs", cache_dir=cache)
+    firsts = df.groupby("unique_episode")[["iteration", "worker", "episode"]].first()
+    assert firsts["iteration"].tolist() == [0, 0, 0, 0, 1, 1, 1, 1]  # 2 episodes per worker per iteration
+    assert firsts["worker"].tolist() == [0, 0, 1, 1, 0, 0, 1, 1]
+    assert firsts["episode"].tolist() == [0, 1, 0, 1, 2, 3, 2, 3]
+
+
 def test_rolled_log_parts_are_read_oldest_first(tmp_path, cache):
     folder = tmp_path / "logs"
     write(folder / "robomaker.log.2", log_text(rows(19, 0)))

@@ -130,8 +130,9 @@ def _parse_log(store: Store, s: Source) -> tuple[pa.Table, bool]:
         table = to_degrees(table)
     if s.kind == TRAINING:
         hp = info.get("hyperparameters") or {}
-        per_iteration = int(hp.get("num_episodes_between_training") or DEFAULT_EPISODES_PER_ITERATION)
-        iterations = table.column("episode").to_numpy() // max(per_iteration, 1)
+        episodes = int(hp.get("num_episodes_between_training") or DEFAULT_EPISODES_PER_ITERATION)
+        per_worker = max(1, round(episodes / s.workers))  # DRfC divides an iteration's episodes among workers
+        iterations = table.column("episode").to_numpy() // per_worker
     else:
         iterations = np.zeros(table.num_rows, np.int64)
     n = table.num_rows

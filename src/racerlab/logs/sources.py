@@ -44,6 +44,7 @@ class Source:
     iteration: int = 0
     worker: int = 0
     stream: str = ""
+    workers: int = 1  # training logs found beside this one (DRfC splits each iteration's episodes among them)
     stats: list[tuple[int, int]] = field(default_factory=list)  # (size, mtime_ns) per part
 
     @property
@@ -213,3 +214,4 @@ def _number_log_workers(sources: list[Source]) -> None:
     logs = [s for s in sources if s.fmt == LOG and s.kind == TRAINING]
     for k, s in enumerate(sorted(logs, key=lambda s: s.name)):
         s.worker = k
+        s.workers = len(logs)
