@@ -207,9 +207,11 @@ def test_stale_orphan_segments_are_removed(tmp_path, cache):
     assert not orphan.exists()
 
 
-def test_unknown_kind_is_refused(tmp_path):
+def test_unknown_kind_and_missing_path_are_refused(tmp_path):
     with pytest.raises(ValueError, match="kind"):
         load(tmp_path, "races")
+    with pytest.raises(LogFileError, match="nowhere: no such file or folder"):
+        load(tmp_path / "nowhere")
 
 
 def test_load_metrics_training_workers_and_evaluations(tmp_path):

@@ -25,6 +25,8 @@ import threading
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
+from racerlab.logs.metrics import LogFileError
+
 TRAINING, EVALUATION, LEADERBOARD = "training", "evaluation", "leaderboard"
 CSV, LOG = "csv", "log"
 
@@ -142,7 +144,7 @@ def open_store(path: str | os.PathLike) -> Store:
     if path.is_dir():
         return DirStore(path)
     if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file or folder")
+        raise LogFileError(f"{path}: no such file or folder")
     if tarfile.is_tarfile(path):
         return TarStore(path)
     return DirStore(path.parent, single=path.name)
