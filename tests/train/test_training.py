@@ -78,6 +78,7 @@ def test_deepracer_utils_reads_the_model_folder(model):
     df = log.dataframe()
     rows = sum(len(p.read_text().splitlines()) - 1 for p in (model.path / "training-simtrace").iterdir())
     assert len(df) == rows and df["episode"].nunique() == r.episodes
+    assert len(log.action_space()) == 10  # from the model/model_metadata.json copy
 
 
 def test_resume_after_kill_9(model):

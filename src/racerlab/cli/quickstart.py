@@ -1,7 +1,7 @@
 """`racerlab quickstart`: the main job on built-in defaults.
 
 Creates the default model folder if it is missing, trains it on the default track for a few
-minutes, drives a greedy lap with the best checkpoint and writes pictures of that lap and of the
+minutes, evaluates the best checkpoint under race rules (3 laps) and draws the evaluation and the
 training curve, then says where everything is.
 """
 
@@ -24,6 +24,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from racerlab.evaluate import evaluate
+    from racerlab.logs import metrics_jsonl_path, read_metrics_jsonl
     from racerlab.train import train
     from racerlab.train.folder import ModelFolder
     from racerlab.train.init import init_model
@@ -32,77 +34,41 @@ def run(args) -> int:
     if not folder.metadata_path.is_file():
         init_model(folder.path, track=args.track, max_speed=args.max_speed)
         print(f"created model folder {folder.path}")
-    result = train(folder.path, minutes=args.minutes, tracks=[args.track] if args.track else None)
-    lap = greedy_lap(folder)
+    train(folder.path, minutes=args.minutes, tracks=[args.track] if args.track else None)
+    res = evaluate(folder.path, track=args.track)
+    print(res.report())
     out = folder.path / "quickstart"
     out.mkdir(exist_ok=True)
-    lap_png = out / "best_lap.png"
-    curve_png = out / "training.png"
-    draw_lap(lap, lap_png)
-    draw_curve(result.history, curve_png)
-    if lap["status"] == "lap_complete":
-        print(f"best checkpoint {lap['checkpoint']}: greedy lap of {lap['track']} in {lap['lap_time']:.2f} s")
-    else:
-        print(f"best checkpoint {lap['checkpoint']}: greedy run ended {lap['status']} at {lap['progress']:.1f} %")
-    print(f"results: model {folder.path} | lap picture {lap_png} | training curve {curve_png} | logs "
-          f"{folder.path / 'logs'}")
+    lap_png, curve_png = out / "evaluation.png", out / "training.png"
+    draw_lap(res, args.track or folder.config().track.names[0], lap_png)
+    draw_curve(read_metrics_jsonl(metrics_jsonl_path(folder.path)), curve_png)
+    print(f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}")
     return 0
 
 
-def greedy_lap(folder) -> dict:
-    """Drive one greedy episode from the start line with the best checkpoint; returns its trajectory."""
+def draw_lap(res, track, path: Path) -> None:
+    """The evaluation's path on the track, coloured by the speed derived from positions."""
     import numpy as np
-
-    from racerlab.agent import make_agent
-    from racerlab.sim import _kernels as K
-    from racerlab.sim.core import StartRules
-    from racerlab.sim.reward import RewardCaller, load_reward_function
-    from racerlab.track import load as load_track
-    from racerlab.train.rollout import World
-
-    meta, cfg = folder.metadata(), folder.config()
-    info = folder.resolve_checkpoint("best")
-    state = folder.load_checkpoint(info)
-    track = load_track(cfg.track.names[0])
-    world = World(track, 1, meta, RewardCaller(load_reward_function(folder.reward_path)), cfg.run.observation,
-                  StartRules(change_start=False, offset=cfg.track.start_offset), cfg.run.max_episode_steps, "aws", 0)
-    agent = make_agent(world.observation.space, meta, folder.hyperparameters(), device="cpu")
-    agent.load_state_dict(state["agent"])
-    sim = world.sim
-    sim.reset(start_ndist=cfg.track.start_offset)
-    traj, speeds = [sim.pose[0, :2]], [0.0]
-    active = np.ones(1, dtype=bool)
-    while True:
-        actions, _, _ = agent.act(world.observe(), greedy=True)
-        codes, _ = world.step(actions, active)
-        traj.append(sim.pose[0, :2])
-        speeds.append(sim.speed[0])
-        if sim.terminated_mask(codes)[0] or sim.truncated[0]:
-            break
-    status = K.STATUS_NAMES[int(codes[0])]
-    return {"track": track, "checkpoint": info.name, "status": status, "steps": int(sim.steps[0]),
-            "lap_time": sim.steps[0] * sim.dt, "progress": float(sim.params[0, K.MPROG]),
-            "xy": np.array(traj), "speed": np.array(speeds)}
-
-
-def draw_lap(lap: dict, path: Path) -> None:
-    import numpy as np
+    import pandas as pd
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
 
+    from racerlab.sim.car import STEP_S
+    from racerlab.track import load as load_track
     from racerlab.track.plot import draw_track
 
+    df = pd.read_csv(res.files["simtrace"])
+    xy = df[["X", "Y"]].to_numpy()
     fig = Figure(figsize=(9, 7))
     ax = fig.add_subplot()
-    draw_track(lap["track"], ax=ax, waypoint_numbers=False)
-    xy = lap["xy"]
-    segs = np.stack([xy[:-1], xy[1:]], axis=1)
-    lc = LineCollection(segs, array=lap["speed"][1:], cmap="plasma", linewidths=2.5, zorder=5)
+    draw_track(load_track(track), ax=ax, waypoint_numbers=False)
+    step = np.hypot(*np.diff(xy, axis=0).T)
+    keep = step < 0.5  # no line across a reset after an off-track
+    segs = np.stack([xy[:-1], xy[1:]], axis=1)[keep]
+    lc = LineCollection(segs, array=(step / STEP_S)[keep], cmap="plasma", linewidths=2.0, zorder=5)
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="speed (m/s)", shrink=0.7)
-    what = f"lap {lap['lap_time']:.2f} s" if lap["status"] == "lap_complete" else \
-        f"{lap['status']} at {lap['progress']:.1f} %"
-    ax.set_title(f"{lap['track'].name}: greedy run of {lap['checkpoint']} — {what}")
+    ax.set_title(f"{res.model} on {res.track}: {res.text}")
     fig.savefig(path, dpi=120, bbox_inches="tight")
 
 

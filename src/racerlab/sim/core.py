@@ -102,7 +102,7 @@ class Simulator:
         if start_ndist is None:
             k = self.episodes_started + np.arange(idx.size)
             self.episodes_started += idx.size
-            nd = np.mod(r.offset + (k * r.advance if r.change_start else 0.0), 1.0)
+            nd = np.mod(r.offset + (k * r.advance if r.change_start else np.zeros(idx.size)), 1.0)
             rev = np.full(idx.size, r.reverse) ^ ((k % 2 == 1) & r.alternate_direction)
         else:
             nd = np.broadcast_to(np.asarray(start_ndist, dtype=np.float64), idx.shape)

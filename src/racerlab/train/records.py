@@ -7,7 +7,6 @@ with the checkpoints when a training resumes.
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +25,7 @@ class TrainingLogs:
         self.metrics = logs.TrainingMetrics(logs.training_metrics_path(self.model_dir),
                                             best_model_metric=cfg.evaluation.best_model_metric)
         self.jsonl = logs.MetricsLog(logs.metrics_jsonl_path(self.model_dir))
+        logs.export_drfc_metadata(self.model_dir)  # model/ and ip/ copies where deepracer-utils looks
 
     # ---- per iteration ---------------------------------------------------------------------------
     def write_iteration(self, iteration: int, ro, evals, first_episode: int) -> None:
@@ -46,7 +46,7 @@ class TrainingLogs:
             "done": _episode_ends(t["episode"]), "all_wheels_on_track": t["all_wheels_on_track"],
             "progress": t["progress"], "closest_waypoint": t["closest_waypoint"], "track_len": t["track_len"],
             "tstamp": t["tstamp"], "episode_status": _STATUS[t["codes"]], "pause_duration": np.zeros(n),
-            "obstacle_crash_counter": np.zeros(n, int), "wall_clock": np.full(n, time.time()),
+            "obstacle_crash_counter": np.zeros(n, int), "wall_clock": t["wall_clock"],
         }
         compress = self.cfg.logs.compress
         writer = logs.SimtraceWriter(logs.training_simtrace_path(self.model_dir, iteration - 1, compress=compress),

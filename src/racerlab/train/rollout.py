@@ -218,7 +218,9 @@ class _IterationState:
             cols["closest_waypoint"].append(p[:, K.MCLOSEST].astype(np.int64))
             cols["track_len"].append(np.full(sel.size, sim.track.length))
             cols["tstamp"].append(np.full(sel.size, sim.time))
-        return {k: np.concatenate(v) for k, v in cols.items()}
+        out = {k: np.concatenate(v) for k, v in cols.items()}
+        out["wall_clock"] = np.full(idx.size, time.time())
+        return out
 
     def end_episodes(self, cars, trunc, codes, final_obs):
         j = 0
@@ -272,7 +274,7 @@ class _IterationState:
         episodes = [self.episodes[int(u)] for u in kept]
         trace = {k: cols[k][order] for k in ("steps", "X", "Y", "yaw", "steer", "throttle", "all_wheels_on_track",
                                               "progress", "closest_waypoint", "track_len", "tstamp", "rewards",
-                                              "codes", "actions")} if cols else {}
+                                              "codes", "actions", "wall_clock")} if cols else {}
         if cols:
             trace["episode"] = first_episode_number + rank[order]
             for n, ep in enumerate(episodes):
