@@ -1,0 +1,463 @@
+"""Reward re-scoring: a new `reward_function(params)` evaluated on logged steps, with every AWS param
+rebuilt from the log and the track, then compared with the logged reward episode by episode.
+
+How each param is rebuilt (facts §1; deepracer-utils' `df_to_params` gets the ones marked * wrong):
+
+- `x`, `y` the logged position (already the model point 0.14 m ahead of the car's base);
+  `heading`* = logged yaw and `steering_angle`* = logged steer, both in degrees as logged;
+  `speed` = the logged (commanded) speed; `progress`, `steps` as logged (`steps` a float, as in SIM);
+- `distance_from_center`, `projection_distance`* (arc length from waypoint 0), `closest_waypoints`*
+  (by arc length: next = bisect_right of the waypoints' arc fractions), `is_left_of_center`* and
+  `track_width`* (between the border points nearest the centre-line projection) from the track, with
+  the same geometry kernels as the simulator;
+- `all_wheels_on_track` as logged; `is_offtrack`* / `is_crashed`* where the step's status says so;
+- `is_reversed`* per episode: the direction the car drove (its heading against the centre line) unless
+  given; `waypoints` and `track_length`* from the track in that direction; `sim_time` = `tstamp`;
+- object params empty (no object positions are logged).
+
+Prepare and pause steps are not scored (AWS does not call the reward there; their reward is 0).
+The loop building one dict per row and calling the reward is the only Python loop; everything else
+is numpy over all rows.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import numbers
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numba import njit
+
+from racerlab.track import Track
+from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment
+
+MAX_ABS_REWARD = 1e5  # AWS: a reward outside ±1e5 (or not finite) fails the job
+NOT_SCORED = ("prepare", "pause")
+CHUNK_ROWS = 1 << 16  # rows turned into Python lists at a time (keeps memory flat for 10 M-row logs)
+MAX_ERROR_DETAILS = 5
+
+
+# ---------------------------------------------------------------------------------------------------------
+# geometry: the track-derived params of many points at once
+
+
+@njit(cache=True)
+def _measure_points(px, py, new_run, center, seg_len, cum_s, inner, outer, wp_ndist, closed, length,
+                    driving_ccw, arc, dist, left, width, wprev, wnext, thead):
+    """Track params of model points (px, py) as the simulator's `measure` computes them.
+
+    `new_run[j]` is True where point j does not follow point j-1 of the same episode (no search hint).
+    """
+    hint = -1
+    n = wp_ndist.shape[0]
+    for j in range(px.shape[0]):
+        mx = px[j]
+        my = py[j]
+        if new_run[j]:
+            hint = -1
+        seg, t, d2 = nearest_segment(mx, my, center, seg_len, closed, hint)
+        hint = seg
+        ax = center[seg, 0]
+        ay = center[seg, 1]
+        dx = center[seg + 1, 0] - ax
+        dy = center[seg + 1, 1] - ay
+        a = cum_s[seg] + t * seg_len[seg]
+        cpx = ax + t * dx
+        cpy = ay + t * dy
+        ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 2)
+        ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 2)
+        nearer_inner = math.hypot(mx - ix, my - iy) < math.hypot(mx - ox, my - oy)
+        nxt = np.searchsorted(wp_ndist, a / length, side="right")
+        prv = max(nxt - 1, 0)
+        if nxt >= n:
+            nxt = 0
+        arc[j] = a
+        dist[j] = math.sqrt(d2)
+        left[j] = nearer_inner != (not driving_ccw)
+        width[j] = math.hypot(ix - ox, iy - oy)
+        wprev[j] = prv
+        wnext[j] = nxt
+        thead[j] = math.atan2(dy, dx)
+
+
+def track_columns(track: Track, x, y, new_run=None) -> dict[str, np.ndarray]:
+    """Params that depend on position and track, for points (x, y) driven in `track`'s direction.
+
+    Returns arrays: projection_distance, distance_from_center, is_left_of_center, track_width,
+    prev_waypoint, next_waypoint and track_heading (rad, the centre segment's direction).
+    `new_run` (bool per point) marks points that do not continue the previous point's episode.
+    """
+    px = np.ascontiguousarray(x, dtype=np.float64)
+    py = np.ascontiguousarray(y, dtype=np.float64)
+    n = px.size
+    runs = np.ones(n, np.bool_) if new_run is None else np.ascontiguousarray(new_run, dtype=np.bool_)
+    out = {"projection_distance": np.empty(n), "distance_from_center": np.empty(n),
+           "is_left_of_center": np.empty(n, np.bool_), "track_width": np.empty(n),
+           "prev_waypoint": np.empty(n, np.int64), "next_waypoint": np.empty(n, np.int64),
+           "track_heading": np.empty(n)}
+    _measure_points(px, py, runs, track.center, track.segment_lengths, track.waypoint_s, track.inner, track.outer,
+                    track.waypoint_s / track.length, track.closed, track.length, track.is_ccw, *out.values())
+    return out
+
+
+def infer_reversed(df: pd.DataFrame, track: Track, heading_error=None) -> np.ndarray:
+    """Per row: whether its episode drove the track backwards (heading mostly against the centre line)."""
+    if heading_error is None:
+        heading_error = _heading_error(df, track)
+    against = np.cos(np.radians(heading_error)) < 0
+    share = pd.Series(against).groupby(df["unique_episode"].to_numpy()).transform("mean").to_numpy()
+    return share > 0.5
+
+
+def _heading_error(df: pd.DataFrame, track: Track) -> np.ndarray:
+    cols = track_columns(track, df["x"].to_numpy(), df["y"].to_numpy(), _episode_starts(df))
+    return wrap_degrees(df["yaw"].to_numpy() - np.degrees(cols["track_heading"]))
+
+
+def wrap_degrees(a):
+    """Angles in degrees wrapped to [-180, 180)."""
+    return (np.asarray(a, dtype=np.float64) + 180.0) % 360.0 - 180.0
+
+
+def _episode_starts(df: pd.DataFrame) -> np.ndarray:
+    ep = df["unique_episode"].to_numpy()
+    start = np.ones(ep.size, bool)
+    start[1:] = ep[1:] != ep[:-1]
+    return start
+
+
+# ---------------------------------------------------------------------------------------------------------
+# params columns: one array per AWS key
+
+
+@dataclass
+class ParamsColumns:
+    """The reward params of many steps as columns; `dict_at(i)` / `score` turn rows into AWS dicts."""
+
+    cols: dict[str, np.ndarray]  # per-row arrays named as the params keys (prev/next waypoint apart)
+    reversed: np.ndarray  # bool per row
+    forward: Track
+    backward: Track
+
+    def __len__(self) -> int:
+        return int(self.reversed.size)
+
+    def dict_at(self, i: int) -> dict:
+        """The params dict of row i (for error messages and tests)."""
+        return next(_dicts(self, np.array([i])))
+
+
+def params_columns(track: Track, x, y, heading, speed, steering_angle, progress, steps, *, reversed=False,
+                   all_wheels_on_track=None, is_offtrack=None, is_crashed=False, sim_time=0.0,
+                   new_run=None) -> ParamsColumns:
+    """Params for model points (x, y) with heading/steering in degrees; scalars broadcast over rows.
+
+    `all_wheels_on_track` and `is_offtrack` default to the simulator's wheel test: all four wheel centres
+    on the road, and none of them.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    n = x.size
+    y = np.asarray(y, dtype=np.float64)
+    heading = np.broadcast_to(np.asarray(heading, dtype=np.float64), (n,))
+    rev = np.broadcast_to(np.asarray(reversed, dtype=bool), (n,)).copy()
+    backward = track.reverse()
+    geo = _geometry(track, backward, x, y, rev, new_run)
+    if all_wheels_on_track is None or is_offtrack is None:
+        wheels = wheels_on_track(track, x, y, heading)
+        all_wheels_on_track = wheels == 4 if all_wheels_on_track is None else all_wheels_on_track
+        is_offtrack = wheels == 0 if is_offtrack is None else is_offtrack
+    cols = {"all_wheels_on_track": all_wheels_on_track, "x": x, "y": y, "heading": heading,
+            "is_reversed": rev, "progress": progress, "steps": np.asarray(steps, dtype=np.float64),
+            "speed": speed, "steering_angle": steering_angle, "is_offtrack": is_offtrack,
+            "is_crashed": is_crashed, "sim_time": sim_time, **geo}
+    cols = {k: np.broadcast_to(np.asarray(v), (n,)) for k, v in cols.items()}
+    return ParamsColumns(cols, rev, track, backward)
+
+
+def _geometry(forward: Track, backward: Track, x, y, rev, new_run) -> dict[str, np.ndarray]:
+    out = None
+    for flag, t in ((False, forward), (True, backward)):
+        sel = rev == flag
+        if not sel.any():
+            continue
+        part = track_columns(t, x[sel], y[sel], None if new_run is None else np.asarray(new_run)[sel])
+        if out is None:
+            out = {k: np.empty(x.size, v.dtype) for k, v in part.items()}
+        for k, v in part.items():
+            out[k][sel] = v
+    if out is None:  # no rows
+        out = track_columns(forward, x, y)
+    return out
+
+
+def wheels_on_track(track: Track, x, y, heading_deg) -> np.ndarray:
+    """How many of the four wheel centres are on the road for model points (x, y) at `heading_deg`."""
+    from racerlab.sim.car import MODEL_POINT_AHEAD_M, CarParams
+
+    yaw = np.radians(heading_deg)
+    c, s = np.cos(yaw), np.sin(yaw)
+    bx = np.asarray(x) - MODEL_POINT_AHEAD_M * c
+    by = np.asarray(y) - MODEL_POINT_AHEAD_M * s
+    count = np.zeros(bx.size, np.int64)
+    for ox, oy in CarParams().wheel_offsets():
+        pts = np.stack([bx + ox * c - oy * s, by + ox * s + oy * c], axis=1)
+        count += track.contains(pts)
+    return count
+
+
+def log_params(df: pd.DataFrame, track: Track, reverse: bool | None = None) -> ParamsColumns:
+    """Params of every logged step; `reverse` None infers each episode's direction from its headings."""
+    starts = _episode_starts(df)
+    if reverse is None:
+        rev = infer_reversed(df, track)
+    else:
+        rev = np.full(len(df), bool(reverse))
+    status = df["episode_status"].astype(str).to_numpy() if "episode_status" in df else np.full(len(df), "")
+    return params_columns(
+        track, df["x"].to_numpy(), df["y"].to_numpy(), df["yaw"].to_numpy(), df["speed"].to_numpy(),
+        df["steering_angle"].to_numpy(), df["progress"].to_numpy(), df["steps"].to_numpy(), reversed=rev,
+        all_wheels_on_track=df["on_track"].to_numpy(bool), is_offtrack=status == "off_track",
+        is_crashed=status == "crashed", sim_time=df["tstamp"].to_numpy(), new_run=starts)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# calling the reward
+
+
+def _dicts(pc: ParamsColumns, idx: np.ndarray):
+    """Yield the AWS params dict of each row in `idx` (a fresh dict and fresh lists per call)."""
+    c = pc.cols
+    length = pc.forward.length
+    wps = (pc.forward.waypoints, pc.backward.waypoints)
+    names = ("all_wheels_on_track", "x", "y", "heading", "distance_from_center", "is_left_of_center",
+             "is_reversed", "progress", "steps", "speed", "steering_angle", "track_width", "prev_waypoint",
+             "next_waypoint", "projection_distance", "is_offtrack", "is_crashed", "sim_time")
+    lists = [np.asarray(c[k][idx]).tolist() for k in names]
+    for (wheels, x, y, head, dist, left, rev, prog, steps, speed, steer, width, wp, wn, arc, off, crash,
+         t) in zip(*lists, strict=True):
+        yield {
+            "all_wheels_on_track": wheels, "x": x, "y": y, "heading": head, "distance_from_center": dist,
+            "is_left_of_center": left, "is_reversed": rev, "progress": prog, "steps": steps, "speed": speed,
+            "steering_angle": steer, "track_width": width, "track_length": length, "waypoints": list(wps[rev]),
+            "closest_waypoints": [wp, wn], "projection_distance": arc, "is_offtrack": off, "is_crashed": crash,
+            "sim_time": t, "closest_objects": [0, 0], "objects_location": [], "objects_left_of_center": [],
+            "objects_distance": [], "objects_distance_from_center": [], "objects_heading": [],
+            "objects_speed": [], "object_in_camera": False,
+        }
+
+
+@dataclass
+class RewardProblem:
+    """One kind of failure (same message and place) seen `count` times; `params` of the first one."""
+
+    message: str
+    row: int
+    params: dict
+    count: int = 1
+    label: str = "row"  # what `row` counts: log rows, sampled states, ...
+
+    def describe(self) -> str:
+        from racerlab.sim.reward import describe_params
+
+        times = f" ({self.count} times)" if self.count > 1 else ""
+        return f"{self.message}{times}, first at {self.label} {self.row}\n  params: {describe_params(self.params)}"
+
+
+@dataclass
+class ScoreResult:
+    rewards: np.ndarray  # NaN where the reward failed or the row was not scored
+    problems: list[RewardProblem] = field(default_factory=list)  # distinct failures, first seen first
+    failed: int = 0  # rows whose reward raised or was not a finite number within ±1e5
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        return self.failed == 0
+
+
+class _Problems:
+    def __init__(self, source: Path | None, limit: int):
+        self.source = source
+        self.limit = limit
+        self.by_key: dict[str, RewardProblem] = {}
+        self.where: dict[str, str] = {}
+        self.failed = 0
+
+    def add(self, message: str, row: int, params: dict) -> None:
+        self.failed += 1
+        p = self.by_key.get(message)
+        if p is not None:
+            p.count += 1
+        elif len(self.by_key) < self.limit:
+            self.by_key[message] = RewardProblem(message, row, params)
+
+    def exception(self, exc: BaseException, row: int, params: dict) -> None:
+        self.add(f"{_where(exc, self.source)}: reward_function raised {type(exc).__name__}: {exc}", row, params)
+
+    def value(self, fn, r, row: int, params: dict) -> float:
+        """The reward as a float, or NaN after recording why it is not acceptable."""
+        if isinstance(r, bool) or not isinstance(r, numbers.Real):
+            what = f"returned {type(r).__name__} {r!r}, not a number"
+        else:
+            r = float(r)
+            if math.isfinite(r) and abs(r) <= MAX_ABS_REWARD:
+                return r
+            what = f"returned {r!r}, not a finite number" if not math.isfinite(r) else \
+                f"returned {r!r}, beyond ±1e5 (AWS stops the job)"
+        if what not in self.where:  # find the `return` line once per kind of bad value
+            self.where[what] = _return_line(fn, params) or str(self.source or "reward_function")
+        self.add(f"{self.where[what]}: reward_function {what}", row, params)
+        return math.nan
+
+
+def _return_line(fn, params: dict) -> str | None:
+    """'file:line' of the `return` that produced a bad value: the call is replayed once on a copy of the
+    params with a profile hook that notes where the function's own frame returns."""
+    code = getattr(fn, "__code__", None)
+    if code is None:
+        return None
+    line = code.co_firstlineno
+
+    def hook(frame, event, arg):
+        nonlocal line
+        if event == "return" and frame.f_code is code:
+            line = frame.f_lineno
+
+    old = sys.getprofile()
+    sys.setprofile(hook)
+    try:
+        fn(copy.deepcopy(params))
+    except Exception:  # noqa: BLE001 - only replaying to find the line
+        pass
+    finally:
+        sys.setprofile(old)
+    return f"{code.co_filename}:{line}"
+
+
+def _where(exc: BaseException, source: Path | None) -> str:
+    """'file:line' of the deepest traceback frame in the reward file (else the deepest frame)."""
+    frames = traceback.extract_tb(exc.__traceback__)[1:]  # drop the frame of the calling loop
+    if not frames:
+        return str(source or "reward_function")
+    if source is not None:
+        target = str(Path(source).resolve())
+        mine = [f for f in frames if str(Path(f.filename).resolve()) == target]
+        if mine:
+            return f"{mine[-1].filename}:{mine[-1].lineno}"
+    return f"{frames[-1].filename}:{frames[-1].lineno}"
+
+
+def score(fn, pc: ParamsColumns, rows=None, *, max_problems: int = MAX_ERROR_DETAILS) -> ScoreResult:
+    """Call `fn` on the params of `rows` (all by default); failures are collected, never raised.
+
+    Distinct failures (message and place) are kept up to `max_problems`, each with the params of its first
+    occurrence; failing rows get NaN.
+    """
+    t0 = time.perf_counter()
+    src = getattr(fn, "__racerlab_source__", None)
+    problems = _Problems(Path(src) if src else None, max_problems)
+    out = np.full(len(pc), np.nan)
+    idx = np.arange(len(pc)) if rows is None else np.flatnonzero(rows) if np.asarray(rows).dtype == bool \
+        else np.asarray(rows, np.int64)
+    for lo in range(0, idx.size, CHUNK_ROWS):
+        part = idx[lo:lo + CHUNK_ROWS]
+        vals = np.empty(part.size)
+        for j, (row, params) in enumerate(zip(part.tolist(), _dicts(pc, part), strict=True)):
+            try:
+                r = fn(params)
+            except Exception as exc:  # noqa: BLE001 - the user's reward failed: record it with its params
+                problems.exception(exc, row, params)
+                r = math.nan
+            else:
+                if type(r) is not float or not -MAX_ABS_REWARD <= r <= MAX_ABS_REWARD:
+                    r = problems.value(fn, r, row, params)
+            vals[j] = r
+        out[part] = vals
+    return ScoreResult(out, list(problems.by_key.values()), problems.failed, time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# re-scoring a log and comparing
+
+
+@dataclass
+class RescoreResult:
+    new_reward: np.ndarray  # per row; 0 on prepare/pause steps, NaN where the new reward failed
+    problems: list[RewardProblem]
+    failed: int
+    reversed_episodes: int
+    seconds: float  # total: params + reward calls
+    reward_seconds: float  # the reward calls alone
+
+    @property
+    def ok(self) -> bool:
+        return self.failed == 0
+
+
+def rescore(df: pd.DataFrame, reward, track: Track, *, reverse: bool | None = None) -> RescoreResult:
+    """Evaluate `reward` (a callable or a path to a reward_function.py) on every logged step of `df`.
+
+    Rows are taken in episode and step order, so a reward function that keeps state between calls sees
+    them as the simulator did.
+    """
+    from racerlab.sim.reward import as_reward_function
+
+    fn = as_reward_function(reward)
+    t0 = time.perf_counter()
+    pc = log_params(df, track, reverse)
+    status = df["episode_status"].astype(str).to_numpy() if "episode_status" in df else np.full(len(df), "")
+    scored = ~np.isin(status, NOT_SCORED)
+    res = score(fn, pc, scored)
+    new = np.where(scored, res.rewards, 0.0)
+    ep = df["unique_episode"].to_numpy()
+    rev_eps = int(np.unique(ep[pc.reversed]).size)
+    return RescoreResult(new, res.problems, res.failed, rev_eps, time.perf_counter() - t0, res.seconds)
+
+
+def compare(df: pd.DataFrame, new_reward) -> pd.DataFrame:
+    """Per episode: outcome, progress, time, lap time, the logged `reward` and the `new_reward` totals.
+
+    Rows whose new reward failed (NaN) make that episode's `new_reward` NaN.
+    """
+    from racerlab.analysis.episodes import episode_summary
+
+    eps = episode_summary(df)
+    new = pd.Series(np.asarray(new_reward, dtype=np.float64)).groupby(df["unique_episode"].to_numpy()).sum(
+        min_count=1)
+    nan_eps = pd.Series(np.isnan(new_reward)).groupby(df["unique_episode"].to_numpy()).any()
+    eps["new_reward"] = new.where(~nan_eps).reindex(eps.index).to_numpy()
+    keep = ["iteration", "episode", "outcome", "complete", "steps", "progress", "time", "lap_time", "reward",
+            "new_reward"]
+    return eps[[c for c in keep if c in eps.columns]]
+
+
+def correlations(cmp: pd.DataFrame) -> pd.DataFrame:
+    """Spearman rank correlations of the old and new episode rewards with lap time (complete laps) and
+    with progress (all episodes). A good reward ranks faster laps higher: a negative lap-time correlation."""
+    laps = cmp[cmp["complete"]]
+    rows = []
+    for col in ("reward", "new_reward"):
+        rows.append({"reward": col,
+                     "vs lap time (complete laps)": _spearman(laps[col], laps["lap_time"]),
+                     "vs progress (all episodes)": _spearman(cmp[col], cmp["progress"]),
+                     "laps": len(laps), "episodes": len(cmp)})
+    return pd.DataFrame(rows).set_index("reward")
+
+
+def _spearman(a: pd.Series, b: pd.Series) -> float:
+    ok = a.notna() & b.notna()
+    if ok.sum() < 3 or a[ok].nunique() < 2 or b[ok].nunique() < 2:
+        return math.nan
+    return float(a[ok].rank().corr(b[ok].rank()))
+
+
+__all__ = ["MAX_ABS_REWARD", "ParamsColumns", "RescoreResult", "RewardProblem", "ScoreResult", "compare",
+           "correlations", "infer_reversed", "log_params", "params_columns", "rescore", "score", "track_columns",
+           "wheels_on_track", "wrap_degrees"]
