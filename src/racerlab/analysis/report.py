@@ -1,0 +1,295 @@
+"""`write_report(path)`: one self-contained HTML file (figures embedded as base64 PNG, no external files or
+scripts) that analyses a training or evaluation log: summary, training progress, lap times, tables of the
+best episodes, track heatmaps, episode paths, action usage and speed/steering per waypoint.
+
+The track comes from `track=` (a name, path or `Track`), else from a racerlab model folder's
+training.toml, else from the bundled and user tracks whose length equals the log's `track_len`. Without
+one the track figures are left out and the report says why.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from racerlab.analysis import plots as P
+from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
+from racerlab.errors import RacerlabError
+from racerlab.track import Track
+
+PNG_DPI = 90
+TABLE_ROWS = 10
+
+
+# ---------------------------------------------------------------------------------------------------------
+# finding the track
+
+
+def resolve_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
+    """The track to draw `df` on, and a sentence saying where it came from (or why there is none)."""
+    from racerlab import track as tracks
+
+    if isinstance(track, Track):
+        return track, "given"
+    if track:
+        return tracks.load(track), "given with --track"
+    name = _model_folder_track(Path(path))
+    if name:
+        try:
+            return tracks.load(name), "from the model folder's training.toml"
+        except RacerlabError as exc:
+            return None, f"the model folder's track cannot be loaded ({exc}); pass --track"
+    found = _tracks_of_length(df)
+    if len(found) == 1:
+        return found[0], f"the only known track {_track_len(df):.2f} m long (the log's track_len)"
+    if found:
+        names = ", ".join(t.name for t in found)
+        return None, f"several known tracks are {_track_len(df):.2f} m long ({names}); pass --track"
+    return None, "the log does not name its track; pass --track NAME_OR_FILE for the track figures"
+
+
+def _model_folder_track(path: Path) -> str | None:
+    if not (path.is_dir() and (path / "training.toml").is_file()):
+        return None
+    from racerlab.train.folder import ModelFolder
+
+    try:
+        names = ModelFolder(path).config().track.names
+    except RacerlabError:
+        return None
+    return names[0] if names else None
+
+
+def _track_len(df: pd.DataFrame) -> float:
+    return float(df["track_len"].median()) if len(df) else float("nan")
+
+
+def _tracks_of_length(df: pd.DataFrame) -> list[Track]:
+    from racerlab import track as tracks
+    from racerlab.track.registry import catalogue
+
+    target = _track_len(df)
+    out = []
+    for name in catalogue():
+        try:
+            t = tracks.load(name)
+        except RacerlabError:
+            continue
+        if abs(round(t.length, 2) - target) <= 0.011:
+            out.append(t)
+    return out
+
+
+def rows_on_track(df: pd.DataFrame, track: Track) -> pd.DataFrame:
+    """Rows logged on `track` (by their track_len), for logs of a training over several tracks."""
+    tl = df["track_len"].to_numpy()
+    same = np.abs(tl - round(track.length, 2)) <= 0.011
+    return df if same.all() or not same.any() else df[same]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# HTML pieces
+
+
+def png_data_uri(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=PNG_DPI)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+@dataclass
+class _Doc:
+    title: str
+    parts: list[str] = field(default_factory=list)
+
+    def h2(self, text: str, anchor: str) -> None:
+        self.parts.append(f'<h2 id="{anchor}">{html.escape(text)}</h2>')
+
+    def p(self, text: str, cls: str = "") -> None:
+        c = f' class="{cls}"' if cls else ""
+        self.parts.append(f"<p{c}>{html.escape(text)}</p>")
+
+    def figure(self, fig, caption: str) -> None:
+        self.parts.append(f'<figure><img alt="{html.escape(caption)}" src="{png_data_uri(fig)}">'
+                          f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+    def table(self, df: pd.DataFrame, caption: str = "") -> None:
+        if caption:
+            self.parts.append(f"<h3>{html.escape(caption)}</h3>")
+        self.parts.append(df.to_html(classes="t", float_format=lambda v: f"{v:.4g}", na_rep="", border=0))
+
+    def render(self, toc: list[tuple[str, str]]) -> str:
+        nav = " · ".join(f'<a href="#{a}">{html.escape(t)}</a>' for a, t in toc)
+        return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(self.title)}</title>"
+                f"<style>{_CSS}</style></head><body><h1>{html.escape(self.title)}</h1><nav>{nav}</nav>"
+                + "\n".join(self.parts) + "</body></html>")
+
+
+_CSS = """body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1300px;color:#222;padding:0 1em}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-top:.6em}h3{font-size:1em;margin-bottom:.3em}
+nav{margin-bottom:1em;line-height:1.8}figure{margin:1em 0}img{max-width:100%;border:1px solid #eee}
+figcaption{color:#555;font-size:.9em}table.t{border-collapse:collapse;font-size:.85em;margin:.5em 0}
+table.t td,table.t th{padding:.2em .6em;border-bottom:1px solid #eee;text-align:right}
+.note{color:#8a5300;background:#fff6e5;padding:.4em .8em}.kv td{padding:.1em 1em .1em 0}"""
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the report
+
+
+def write_report(path, out=None, track=None, *, kind: str = "auto") -> Path:
+    """Analyse the log(s) at `path` (anything `racerlab.analysis.load` reads) into one HTML file `out`
+    (default: `<folder>/report.html`, or `<file>-report.html` beside a file); returns its path."""
+    from racerlab.analysis.load import load
+
+    path = Path(path)
+    df = load(path, kind)
+    if len(df) == 0:
+        raise RacerlabError(f"{path}: the logs hold no steps to analyse")
+    out = Path(out) if out else _default_out(path)
+    trk, track_note = resolve_track(path, df, track)
+    doc = _Doc(f"racerlab report: {path.name or path}")
+    toc = _build(doc, path, df, trk, track_note)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(doc.render(toc), encoding="utf-8")
+    os.replace(tmp, out)
+    return out
+
+
+def _default_out(path: Path) -> Path:
+    if path.is_dir():
+        return path / "report.html"
+    name = path.name
+    for suffix in (".tar.gz", ".tgz", ".gz", ".csv", ".log"):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    return path.with_name(f"{name}-report.html")
+
+
+def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_note: str) -> list[tuple[str, str]]:
+    kin = step_kinematics(df)
+    eps = episode_summary(df, kin)
+    training = df.attrs.get("kind", "training") == "training"
+    tm, jsonl = run_metrics(path) if training else (None, [])
+    its = iteration_summary(eps, tm, jsonl)
+    toc = [("summary", "Summary")]
+    _summary(doc, path, df, eps, trk, track_note)
+    if training:
+        toc.append(("progress", "Training progress"))
+        doc.h2("Training progress", "progress")
+        doc.figure(P.training_progress(its), "Per iteration: simtrace episodes, TrainingMetrics.json (training and "
+                                             "in-training evaluation) and metrics.jsonl (entropy, KL)")
+        doc.table(_iteration_table(its), "Per iteration")
+    toc.append(("laps", "Lap times and episodes"))
+    _laps(doc, eps)
+    if trk is not None:
+        toc += [("track", "On the track"), ("paths", "Episode paths")]
+        _track_views(doc, rows_on_track(df, trk).assign(true_speed=kin["true_speed"], slide=kin["slide"]),
+                     trk, eps)
+    toc += [("actions", "Actions"), ("waypoints", "Per waypoint")]
+    doc.h2("Action space usage", "actions")
+    doc.figure(P.action_usage(df), "Steps per action (continuous spaces: binned steering x speed)")
+    doc.h2("Speed and steering per waypoint", "waypoints")
+    doc.figure(P.waypoint_profile(rows_on_track(df, trk) if trk is not None else df, trk),
+               "Commanded and true speed, and steering, averaged per waypoint (grey: turns tighter than 2 m radius)")
+    return toc
+
+
+def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Track | None, note: str) -> None:
+    from racerlab import __version__
+
+    doc.h2("Summary", "summary")
+    laps = eps["lap_time"].dropna()
+    items = {
+        "source": str(path.resolve()),
+        "kind": df.attrs.get("kind", ""),
+        "steps": f"{len(df):,}",
+        "episodes": f"{len(eps):,}",
+        "iterations": f"{df['iteration'].nunique():,}",
+        "complete laps": f"{int(eps['complete'].sum()):,} ({100 * eps['complete'].mean():.1f} %)",
+        "best lap": f"{laps.min():.3f} s (episode {int(laps.idxmin())})" if len(laps) else "none yet",
+        "mean progress": f"{eps['progress'].mean():.1f} %",
+        "outcomes": ", ".join(f"{k} {v}" for k, v in eps["outcome"].value_counts().items()),
+        "track": f"{trk.name} ({trk.length:.2f} m), {note}" if trk is not None else f"none: {note}",
+        "made": f"{time.strftime('%Y-%m-%d %H:%M:%S')} by racerlab {__version__}",
+    }
+    rows = "".join(f"<tr><td><b>{html.escape(k)}</b></td><td>{html.escape(v)}</td></tr>" for k, v in items.items())
+    doc.parts.append(f'<table class="kv">{rows}</table>')
+    if df.attrs.get("converted_to_degrees"):
+        doc.p(f"Logs in radians were converted to degrees: {', '.join(df.attrs['converted_to_degrees'])}", "note")
+    if trk is None:
+        doc.p(f"Track figures left out: {note}.", "note")
+
+
+def _iteration_table(its: pd.DataFrame) -> pd.DataFrame:
+    cols = [c for c in ("episodes", "reward_mean", "reward_std", "progress_mean", "completion_rate",
+                        "lap_time_min", "lap_time_mean", "train_completion", "eval_completion", "eval_lap_time_min",
+                        "entropy", "approx_kl") if c in its and its[c].notna().any()]
+    t = its[cols]
+    return t if len(t) <= 40 else pd.concat([t.head(10), t.tail(30)])
+
+
+_EPISODE_COLUMNS = ["iteration", "episode", "outcome", "start_waypoint", "steps", "time", "progress", "reward",
+                    "lap_time", "distance", "true_speed", "max_true_speed", "speed", "mean_abs_slide"]
+
+
+def _laps(doc: _Doc, eps: pd.DataFrame) -> None:
+    doc.h2("Lap times and episodes", "laps")
+    doc.figure(P.lap_time_distribution(eps), "Lap times of complete laps")
+    cols = [c for c in _EPISODE_COLUMNS if c in eps]
+    laps = eps[eps["complete"]]
+    if len(laps):
+        doc.table(laps.nsmallest(TABLE_ROWS, "lap_time")[cols], "Fastest laps")
+        doc.table(laps.nlargest(TABLE_ROWS, "reward")[cols], "Best rewarded laps")
+    doc.table(eps.sort_values(["progress", "reward"], ascending=False).head(TABLE_ROWS)[cols], "Most progress")
+    out = eps.groupby("start_waypoint").agg(episodes=("progress", "size"), progress=("progress", "mean"),
+                                            laps=("complete", "sum"))
+    if 1 < len(out) <= 40:
+        doc.table(out.T, "By start waypoint (mean progress, complete laps)")
+
+
+def _track_views(doc: _Doc, df: pd.DataFrame, trk: Track, eps: pd.DataFrame) -> None:
+    doc.h2("On the track", "track")
+    run = df[df["episode_status"].astype(str) != "prepare"] if "episode_status" in df else df
+    doc.figure(P.track_heatmap(run, trk, "reward", "mean", 0.1), "Mean reward per 10 cm cell (all steps)")
+    doc.figure(P.track_heatmap(run, trk, "true_speed", "mean", 0.1, cmap="plasma"),
+               "Mean true speed (m/s, from positions) per 10 cm cell")
+    doc.figure(P.track_heatmap(run, trk, "reward", "count", 0.1, cmap="magma"), "Steps per 10 cm cell: where cars go")
+    ends = df.groupby("unique_episode").tail(1)
+    ends = ends[ends["episode_status"].astype(str).isin(["off_track", "crashed", "reversed", "immobilized"])]
+    if len(ends):
+        doc.figure(P.track_heatmap(ends, trk, "reward", "count", 0.25, cmap="Reds"),
+                   f"Where episodes ended off track, crashed, reversed or immobilized ({len(ends)} episodes, 25 cm)")
+    doc.h2("Episode paths", "paths")
+    for ids, what in _chosen_episodes(eps):
+        doc.figure(P.episode_paths(df, trk, ids, "speed", title=f"{what}: commanded speed"),
+                   f"{what} (episodes {', '.join(map(str, ids))}), coloured by commanded speed")
+    best = _chosen_episodes(eps)[0][0][:1]
+    doc.figure(P.episode_paths(df, trk, best, "action", title=f"episode {best[0]}: actions"),
+               f"Episode {best[0]} coloured by action")
+    doc.figure(P.episode_paths(df, trk, best, "true_speed", title=f"episode {best[0]}: true speed"),
+               f"Episode {best[0]} coloured by true speed (m/s, from positions)")
+
+
+def _chosen_episodes(eps: pd.DataFrame) -> list[tuple[list[int], str]]:
+    laps = eps[eps["complete"]]
+    out = []
+    if len(laps):
+        out.append((laps.nsmallest(3, "lap_time").index.tolist(), "Fastest laps"))
+    last = eps[eps["iteration"] == eps["iteration"].max()]
+    out.append((last.sort_values(["progress", "reward"], ascending=False).head(3).index.tolist(),
+                "Most progress in the last iteration"))
+    return out
+
+
+__all__ = ["png_data_uri", "resolve_track", "rows_on_track", "write_report"]
