@@ -1,0 +1,59 @@
+"""`racerlab report`: one self-contained HTML file with every figure embedded."""
+
+from __future__ import annotations
+
+import base64
+import re
+
+import pytest
+
+from racerlab.analysis.report import write_report
+from racerlab.cli import main
+from tests.analysis.test_rescore import train_tiny_model
+from tests.conftest import aws_track_path
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    return train_tiny_model(tmp_path_factory.mktemp("report") / "model")
+
+
+def _images(text: str) -> list[bytes]:
+    return [base64.b64decode(m) for m in re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)]
+
+
+def test_report_is_one_file_with_embedded_images(model, tmp_path, capsys):
+    out = tmp_path / "sub" / "r.html"
+    assert main(["report", str(model.path), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["r.html"]  # nothing written beside it
+    text = out.read_text(encoding="utf-8")
+    images = _images(text)
+    assert len(images) >= 10 and all(i[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
+    # nothing is loaded from elsewhere: every src/href is embedded data or an anchor in the page
+    refs = re.findall(r'(?:src|href)="([^"]*)"', text)
+    assert all(r.startswith(("data:image/png;base64,", "#")) for r in refs)
+    for section in ("Training progress", "Lap times", "On the track", "Episode paths", "Action space usage",
+                    "Speed and steering per waypoint", "reInvent2019_track"):
+        assert section in text
+
+
+def test_default_output_is_in_the_model_folder(model):
+    out = write_report(model.path)
+    assert out == model.path / "report.html" and out.is_file()
+
+
+def test_log_without_a_track_still_reports_and_says_why(tmp_path):
+    from racerlab.logs.synthetic import write_training_folder
+
+    write_training_folder(tmp_path / "drfc", iterations=2, episodes_per_worker=3)
+    out = write_report(tmp_path / "drfc", tmp_path / "r.html")
+    text = out.read_text(encoding="utf-8")
+    assert "Track figures left out" in text and "--track" in text
+    assert len(_images(text)) >= 3  # progress, lap times, actions, waypoints
+
+
+def test_given_track_and_a_single_csv(model, tmp_path):
+    csv = next((model.path / "training-simtrace").glob("*.csv"))
+    out = write_report(csv, tmp_path / "one.html", track=str(aws_track_path("reInvent2019_track")))
+    assert "given with --track" in out.read_text(encoding="utf-8")
