@@ -469,7 +469,7 @@ def lap_time_distribution(episodes: pd.DataFrame, *, title: str | None = None):
         fig.suptitle(title or "Lap times")
         return fig
     t = laps["lap_time"].to_numpy()
-    ax1.hist(t, bins=min(40, max(5, len(t) // 3)), color="C0", alpha=0.8)
+    ax1.hist(t, bins=_step_bins(t), color="C0", alpha=0.8)
     mu, sd = float(t.mean()), float(t.std())
     ax1.axvline(mu, color="black", label=f"mean {mu:.2f} s")
     for k, ls in ((1, "--"), (2, ":")):
@@ -526,6 +526,14 @@ def reward_vs_lap_time(cmp: pd.DataFrame, *, title: str | None = None):
         a.grid(alpha=0.3)
     fig.suptitle(title or "Reward re-scoring: a good reward ranks faster laps higher (negative ρ with lap time)")
     return fig
+
+
+def _step_bins(t: np.ndarray, step: float = 1.0 / 15.0, most: int = 40) -> np.ndarray:
+    """Histogram edges a whole number of simulator steps wide (lap times are multiples of 1/15 s), at most
+    `most` bins, so that no bin is empty only because of where its edges fall."""
+    n = int(math.ceil((t.max() - t.min()) / step)) + 1
+    width = step * max(1, int(math.ceil(n / most)))
+    return np.arange(t.min() - step / 2, t.max() + width, width)
 
 
 def _scale(s: pd.Series) -> float:
