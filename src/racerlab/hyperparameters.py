@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from racerlab.errors import ConfigError
+from racerlab.metadata import parse_number
 
 EXPLORATION_TYPES = ("categorical", "e-greedy", "additive_noise")
 LOSS_TYPES = ("huber", "mean squared error")
@@ -80,16 +80,7 @@ _RULES: dict[str, tuple[str, float | None, float | None]] = {
 _CHOICES = {"exploration_type": EXPLORATION_TYPES, "loss_type": LOSS_TYPES}
 
 
-def _as_float(src: str, key: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | str):
-        raise ConfigError(f"{src}: {key} must be a number, got {value!r}")
-    try:
-        x = float(value)
-    except ValueError:
-        raise ConfigError(f"{src}: {key} must be a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise ConfigError(f"{src}: {key} must be a finite number, got {value!r}")
-    return x
+_as_float = parse_number
 
 
 def _as_int(src: str, key: str, value) -> int:

@@ -116,7 +116,8 @@ def default_discrete_actions(max_steer: float = 30.0, steer_levels: int = 5, max
 DEFAULT_CONTINUOUS = ContinuousActions(-30.0, 30.0, 1.0, 2.0)
 
 
-def _number(src: str, key: str, value) -> float:
+def parse_number(src: str, key: str, value) -> float:
+    """A finite number (numbers written as strings accepted, as AWS files have them) or a ConfigError."""
     if isinstance(value, bool) or not isinstance(value, int | float | str):
         raise ConfigError(f"{src}: {key} must be a number, got {value!r}")
     try:
@@ -140,8 +141,8 @@ def _parse_discrete(src: str, space) -> DiscreteActions:
         if extra:
             raise ConfigError(f"{src}: action_space[{i}] has unknown keys {sorted(extra)}; "
                               "allowed: steering_angle, speed, index")
-        steers.append(_number(src, f"action_space[{i}].steering_angle", a["steering_angle"]))
-        v = _number(src, f"action_space[{i}].speed", a["speed"])
+        steers.append(parse_number(src, f"action_space[{i}].steering_angle", a["steering_angle"]))
+        v = parse_number(src, f"action_space[{i}].speed", a["speed"])
         if v <= 0:
             raise ConfigError(f"{src}: action_space[{i}].speed must be > 0 m/s, got {v}")
         speeds.append(v)
@@ -157,8 +158,8 @@ def _parse_continuous(src: str, space) -> ContinuousActions:
         rng = space[dim]
         if not isinstance(rng, dict) or set(rng) != {"low", "high"}:
             raise ConfigError(f"{src}: action_space.{dim} must be {{\"low\": .., \"high\": ..}}, got {rng!r}")
-        lo = _number(src, f"action_space.{dim}.low", rng["low"])
-        hi = _number(src, f"action_space.{dim}.high", rng["high"])
+        lo = parse_number(src, f"action_space.{dim}.low", rng["low"])
+        hi = parse_number(src, f"action_space.{dim}.high", rng["high"])
         if not lo < hi:
             raise ConfigError(f"{src}: action_space.{dim}: low ({lo}) must be smaller than high ({hi})")
         vals[dim] = (lo, hi)
@@ -205,7 +206,7 @@ def parse_model_metadata(data: dict, source: str = "model_metadata.json") -> Mod
         raise ConfigError(f"{src}: neural_network must be one of {NETWORKS}, got {net!r}")
     sensor = _parse_sensor(src, data["sensor"]) if "sensor" in data else ("observation",)
     default_version = 2.0 if "sensor" in data else 1.0
-    version = _number(src, "version", data.get("version", default_version))
+    version = parse_number(src, "version", data.get("version", default_version))
     lidar_config = data.get("lidar_config", {})
     if not isinstance(lidar_config, dict):
         raise ConfigError(f"{src}: lidar_config must be an object")

@@ -22,12 +22,9 @@ is numpy over all rows.
 
 from __future__ import annotations
 
-import copy
 import math
 import numbers
-import sys
 import time
-import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,10 +32,10 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
+from racerlab.sim.reward import MAX_ABS_REWARD, error_location, return_location
 from racerlab.track import Track
 from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment
 
-MAX_ABS_REWARD = 1e5  # AWS: a reward outside ±1e5 (or not finite) fails the job
 NOT_SCORED = ("prepare", "pause")
 CHUNK_ROWS = 1 << 16  # rows turned into Python lists at a time (keeps memory flat for 10 M-row logs)
 MAX_ERROR_DETAILS = 5
@@ -299,7 +296,8 @@ class _Problems:
             self.by_key[message] = RewardProblem(message, row, params)
 
     def exception(self, exc: BaseException, row: int, params: dict) -> None:
-        self.add(f"{_where(exc, self.source)}: reward_function raised {type(exc).__name__}: {exc}", row, params)
+        where = error_location(exc, self.source) or str(self.source or "reward_function")
+        self.add(f"{where}: reward_function raised {type(exc).__name__}: {exc}", row, params)
 
     def value(self, fn, r, row: int, params: dict) -> float:
         """The reward as a float, or NaN after recording why it is not acceptable."""
@@ -312,46 +310,9 @@ class _Problems:
             what = f"returned {r!r}, not a finite number" if not math.isfinite(r) else \
                 f"returned {r!r}, beyond ±1e5 (AWS stops the job)"
         if what not in self.where:  # find the `return` line once per kind of bad value
-            self.where[what] = _return_line(fn, params) or str(self.source or "reward_function")
+            self.where[what] = return_location(fn, params) or str(self.source or "reward_function")
         self.add(f"{self.where[what]}: reward_function {what}", row, params)
         return math.nan
-
-
-def _return_line(fn, params: dict) -> str | None:
-    """'file:line' of the `return` that produced a bad value: the call is replayed once on a copy of the
-    params with a profile hook that notes where the function's own frame returns."""
-    code = getattr(fn, "__code__", None)
-    if code is None:
-        return None
-    line = code.co_firstlineno
-
-    def hook(frame, event, arg):
-        nonlocal line
-        if event == "return" and frame.f_code is code:
-            line = frame.f_lineno
-
-    old = sys.getprofile()
-    sys.setprofile(hook)
-    try:
-        fn(copy.deepcopy(params))
-    except Exception:  # noqa: BLE001 - only replaying to find the line
-        pass
-    finally:
-        sys.setprofile(old)
-    return f"{code.co_filename}:{line}"
-
-
-def _where(exc: BaseException, source: Path | None) -> str:
-    """'file:line' of the deepest traceback frame in the reward file (else the deepest frame)."""
-    frames = traceback.extract_tb(exc.__traceback__)[1:]  # drop the frame of the calling loop
-    if not frames:
-        return str(source or "reward_function")
-    if source is not None:
-        target = str(Path(source).resolve())
-        mine = [f for f in frames if str(Path(f.filename).resolve()) == target]
-        if mine:
-            return f"{mine[-1].filename}:{mine[-1].lineno}"
-    return f"{frames[-1].filename}:{frames[-1].lineno}"
 
 
 def score(fn, pc: ParamsColumns, rows=None, *, max_problems: int = MAX_ERROR_DETAILS) -> ScoreResult:

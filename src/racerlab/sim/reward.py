@@ -39,7 +39,7 @@ def load_reward_function(path) -> Callable[[dict], float]:
     except SyntaxError as exc:
         raise RewardFunctionError(f"{p}:{exc.lineno}: syntax error: {exc.msg}") from None
     except Exception as exc:  # noqa: BLE001 - the user's module failed to import
-        where = _user_frame(exc, p) or str(p)
+        where = error_location(exc, p) or str(p)
         raise RewardFunctionError(f"{where}: importing the reward function raised "
                                   f"{type(exc).__name__}: {exc}") from None
     fn = getattr(module, "reward_function", None)
@@ -58,7 +58,7 @@ def as_reward_function(value) -> Callable[[dict], float] | None:
     return load_reward_function(value)
 
 
-def _user_frame(exc: BaseException, path: Path | None) -> str | None:
+def error_location(exc: BaseException, path: Path | None) -> str | None:
     """'file:line' of the deepest traceback frame inside the reward file (or the deepest frame)."""
     frames = traceback.extract_tb(exc.__traceback__)
     if not frames:
@@ -70,6 +70,30 @@ def _user_frame(exc: BaseException, path: Path | None) -> str | None:
             return f"{mine[-1].filename}:{mine[-1].lineno}"
     f = frames[-1]
     return f"{f.filename}:{f.lineno}"
+
+
+def return_location(fn, params: dict) -> str | None:
+    """'file:line' of the `return` that produced a bad value: the call is replayed once on a copy of the
+    params with a profile hook (only on this error path); the `def` line when no return is seen."""
+    code = getattr(fn, "__code__", None)
+    if code is None:
+        return None
+    line = code.co_firstlineno
+
+    def hook(frame, event, arg):
+        nonlocal line
+        if event == "return" and frame.f_code is code:
+            line = frame.f_lineno
+
+    old = sys.getprofile()
+    sys.setprofile(hook)
+    try:
+        fn(copy.deepcopy(params))
+    except Exception:  # noqa: BLE001 - only replaying to find the line
+        pass
+    finally:
+        sys.setprofile(old)
+    return f"{code.co_filename}:{line}"
 
 
 def describe_params(params: dict) -> str:
@@ -168,7 +192,7 @@ class RewardCaller:
                 r = fn(params)
             except Exception as exc:  # noqa: BLE001 - report the user's error with its params
                 car = j if cars is None else int(cars[j])
-                where = _user_frame(exc, self.source) or self.name
+                where = error_location(exc, self.source) or self.name
                 raise RewardFunctionError(
                     f"{where}: reward_function raised {type(exc).__name__}: {exc} (car {car}, step "
                     f"{params.get('steps')})\n  params: {describe_params(params)}") from exc
@@ -193,24 +217,4 @@ class RewardCaller:
                                   f"  params: {describe_params(params)}")
 
     def _return_location(self, params: dict) -> str:
-        """File and line of the `return` that produced the bad value: the call is replayed once with a
-        profile hook (only on this error path), falling back to the function's `def` line."""
-        code = getattr(self.fn, "__code__", None)
-        if code is None:
-            return self.name
-        line = code.co_firstlineno
-
-        def hook(frame, event, arg):
-            nonlocal line
-            if event == "return" and frame.f_code is code:
-                line = frame.f_lineno
-
-        old = sys.getprofile()
-        sys.setprofile(hook)
-        try:
-            self.fn(copy.deepcopy(params))
-        except Exception:  # noqa: BLE001 - only replaying to find the line
-            pass
-        finally:
-            sys.setprofile(old)
-        return f"{code.co_filename}:{line}"
+        return return_location(self.fn, params) or self.name
