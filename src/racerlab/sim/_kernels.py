@@ -191,18 +191,24 @@ def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dt, a
         truncated[i] = status == IN_PROGRESS and ctr[i, KSTEPS] >= max_steps
 
 
-@njit(cache=True)
-def place(i, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
-    """Put car i at a start pose (zero speed) and begin a new episode in the prepare phase."""
+@njit(cache=True, inline="always")
+def _put(i, px, py, yaw, car):
+    """Car i standing still at a base pose (also the reference for the immobilized rule)."""
     car[i, CX] = px
     car[i, CY] = py
     car[i, CYAW] = yaw
     car[i, CV] = 0.0
     car[i, CSTEER] = 0.0
     car[i, CBETA] = 0.0
-    car[i, CSTART] = start_ndist
     car[i, CBPX] = px
     car[i, CBPY] = py
+
+
+@njit(cache=True)
+def place(i, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
+    """Put car i at a start pose (zero speed) and begin a new episode in the prepare phase."""
+    _put(i, px, py, yaw, car)
+    car[i, CSTART] = start_ndist
     car[i, CCMD_STEER] = 0.0
     car[i, CCMD_SPEED] = 0.0
     ctr[i, KSTEPS] = 0
@@ -272,14 +278,7 @@ def place_many(idx, px, py, yaw, start_ndist, car, ctr, meas, trk_f, trk_r, road
 def relocate(i, px, py, yaw, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
     """Move car i within its episode (an evaluation reset after an incident): stopped, counters cleared,
     progress continuing from where it was."""
-    car[i, CX] = px
-    car[i, CY] = py
-    car[i, CYAW] = yaw
-    car[i, CV] = 0.0
-    car[i, CSTEER] = 0.0
-    car[i, CBETA] = 0.0
-    car[i, CBPX] = px
-    car[i, CBPY] = py
+    _put(i, px, py, yaw, car)
     ctr[i, KIMMOB] = 0
     ctr[i, KREVCNT] = 0
     ctr[i, KSTATUS] = IN_PROGRESS
