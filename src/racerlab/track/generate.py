@@ -28,11 +28,10 @@ from racerlab.track.core import Track, from_array, ring_area, segments_cross
 WAYPOINT_SPACING_M = 0.15  # the AWS route files space waypoints 0.15-0.30 m apart
 CAR_MIN_RADIUS_M = 0.28  # tightest circle the car can drive (wheelbase 0.164 m, 30 degree steering)
 FOLD_MARGIN_M = 0.05  # the inner border's own radius must stay at least this large
-DEFAULT_GAP_M = 0.3  # grass between two different parts of the road
+DEFAULT_GAP_M = 0.5  # grass between two different parts of the road (AWS tracks keep 0.68 m or more)
 STRAIGHT_RADIUS_M = 3.0  # a part of the centre line with a larger radius counts as straight-ish
 MAX_ATTEMPTS = 40  # random control polygons tried per seed before giving up
 MAX_EASING = 40  # bends eased on one random polygon before it is dropped
-MAX_ROUNDING = 0.45  # at most this fraction of each edge next to a corner is bend
 
 
 @dataclass(frozen=True)
@@ -221,21 +220,25 @@ def _crossing_problem(arr: np.ndarray) -> str | None:
 class _Built(NamedTuple):
     arr: np.ndarray | None  # the (N+1, 6) AWS array, None when there is a problem
     problem: str | None  # the first problem found
-    sharp_at: np.ndarray | None = None  # for a bend too tight: where it is, in control-point units
+    sharp_at: np.ndarray | None = None  # for a bend too tight: where it is (x, y in control-point units)
 
 
-def _build(points, width: float, length: float, min_radius: float, gap: float, start: float | None) -> _Built:
-    """The track through these control points, or the first reason it is not drivable."""
+def _build(points, width: float, length: float, min_radius: float, gap: float,
+           start_xy: np.ndarray | None) -> _Built:
+    """The track through these control points, or the first reason it is not drivable.
+
+    The start line goes at the centre-line point nearest `start_xy` (in control-point units), by
+    default on the longest straight.
+    """
     spline = _spline(points)
     curve = _dense(spline, length)
     problem = _radius_problem(curve, min_radius)
     if problem:
         return _Built(None, problem, spline(curve.t[_sharpest(curve)]))
-    if start is None:
+    if start_xy is None:
         start_s = _start_s(curve)
     else:
-        knot = np.interp(start % (len(spline.x) - 1), np.arange(len(spline.x)), spline.x)
-        start_s = float(np.interp(knot, curve.t, curve.s))
+        start_s = float(curve.s[np.argmin(np.hypot(*(curve.xy / curve.scale - start_xy).T))])
     center, normal = _waypoints(spline, curve, start_s, WAYPOINT_SPACING_M)
     spacing = curve.length / len(center)
     problem = _crowding_problem(center, width, gap, spacing)
@@ -247,64 +250,178 @@ def _build(points, width: float, length: float, min_radius: float, gap: float, s
 
 
 def from_control_points(points, width: float = 1.07, length: float | None = None, *, name: str = "designed",
-                        min_radius: float = 0.6, gap: float = DEFAULT_GAP_M,
-                        start: float | None = None) -> Track:
-    """A track through designed control points (metres; scaled to `length` when given).
+                        min_radius: float = 0.6, gap: float = DEFAULT_GAP_M, start: int | None = None) -> Track:
+    """A track whose centre line is a smooth loop through `points` (metres; all scaled to `length`).
 
-    `start` puts the start line at control point `start` (fractions go between points); by default
-    it goes on the longest straight. Raises `TrackError` with the reason when the result is not drivable.
+    `start` puts the start line at control point `start`; by default it goes on the longest
+    straight. Raises `TrackError` with the reason when the result is not drivable.
     """
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 4 or not np.isfinite(pts).all():
         raise TrackError(f"{name}: control points must be at least 4 finite (x, y) pairs, got shape {pts.shape}")
+    return _finish(pts, width, length, name, min_radius, gap, None if start is None else pts[int(start) % len(pts)])
+
+
+def _finish(points: np.ndarray, width: float, length: float | None, name: str, min_radius: float, gap: float,
+            start_xy: np.ndarray | None) -> Track:
     if length is None:
-        length = _sample(_spline(pts), 1.0, 4000).length
+        length = _sample(_spline(points), 1.0, 4000).length
     _check_request(length, width, min_radius, gap)
-    built = _build(pts, width, length, min_radius, gap, start)
+    built = _build(points, width, length, min_radius, gap, start_xy)
     if built.problem:
-        raise TrackError(f"{name}: {built.problem}; move the control points or ask for a longer track")
+        raise TrackError(f"{name}: {built.problem}; move the points or ask for a longer track")
     return from_array(built.arr, name=name, source="generated")
 
 
-def random_polygon(rng: np.random.Generator, corners: int) -> tuple[np.ndarray, np.ndarray]:
-    """Corners of a random star-shaped polygon and how much each is rounded off.
+# ---- rounded polygons: the designed and the random tracks ---------------------------------------
 
-    Corner angles and radii are jittered; an occasional deep dent makes a hairpin-like bend. The
-    rounding of a corner is the fraction of its two edges that the bend takes (the rest is straight).
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.hypot(*v.T)[..., None]
+
+
+def _deflections(corners: np.ndarray) -> np.ndarray:
+    """Signed turn at each corner of a closed polygon, rad (+ = left)."""
+    u_in = _unit(corners - np.roll(corners, 1, axis=0))
+    u_out = _unit(np.roll(corners, -1, axis=0) - corners)
+    cross = u_in[:, 0] * u_out[:, 1] - u_in[:, 1] * u_out[:, 0]
+    return np.arctan2(cross, np.sum(u_in * u_out, axis=1))
+
+
+def fillet_lengths(corners: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """How much of each adjacent edge the circular bend of radius `radii` at each corner takes, m."""
+    return radii * np.tan(np.abs(_deflections(corners)) / 2)
+
+
+def _fillet(corner, prev, nxt, radius: float, turn: float) -> np.ndarray:
+    """Points on the circular bend of `radius` that rounds off `corner`: entry, 3 inside, exit."""
+    u_in, u_out = _unit(corner - prev), _unit(nxt - corner)
+    d = radius * np.tan(abs(turn) / 2)
+    entry = corner - u_in * d
+    centre = entry + np.sign(turn) * radius * np.array([-u_in[1], u_in[0]])
+    arm = entry - centre
+    angles = turn * np.array([0.25, 0.5, 0.75])
+    rot = np.stack([np.cos(angles), -np.sin(angles), np.sin(angles), np.cos(angles)], axis=1).reshape(-1, 2, 2)
+    return np.vstack([entry, centre + rot @ arm, corner + u_out * d])
+
+
+def polygon_control_points(corners, radii, straight_step: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Spline control points for a polygon whose corners are rounded off by circular bends.
+
+    Each corner gives its bend (entry, three points on the arc, exit); each straight between two
+    bends gets a point every `straight_step` so the spline stays straight there. Returns the points
+    and, for each edge, the index of the point where its straight begins. The caller makes sure the
+    bends fit (`fillet_lengths`).
     """
-    angles = 2 * np.pi * (np.arange(corners) + rng.uniform(-0.3, 0.3, corners)) / corners
-    radii = 1.0 + rng.uniform(-0.3, 0.3, corners)
-    dents = rng.random(corners) < 0.25
-    radii[dents] *= rng.uniform(0.3, 0.6, int(dents.sum()))
-    poly = np.stack([np.cos(angles), np.sin(angles)], axis=1) * radii[:, None]
+    corners = np.asarray(corners, dtype=np.float64)
+    n = len(corners)
+    turns = _deflections(corners)
+    pieces, starts, count = [], [], 0
+    for v in range(n):
+        prev, nxt = corners[v - 1], corners[(v + 1) % n]
+        bend = corners[v][None, :] if abs(turns[v]) < 1e-9 else _fillet(corners[v], prev, nxt, radii[v], turns[v])
+        pieces.append(bend)
+        count += len(bend)
+        starts.append(count - 1)
+        nxt_entry = nxt - _unit(nxt - corners[v]) * fillet_lengths(corners, radii)[(v + 1) % n]
+        gap = float(np.hypot(*(nxt_entry - bend[-1])))
+        k = int(gap // straight_step)
+        if k > 0:
+            f = np.arange(1, k + 1)[:, None] / (k + 1)
+            pieces.append(bend[-1] + f * (nxt_entry - bend[-1]))
+            count += k
+    pts = np.vstack(pieces)
+    keep = np.hypot(*(pts - np.roll(pts, 1, axis=0)).T) > 1e-9  # bends that meet share a point
+    return pts[keep], np.cumsum(keep)[np.asarray(starts)] - 1
+
+
+def _fit_problem(corners: np.ndarray, radii: np.ndarray) -> str | None:
+    """Why the bends do not fit on the polygon's edges, or None."""
+    d = fillet_lengths(corners, radii)
+    edges = np.hypot(*(np.roll(corners, -1, axis=0) - corners).T)
+    over = d + np.roll(d, -1) - edges
+    if np.all(over <= 1e-9):
+        return None
+    v = int(np.argmax(over))
+    return (f"the bends at corners {v} and {(v + 1) % len(corners)} need {d[v] + d[(v + 1) % len(d)]:.2f} m of "
+            f"the {edges[v]:.2f} m edge between them; use smaller radii or move the corners apart")
+
+
+def from_polygon(corners, radii, width: float = 1.07, length: float | None = None, *,
+                 name: str = "designed", min_radius: float = 0.6, gap: float = DEFAULT_GAP_M,
+                 start: float | None = None) -> Track:
+    """A track drawn as a polygon (metres) whose corners are rounded off by circular bends of `radii`.
+
+    A hairpin is two close corners of about 90 degrees each; a chicane, two small opposite corners.
+    `start` puts the start line on edge int(start) (from corner i to corner i+1), that fraction of
+    the way along its straight part; by default it goes on the longest straight. With `length`
+    everything, radii too, is scaled to that length.
+    """
+    pts = np.asarray(corners, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3 or not np.isfinite(pts).all():
+        raise TrackError(f"{name}: a polygon needs at least 3 finite (x, y) corners, got shape {pts.shape}")
+    r = np.broadcast_to(np.asarray(radii, dtype=np.float64), (len(pts),))
+    if np.any(np.hypot(*(np.roll(pts, -1, axis=0) - pts).T) <= 1e-9):
+        raise TrackError(f"{name}: two consecutive corners are the same point; remove one")
+    if not np.all(r > 0):
+        raise TrackError(f"{name}: every corner radius must be positive, got {r.tolist()}")
+    if problem := _fit_problem(pts, r):
+        raise TrackError(f"{name}: {problem}")
+    control, straight_starts = polygon_control_points(pts, r)
+    start_xy = None
+    if start is not None:
+        e = int(start) % len(pts)
+        a, b = control[straight_starts[e]], _straight_end(pts, r, e)
+        start_xy = a + (start - int(start)) * (b - a)
+    return _finish(control, width, length, name, min_radius, gap, start_xy)
+
+
+def _straight_end(corners: np.ndarray, radii: np.ndarray, e: int) -> np.ndarray:
+    """Where the straight part of edge e ends: the entry of the bend at corner e + 1."""
+    nxt = (e + 1) % len(corners)
+    return corners[nxt] - _unit(corners[nxt] - corners[e]) * fillet_lengths(corners, radii)[nxt]
+
+
+def random_polygon(rng: np.random.Generator, count: int, length: float, min_radius: float):
+    """Corners of a random star-shaped polygon about `length` round, and a radius for each bend.
+
+    Corner angles and radii are jittered; an occasional deep dent makes a hairpin-like bend. Each
+    bend's radius is drawn between 1.2 and 4 times `min_radius` and shrunk to fit its edges.
+    """
+    angles = 2 * np.pi * (np.arange(count) + rng.uniform(-0.3, 0.3, count)) / count
+    dist = 1.0 + rng.uniform(-0.3, 0.3, count)
+    dents = rng.random(count) < 0.25
+    dist[dents] *= rng.uniform(0.3, 0.6, int(dents.sum()))
+    poly = np.stack([np.cos(angles), np.sin(angles)], axis=1) * dist[:, None]
     poly[:, 0] *= rng.uniform(1.0, 2.0)
     turn = rng.uniform(0, 2 * np.pi)
     rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
-    return poly @ rot.T, rng.uniform(0.1, 0.3, corners)
+    poly = poly @ rot.T
+    poly *= length / np.sum(np.hypot(*(np.roll(poly, -1, axis=0) - poly).T))
+    return poly, _fitted(poly, rng.uniform(1.2, 4.0, count) * min_radius)
 
 
-def polygon_control_points(corners: np.ndarray, rounding: np.ndarray) -> np.ndarray:
-    """Control points for a rounded polygon: each corner, then two points on its edge to the next corner.
-
-    The spline runs nearly straight between the two edge points, so `rounding` (a fraction of the
-    edge, below 0.5) sets how long the bend at each corner is.
-    """
-    nxt = np.roll(corners, -1, axis=0)
-    edge = nxt - corners
-    near = corners + rounding[:, None] * edge
-    far = nxt - np.roll(rounding, -1)[:, None] * edge
-    return np.stack([corners, near, far], axis=1).reshape(-1, 2)
+def _fitted(corners: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """The radii shrunk where needed so that each bend takes at most half of each edge next to it."""
+    edges = np.hypot(*(np.roll(corners, -1, axis=0) - corners).T)
+    room = 0.5 * np.minimum(edges, np.roll(edges, 1))
+    tan = np.tan(np.abs(_deflections(corners)) / 2)
+    with np.errstate(divide="ignore"):
+        limit = np.where(tan > 1e-9, room / tan, np.inf)
+    return np.minimum(radii, limit)
 
 
-def _ease(corners: np.ndarray, rounding: np.ndarray, at: int) -> tuple[np.ndarray, np.ndarray]:
-    """Open up the bend at corner `at`: round it off more; once that is used up, flatten the corner."""
-    corners, rounding = corners.copy(), rounding.copy()
-    if rounding[at] < MAX_ROUNDING:
-        rounding[at] = min(rounding[at] + 0.07, MAX_ROUNDING)
+def _ease(corners: np.ndarray, radii: np.ndarray, at: int) -> tuple[np.ndarray, np.ndarray]:
+    """Open up the bend at corner `at`: a larger radius if it fits, else a flatter corner."""
+    corners, radii = corners.copy(), radii.copy()
+    wider = radii.copy()
+    wider[at] *= 1.25
+    if _fitted(corners, wider)[at] > radii[at] * 1.01:
+        radii[at] = _fitted(corners, wider)[at]
     else:
         mid = 0.5 * (corners[at - 1] + corners[(at + 1) % len(corners)])
         corners[at] += 0.3 * (mid - corners[at])
-    return corners, rounding
+        radii = _fitted(corners, radii)
+    return corners, radii
 
 
 def generate(seed: int, length: float = 20.0, width: float = 1.07, min_radius: float = 0.6, *,
@@ -322,16 +439,16 @@ def generate(seed: int, length: float = 20.0, width: float = 1.07, min_radius: f
     count = int(np.clip(round(length / 4.0), 5, 12))
     problem = "no attempt made"
     for _ in range(MAX_ATTEMPTS):
-        corners, rounding = random_polygon(rng, count + int(rng.integers(-1, 3)))
+        corners, radii = random_polygon(rng, count + int(rng.integers(-1, 3)), length, min_radius)
         for _ in range(MAX_EASING):
-            built = _build(polygon_control_points(corners, rounding), width, length, min_radius, gap, None)
+            built = _build(polygon_control_points(corners, radii)[0], width, length, min_radius, gap, None)
             if built.arr is not None:
                 return from_array(built.arr, name=name or f"generated_{seed}", source="generated")
             problem = built.problem
             if built.sharp_at is None:
                 break
             at = int(np.argmin(np.hypot(*(corners - built.sharp_at).T)))
-            corners, rounding = _ease(corners, rounding, at)
+            corners, radii = _ease(corners, radii, at)
     raise TrackError(f"no valid track for seed {seed} (length {length:g} m, width {width:g} m, min_radius "
                      f"{min_radius:g} m) after {MAX_ATTEMPTS} attempts; last problem: {problem}. "
                      f"Try another seed, a longer length or a narrower width")
