@@ -1,17 +1,23 @@
-"""Track generator: smooth closed circuits from control points, checked so that a car can drive them.
+"""Track generator: smooth closed circuits, checked so that a car can drive them.
 
-Two entry points share one construction and one set of checks:
+Three entry points share one construction of waypoints and borders and one set of checks:
 
-    >>> from racerlab.track.generate import generate, from_control_points
-    >>> t = generate(seed=7, length=25.0, width=1.07)          # a random circuit
+    >>> from racerlab.track.generate import generate, from_polygon, from_control_points
+    >>> t = generate(seed=7, length=25.0, width=1.07)                       # a random circuit
+    >>> t = from_polygon([(0, 0), (5, 0), (5, 3), (0, 3)], radii=1.5, width=1.07, length=15.0)
     >>> t = from_control_points([(0, 0), (4, 0), (4, 2), (0, 2)], width=0.76, length=18.0)
 
-A centre line is a periodic cubic spline through the control points (chord-length parameter),
-scaled to the requested length, turned counter-clockwise, started on its straightest part and
-sampled every ~0.15 m like the AWS route files. The borders are offsets of the centre line by half
-the width, so the centre is exactly their midpoint and the width is constant. A track is refused
-(`TrackError`) when a turn is tighter than `min_radius`, or when two parts of the road come closer
-than `gap` without being the same bend (the check that also catches crossings).
+`from_polygon` (the bundled tracks and the random ones) rounds each corner of a polygon off with a
+circular bend of the given radius and eases every change of curvature over `BLEND_M` metres, like
+the transition curves of a real circuit: straights stay straight and no bend is tighter than its
+radius. `from_control_points` runs a periodic cubic spline through free-form points instead.
+
+Either centre line is scaled to the requested length, turned counter-clockwise, started on its
+straightest part (or where asked) and sampled every ~0.15 m like the AWS route files. The borders
+are offsets of the centre line by half the width, so the centre is exactly their midpoint and the
+width is constant. A track is refused (`TrackError`) when a bend is tighter than `min_radius`,
+when two parts of the road come closer than `gap` without being the same bend, or when a line
+crosses itself.
 """
 
 from __future__ import annotations
@@ -30,32 +36,48 @@ CAR_MIN_RADIUS_M = 0.28  # tightest circle the car can drive (wheelbase 0.164 m,
 FOLD_MARGIN_M = 0.05  # the inner border's own radius must stay at least this large
 DEFAULT_GAP_M = 0.5  # grass between two different parts of the road (AWS tracks keep 0.68 m or more)
 STRAIGHT_RADIUS_M = 3.0  # a part of the centre line with a larger radius counts as straight-ish
-MAX_ATTEMPTS = 40  # random control polygons tried per seed before giving up
+BLEND_M = 0.3  # length over which the curvature of a polygon track changes at each end of a bend
+DENSE_STEP_M = 0.005  # spacing of the dense centre line that the checks and the waypoints use
+MAX_LENGTH_M = 300.0  # the crowding check is quadratic in waypoints; AWS tracks are under 100 m
+RADIUS_TOLERANCE = 1e-4  # relative; the dense polyline's curvature of an exact arc is a hair high
+MAX_ATTEMPTS = 40  # random polygons tried per seed before giving up
 MAX_EASING = 40  # bends eased on one random polygon before it is dropped
 
 
 @dataclass(frozen=True)
 class _Curve:
-    """A closed centre line sampled densely: parameter, points, first and second derivatives, arc length."""
+    """A closed centre line sampled densely, in metres; row M repeats row 0.
 
-    t: np.ndarray
-    xy: np.ndarray
-    d1: np.ndarray
-    d2: np.ndarray
-    s: np.ndarray  # arc length at each sample, s[0] == 0, s[-1] == length
-    scale: float  # factor from spline units to metres
+    `label` tells which design element each sample came from (a polygon corner, the nearest one
+    on a straight; -1 for spline curves), so that a bend that is too tight can be eased.
+    """
+
+    xy: np.ndarray  # (M+1, 2)
+    s: np.ndarray  # (M+1,) arc length, s[0] == 0, s[-1] == length
+    tangent: np.ndarray  # (M+1, 2) unit
+    curvature: np.ndarray  # (M+1,) signed, 1/m
+    label: np.ndarray  # (M+1,) int
 
     @property
     def length(self) -> float:
         return float(self.s[-1])
 
-    @property
-    def curvature(self) -> np.ndarray:
-        cross = self.d1[:, 0] * self.d2[:, 1] - self.d1[:, 1] * self.d2[:, 0]
-        return cross / np.hypot(*self.d1.T) ** 3
+    @classmethod
+    def from_xy(cls, xy: np.ndarray, label: np.ndarray | None = None) -> _Curve:
+        """Arc length, tangents and curvature (turning angle per length) of a dense closed polyline."""
+        seg = np.diff(xy, axis=0)
+        seg_len = np.hypot(*seg.T)
+        s = np.concatenate([[0.0], np.cumsum(seg_len)])
+        heading = np.arctan2(seg[:, 1], seg[:, 0])
+        turn = np.angle(np.exp(1j * (heading - np.roll(heading, 1))))  # at vertex i, from segment i-1 to i
+        k = turn / (0.5 * (seg_len + np.roll(seg_len, 1)))
+        t = seg / seg_len[:, None] + np.roll(seg, 1, axis=0) / np.roll(seg_len, 1)[:, None]
+        t /= np.hypot(*t.T)[:, None]
+        lab = np.full(len(xy), -1) if label is None else label
+        return cls(xy, s, np.vstack([t, t[:1]]), np.append(k, k[0]), lab)
 
 
-# ---- construction -----------------------------------------------------------------------------
+# ---- centre lines from a spline through control points ------------------------------------------
 
 def _spline(points: np.ndarray) -> CubicSpline:
     """Periodic cubic spline through the control points, parametrised by chord length."""
@@ -68,20 +90,99 @@ def _spline(points: np.ndarray) -> CubicSpline:
     return CubicSpline(knots, ring, bc_type="periodic")
 
 
-def _sample(spline: CubicSpline, scale: float, samples: int) -> _Curve:
+def _spline_length(spline: CubicSpline) -> float:
+    raw = spline(np.linspace(spline.x[0], spline.x[-1], 4001))
+    return float(np.sum(np.hypot(*np.diff(raw, axis=0).T)))
+
+
+def _spline_curve(spline: CubicSpline, length: float | None) -> tuple[_Curve, np.ndarray]:
+    """The spline's loop scaled to `length` (its own when None), and the s of each control point."""
+    natural = _spline_length(spline)
+    scale = 1.0 if length is None else length / natural
+    samples = max(4000, int(natural * scale / DENSE_STEP_M))
     t = np.linspace(spline.x[0], spline.x[-1], samples + 1)
     xy = spline(t) * scale
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
-    return _Curve(t, xy, spline(t, 1) * scale, spline(t, 2) * scale, s, scale)
+    xy[-1] = xy[0]
+    curve = _Curve.from_xy(xy)
+    return curve, np.interp(spline.x[:-1], t, curve.s)
 
 
-def _dense(spline: CubicSpline, length: float) -> _Curve:
-    """The spline scaled so that its centre line is `length` long, sampled every ~1 cm."""
-    samples = 4000
-    raw = _sample(spline, 1.0, samples)
-    samples = max(samples, int(length / 0.01))
-    return _sample(spline, length / raw.length, samples)
+# ---- centre lines from rounded polygons ---------------------------------------------------------
 
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.hypot(*v.T)[..., None]
+
+
+def _deflections(corners: np.ndarray) -> np.ndarray:
+    """Signed turn at each corner of a closed polygon, rad (+ = left)."""
+    u_in = _unit(corners - np.roll(corners, 1, axis=0))
+    u_out = _unit(np.roll(corners, -1, axis=0) - corners)
+    cross = u_in[:, 0] * u_out[:, 1] - u_in[:, 1] * u_out[:, 0]
+    return np.arctan2(cross, np.sum(u_in * u_out, axis=1))
+
+
+def fillet_lengths(corners: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """How much of each adjacent edge the circular bend of radius `radii` at each corner takes, m."""
+    return radii * np.tan(np.abs(_deflections(corners)) / 2)
+
+
+class _Layout(NamedTuple):
+    """A rounded polygon as a curvature profile over arc length u, starting at the entry of bend 0."""
+
+    breaks: np.ndarray  # (2n+1,) u where the pieces begin: bend 0, straight 0, bend 1, straight 1, ...
+    turned: np.ndarray  # (2n+1,) heading change from u = 0 to each break, rad
+    heading0: float  # direction of the path at u = 0, rad
+    entry0: np.ndarray  # where bend 0 begins
+
+
+def _layout(corners: np.ndarray, radii: np.ndarray) -> _Layout:
+    turns = _deflections(corners)
+    d = fillet_lengths(corners, radii)
+    edges = np.hypot(*(np.roll(corners, -1, axis=0) - corners).T)
+    pieces = np.stack([radii * np.abs(turns), edges - d - np.roll(d, -1)], axis=1).ravel()
+    bends = np.stack([turns, np.zeros_like(turns)], axis=1).ravel()
+    u_in = _unit(corners[0] - corners[-1])
+    return _Layout(np.concatenate([[0.0], np.cumsum(pieces)]), np.concatenate([[0.0], np.cumsum(bends)]),
+                   float(np.arctan2(u_in[1], u_in[0])), corners[0] - u_in * d[0])
+
+
+def _polygon_curve(corners: np.ndarray, radii: np.ndarray, length: float | None) -> tuple[_Curve, _Layout]:
+    """The rounded polygon's centre line with each change of curvature spread over `BLEND_M`.
+
+    The heading is the exact heading of the straights-and-arcs path averaged over a window of
+    `BLEND_M` (so the curvature ramps linearly and never exceeds a bend's 1/radius); positions are
+    its integral, and the few millimetres by which the smoothed loop misses its start are spread
+    evenly along it (a constant tangent shift: no added curvature).
+    """
+    lay = _layout(corners, radii)
+    total = float(lay.breaks[-1])
+    scale = 1.0 if length is None else length / total
+    m = max(2000, int(round(total * scale / DENSE_STEP_M)))
+    du = total / m
+    half = max(1, int(round(0.5 * BLEND_M / scale / du)))
+    u = np.arange(-half, m + half + 1) * du  # the loop plus half a window on either side
+    turned = np.interp(np.mod(u, total), lay.breaks, lay.turned) + np.floor_divide(u, total) * lay.turned[-1]
+    area = np.concatenate([[0.0], np.cumsum(0.5 * (turned[1:] + turned[:-1]) * du)])
+    heading = lay.heading0 + (area[2 * half:] - area[:-2 * half]) / (2 * half * du)  # (m+1,)
+    mid = 0.5 * (heading[1:] + heading[:-1])
+    xy = lay.entry0 + np.vstack([[0.0, 0.0], np.cumsum(du * np.stack([np.cos(mid), np.sin(mid)], axis=1), axis=0)])
+    xy -= np.linspace(0.0, 1.0, m + 1)[:, None] * (xy[-1] - xy[0])
+    xy[-1] = xy[0]
+    if length is not None:  # smoothing cut the bends a little short; scale to the exact length
+        xy *= length / float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
+    return _Curve.from_xy(xy, _corner_labels(u[half:m + half + 1], lay, len(corners))), lay
+
+
+def _corner_labels(u: np.ndarray, lay: _Layout, n: int) -> np.ndarray:
+    """The corner each point belongs to: its bend, or the nearer end of its straight."""
+    piece = np.clip(np.searchsorted(lay.breaks, u, side="right") - 1, 0, 2 * n - 1)
+    corner = piece // 2
+    on_straight = piece % 2 == 1
+    past_middle = u > 0.5 * (lay.breaks[piece] + lay.breaks[piece + 1])
+    return np.where(on_straight & past_middle, (corner + 1) % n, corner)
+
+
+# ---- waypoints and borders ----------------------------------------------------------------------
 
 def _start_s(curve: _Curve) -> float:
     """Arc length of the start line: a quarter into the longest straight-ish stretch."""
@@ -112,14 +213,12 @@ def _arc_between(curve: _Curve, i: int, j: int) -> float:
     return float(d if d >= 0 else d + curve.length)
 
 
-def _waypoints(spline: CubicSpline, curve: _Curve, start_s: float, spacing: float):
+def _waypoints(curve: _Curve, start_s: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
     """Centre points and unit left normals every ~`spacing` m from `start_s`, counter-clockwise."""
     n = max(8, int(round(curve.length / spacing)))
     s = (start_s + np.arange(n) * curve.length / n) % curve.length
-    t = np.interp(s, curve.s, curve.t)
-    center = spline(t) * curve.scale
-    tangent = spline(t, 1)
-    tangent /= np.hypot(*tangent.T)[:, None]
+    center = np.stack([np.interp(s, curve.s, curve.xy[:, i]) for i in (0, 1)], axis=1)
+    tangent = _unit(np.stack([np.interp(s, curve.s, curve.tangent[:, i]) for i in (0, 1)], axis=1))
     if ring_area(center) < 0:  # drive it the other way, keeping the start point first
         center = np.vstack([center[:1], center[:0:-1]])
         tangent = -np.vstack([tangent[:1], tangent[:0:-1]])
@@ -142,35 +241,44 @@ def _aws_array(center: np.ndarray, normal: np.ndarray, width: float) -> np.ndarr
 # ---- checks -----------------------------------------------------------------------------------
 
 def _check_request(length: float, width: float, min_radius: float, gap: float) -> None:
-    if not (np.isfinite(width) and width > 0):
-        raise TrackError(f"width must be a positive number of metres, got {width}")
-    if not (np.isfinite(length) and length > 0):
-        raise TrackError(f"length must be a positive number of metres, got {length}")
+    for what, v in (("width", width), ("length", length), ("min_radius", min_radius)):
+        if not (isinstance(v, int | float | np.number) and np.isfinite(v) and v > 0):
+            raise TrackError(f"{what} must be a positive number of metres, got {v!r}")
     if min_radius < CAR_MIN_RADIUS_M:
         raise TrackError(f"min_radius {min_radius:g} m is tighter than the car can turn "
                          f"({CAR_MIN_RADIUS_M} m); use at least {CAR_MIN_RADIUS_M}")
     if min_radius < width / 2 + FOLD_MARGIN_M:
         raise TrackError(f"min_radius {min_radius:g} m is too tight for a {width:g} m wide road: the inner "
                          f"border would fold; use min_radius >= {width / 2 + FOLD_MARGIN_M:.3f} or a narrower width")
-    if gap < 0:
+    if not (np.isfinite(gap) and gap >= 0):
         raise TrackError(f"gap must be >= 0 m, got {gap}")
     shortest = np.pi * max(2 * min_radius, width + gap)
     if length < shortest:
         raise TrackError(f"length {length:g} m is too short for width {width:g} m and min_radius {min_radius:g} m; "
                          f"use at least {shortest:.2f} m")
+    if length > MAX_LENGTH_M:
+        raise TrackError(f"length {length:g} m is longer than the generator makes ({MAX_LENGTH_M:g} m at most; "
+                         f"coordinates are in metres)")
+
+
+def _check_design(name: str, length: float, width: float, min_radius: float, gap: float) -> None:
+    try:
+        _check_request(length, width, min_radius, gap)
+    except TrackError as exc:
+        raise TrackError(f"{name}: {exc}") from None
 
 
 def _sharpest(curve: _Curve) -> int:
     return int(np.argmax(np.abs(curve.curvature)))
 
 
-def _radius_problem(curve: _Curve, min_radius: float) -> str | None:
+def _radius_problem(curve: _Curve, min_radius: float, start_s: float) -> str | None:
     i = _sharpest(curve)
-    radius = 1.0 / abs(curve.curvature[i])
-    if radius >= min_radius:
+    radius = 1.0 / max(abs(curve.curvature[i]), 1e-12)
+    if radius >= min_radius * (1 - RADIUS_TOLERANCE):
         return None
-    return (f"a bend of radius {radius:.2f} m at {curve.s[i]:.1f} m along the spline from control point 0 "
-            f"is tighter than min_radius {min_radius:g} m")
+    at = (curve.s[i] - start_s) % curve.length
+    return f"a bend of radius {radius:.2f} m at {at:.1f} m from the start is tighter than min_radius {min_radius:g} m"
 
 
 def crowding(center: np.ndarray, reach: float) -> tuple[int, int, float] | None:
@@ -203,7 +311,7 @@ def _crowding_problem(center: np.ndarray, width: float, gap: float, spacing: flo
     if hit is None:
         return None
     i, j, d = hit
-    return (f"the road at {i * spacing:.1f} m and at {j * spacing:.1f} m along the centre line comes within "
+    return (f"the road at {i * spacing:.1f} m and at {j * spacing:.1f} m from the start comes within "
             f"{max(d - width, 0):.2f} m of itself (needs a gap of {gap:g} m)")
 
 
@@ -215,38 +323,38 @@ def _crossing_problem(arr: np.ndarray) -> str | None:
     return None
 
 
-# ---- entry points -----------------------------------------------------------------------------
+# ---- one construction for every entry point -----------------------------------------------------
 
 class _Built(NamedTuple):
     arr: np.ndarray | None  # the (N+1, 6) AWS array, None when there is a problem
     problem: str | None  # the first problem found
-    sharp_at: np.ndarray | None = None  # for a bend too tight: where it is (x, y in control-point units)
+    sharp_label: int | None = None  # for a bend too tight: the label of its design element
 
 
-def _build(points, width: float, length: float, min_radius: float, gap: float,
-           start_xy: np.ndarray | None) -> _Built:
-    """The track through these control points, or the first reason it is not drivable.
+def _build(curve: _Curve, width: float, min_radius: float, gap: float, start_s: float | None) -> _Built:
+    """The AWS array of the track along `curve`, or the first reason it is not drivable.
 
-    The start line goes at the centre-line point nearest `start_xy` (in control-point units), by
-    default on the longest straight.
+    The start line goes at `start_s` along the curve, by default a quarter into the longest straight.
     """
-    spline = _spline(points)
-    curve = _dense(spline, length)
-    problem = _radius_problem(curve, min_radius)
+    start_s = _start_s(curve) if start_s is None else float(start_s) % curve.length
+    problem = _radius_problem(curve, min_radius, start_s)
     if problem:
-        return _Built(None, problem, spline(curve.t[_sharpest(curve)]))
-    if start_xy is None:
-        start_s = _start_s(curve)
-    else:
-        start_s = float(curve.s[np.argmin(np.hypot(*(curve.xy / curve.scale - start_xy).T))])
-    center, normal = _waypoints(spline, curve, start_s, WAYPOINT_SPACING_M)
-    spacing = curve.length / len(center)
-    problem = _crowding_problem(center, width, gap, spacing)
+        return _Built(None, problem, int(curve.label[_sharpest(curve)]))
+    center, normal = _waypoints(curve, start_s, WAYPOINT_SPACING_M)
+    # chords cut the bends a little short: keep the waypoints' centre line exactly as long as the curve
+    center = center * (curve.length / float(np.sum(np.hypot(*(np.roll(center, -1, axis=0) - center).T))))
+    problem = _crowding_problem(center, width, gap, curve.length / len(center))
     if problem:
         return _Built(None, problem)
     arr = _aws_array(center, normal, width)
     problem = _crossing_problem(arr)
     return _Built(None if problem else arr, problem)
+
+
+def _track(built: _Built, name: str, hint: str) -> Track:
+    if built.problem:
+        raise TrackError(f"{name}: {built.problem}; {hint}")
+    return from_array(built.arr, name=name, source="generated")
 
 
 def from_control_points(points, width: float = 1.07, length: float | None = None, *, name: str = "designed",
@@ -259,79 +367,34 @@ def from_control_points(points, width: float = 1.07, length: float | None = None
     pts = np.asarray(points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 4 or not np.isfinite(pts).all():
         raise TrackError(f"{name}: control points must be at least 4 finite (x, y) pairs, got shape {pts.shape}")
-    return _finish(pts, width, length, name, min_radius, gap, None if start is None else pts[int(start) % len(pts)])
+    try:
+        spline = _spline(pts)
+    except TrackError as exc:
+        raise TrackError(f"{name}: {exc}") from None
+    _check_design(name, _spline_length(spline) if length is None else length, width, min_radius, gap)
+    curve, knot_s = _spline_curve(spline, length)
+    start_s = None if start is None else knot_s[int(start) % len(pts)]
+    return _track(_build(curve, width, min_radius, gap, start_s), name, "move the points or ask for a longer track")
 
 
-def _finish(points: np.ndarray, width: float, length: float | None, name: str, min_radius: float, gap: float,
-            start_xy: np.ndarray | None) -> Track:
-    if length is None:
-        length = _sample(_spline(points), 1.0, 4000).length
-    _check_request(length, width, min_radius, gap)
-    built = _build(points, width, length, min_radius, gap, start_xy)
-    if built.problem:
-        raise TrackError(f"{name}: {built.problem}; move the points or ask for a longer track")
-    return from_array(built.arr, name=name, source="generated")
-
-
-# ---- rounded polygons: the designed and the random tracks ---------------------------------------
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.hypot(*v.T)[..., None]
-
-
-def _deflections(corners: np.ndarray) -> np.ndarray:
-    """Signed turn at each corner of a closed polygon, rad (+ = left)."""
-    u_in = _unit(corners - np.roll(corners, 1, axis=0))
-    u_out = _unit(np.roll(corners, -1, axis=0) - corners)
-    cross = u_in[:, 0] * u_out[:, 1] - u_in[:, 1] * u_out[:, 0]
-    return np.arctan2(cross, np.sum(u_in * u_out, axis=1))
-
-
-def fillet_lengths(corners: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """How much of each adjacent edge the circular bend of radius `radii` at each corner takes, m."""
-    return radii * np.tan(np.abs(_deflections(corners)) / 2)
-
-
-def _fillet(corner, prev, nxt, radius: float, turn: float) -> np.ndarray:
-    """Points on the circular bend of `radius` that rounds off `corner`: entry, 3 inside, exit."""
-    u_in, u_out = _unit(corner - prev), _unit(nxt - corner)
-    d = radius * np.tan(abs(turn) / 2)
-    entry = corner - u_in * d
-    centre = entry + np.sign(turn) * radius * np.array([-u_in[1], u_in[0]])
-    arm = entry - centre
-    angles = turn * np.array([0.25, 0.5, 0.75])
-    rot = np.stack([np.cos(angles), -np.sin(angles), np.sin(angles), np.cos(angles)], axis=1).reshape(-1, 2, 2)
-    return np.vstack([entry, centre + rot @ arm, corner + u_out * d])
-
-
-def polygon_control_points(corners, radii, straight_step: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Spline control points for a polygon whose corners are rounded off by circular bends.
-
-    Each corner gives its bend (entry, three points on the arc, exit); each straight between two
-    bends gets a point every `straight_step` so the spline stays straight there. Returns the points
-    and, for each edge, the index of the point where its straight begins. The caller makes sure the
-    bends fit (`fillet_lengths`).
-    """
-    corners = np.asarray(corners, dtype=np.float64)
-    n = len(corners)
-    turns = _deflections(corners)
-    pieces, starts, count = [], [], 0
-    for v in range(n):
-        prev, nxt = corners[v - 1], corners[(v + 1) % n]
-        bend = corners[v][None, :] if abs(turns[v]) < 1e-9 else _fillet(corners[v], prev, nxt, radii[v], turns[v])
-        pieces.append(bend)
-        count += len(bend)
-        starts.append(count - 1)
-        nxt_entry = nxt - _unit(nxt - corners[v]) * fillet_lengths(corners, radii)[(v + 1) % n]
-        gap = float(np.hypot(*(nxt_entry - bend[-1])))
-        k = int(gap // straight_step)
-        if k > 0:
-            f = np.arange(1, k + 1)[:, None] / (k + 1)
-            pieces.append(bend[-1] + f * (nxt_entry - bend[-1]))
-            count += k
-    pts = np.vstack(pieces)
-    keep = np.hypot(*(pts - np.roll(pts, 1, axis=0)).T) > 1e-9  # bends that meet share a point
-    return pts[keep], np.cumsum(keep)[np.asarray(starts)] - 1
+def _check_polygon(name: str, corners, radii) -> tuple[np.ndarray, np.ndarray]:
+    pts = np.asarray(corners, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3 or not np.isfinite(pts).all():
+        raise TrackError(f"{name}: a polygon needs at least 3 finite (x, y) corners, got shape {pts.shape}")
+    try:
+        r = np.broadcast_to(np.asarray(radii, dtype=np.float64), (len(pts),)).copy()
+    except ValueError:
+        raise TrackError(f"{name}: give one radius, or one per corner ({len(pts)}), got {np.shape(radii)}") from None
+    if np.any(np.hypot(*(np.roll(pts, -1, axis=0) - pts).T) <= 1e-9):
+        raise TrackError(f"{name}: two consecutive corners are the same point; remove one")
+    if not np.all(np.isfinite(r) & (r > 0)):
+        raise TrackError(f"{name}: every corner radius must be a positive number, got {r.tolist()}")
+    if np.any(np.abs(_deflections(pts)) > np.radians(179)):
+        raise TrackError(f"{name}: the polygon doubles back on itself at corner "
+                         f"{int(np.argmax(np.abs(_deflections(pts))))}; make a hairpin of two corners")
+    if problem := _fit_problem(pts, r):
+        raise TrackError(f"{name}: {problem}")
+    return pts, r
 
 
 def _fit_problem(corners: np.ndarray, radii: np.ndarray) -> str | None:
@@ -356,30 +419,19 @@ def from_polygon(corners, radii, width: float = 1.07, length: float | None = Non
     the way along its straight part; by default it goes on the longest straight. With `length`
     everything, radii too, is scaled to that length.
     """
-    pts = np.asarray(corners, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3 or not np.isfinite(pts).all():
-        raise TrackError(f"{name}: a polygon needs at least 3 finite (x, y) corners, got shape {pts.shape}")
-    r = np.broadcast_to(np.asarray(radii, dtype=np.float64), (len(pts),))
-    if np.any(np.hypot(*(np.roll(pts, -1, axis=0) - pts).T) <= 1e-9):
-        raise TrackError(f"{name}: two consecutive corners are the same point; remove one")
-    if not np.all(r > 0):
-        raise TrackError(f"{name}: every corner radius must be positive, got {r.tolist()}")
-    if problem := _fit_problem(pts, r):
-        raise TrackError(f"{name}: {problem}")
-    control, straight_starts = polygon_control_points(pts, r)
-    start_xy = None
+    pts, r = _check_polygon(name, corners, radii)
+    _check_design(name, _layout(pts, r).breaks[-1] if length is None else length, width, min_radius, gap)
+    curve, lay = _polygon_curve(pts, r, length)
+    start_s = None
     if start is not None:
         e = int(start) % len(pts)
-        a, b = control[straight_starts[e]], _straight_end(pts, r, e)
-        start_xy = a + (start - int(start)) * (b - a)
-    return _finish(control, width, length, name, min_radius, gap, start_xy)
+        u = lay.breaks[2 * e + 1] + (start - int(start)) * (lay.breaks[2 * e + 2] - lay.breaks[2 * e + 1])
+        start_s = u / lay.breaks[-1] * curve.length
+    return _track(_build(curve, width, min_radius, gap, start_s), name,
+                  "use larger radii, move the corners or ask for a longer track")
 
 
-def _straight_end(corners: np.ndarray, radii: np.ndarray, e: int) -> np.ndarray:
-    """Where the straight part of edge e ends: the entry of the bend at corner e + 1."""
-    nxt = (e + 1) % len(corners)
-    return corners[nxt] - _unit(corners[nxt] - corners[e]) * fillet_lengths(corners, radii)[nxt]
-
+# ---- random tracks ------------------------------------------------------------------------------
 
 def random_polygon(rng: np.random.Generator, count: int, length: float, min_radius: float):
     """Corners of a random star-shaped polygon about `length` round, and a radius for each bend.
@@ -424,6 +476,19 @@ def _ease(corners: np.ndarray, radii: np.ndarray, at: int) -> tuple[np.ndarray, 
     return corners, radii
 
 
+def _try_polygon(corners, radii, length, width, min_radius, gap) -> _Built:
+    """Build one random polygon, easing its tightest bend until it is wide enough or it fails otherwise."""
+    built = _Built(None, "no attempt made")
+    for _ in range(MAX_EASING):
+        if np.any(np.abs(_deflections(corners)) > np.radians(179)) or _fit_problem(corners, radii):
+            return _Built(None, "the random polygon folded back on itself")
+        built = _build(_polygon_curve(corners, radii, length)[0], width, min_radius, gap, None)
+        if built.arr is not None or built.sharp_label is None:
+            return built
+        corners, radii = _ease(corners, radii, built.sharp_label)
+    return built
+
+
 def generate(seed: int, length: float = 20.0, width: float = 1.07, min_radius: float = 0.6, *,
              gap: float = DEFAULT_GAP_M, name: str | None = None) -> Track:
     """A random valid circuit, the same for the same arguments.
@@ -440,19 +505,16 @@ def generate(seed: int, length: float = 20.0, width: float = 1.07, min_radius: f
     problem = "no attempt made"
     for _ in range(MAX_ATTEMPTS):
         corners, radii = random_polygon(rng, count + int(rng.integers(-1, 3)), length, min_radius)
-        for _ in range(MAX_EASING):
-            built = _build(polygon_control_points(corners, radii)[0], width, length, min_radius, gap, None)
-            if built.arr is not None:
-                return from_array(built.arr, name=name or f"generated_{seed}", source="generated")
-            problem = built.problem
-            if built.sharp_at is None:
-                break
-            at = int(np.argmin(np.hypot(*(corners - built.sharp_at).T)))
-            corners, radii = _ease(corners, radii, at)
+        built = _try_polygon(corners, radii, length, width, min_radius, gap)
+        if built.arr is not None:
+            return from_array(built.arr, name=name or f"generated_{seed}", source="generated")
+        problem = built.problem
     raise TrackError(f"no valid track for seed {seed} (length {length:g} m, width {width:g} m, min_radius "
                      f"{min_radius:g} m) after {MAX_ATTEMPTS} attempts; last problem: {problem}. "
                      f"Try another seed, a longer length or a narrower width")
 
+
+# ---- describing a track -------------------------------------------------------------------------
 
 def turn_angles(track: Track, max_radius: float = 2.0) -> list[tuple[float, float, float]]:
     """The turns of a track as (start s, end s, heading change in degrees, + = left), in driving order.
