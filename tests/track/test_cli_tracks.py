@@ -37,6 +37,8 @@ def test_show_reverse_and_a_path(home, tmp_path, capsys, monkeypatch):
     path = aws_track_path("reInvent2019_track")
     assert main(["tracks", "show", str(path), "--out", str(tmp_path / "r.png")]) == 0
     assert "length: 23.1" in capsys.readouterr().out
+    assert main(["tracks", "show"]) == 0  # the default track
+    assert (tmp_path / "lab_technical.png").is_file()
 
 
 def test_list_shows_bundled_and_user_tracks(home, capsys):

@@ -17,7 +17,8 @@ def register(sub) -> None:
     show = tsub.add_parser("show", help="draw a track to a PNG and print its size",
                            description="Write a picture of a track (borders, centre line, start, direction, "
                                        "waypoint numbers) and print its length, width, turns and direction.")
-    show.add_argument("track", metavar="NAME|PATH", help="a track name (see `racerlab tracks list`) or a .npy file")
+    show.add_argument("track", metavar="NAME|PATH", nargs="?", default=None,
+                      help="a track name (see `racerlab tracks list`) or a .npy file (default: the default track)")
     show.add_argument("--out", type=Path, default=None, help="PNG file to write (default ./<name>.png)")
     show.add_argument("--reverse", action="store_true", help="the track driven the other way")
     show.set_defaults(func=run_show)
@@ -69,10 +70,10 @@ def _print_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
 
 
 def run_show(args) -> int:
-    from racerlab.track import load
+    from racerlab.track import DEFAULT_TRACK, load
     from racerlab.track.plot import save_track_png
 
-    t = load(args.track, reverse=args.reverse)
+    t = load(args.track or DEFAULT_TRACK, reverse=args.reverse)
     out = args.out or Path(f"{t.name}{'_reversed' if args.reverse else ''}.png")
     if out.suffix.lower() != ".png":
         from racerlab.errors import RacerlabError
@@ -119,5 +120,5 @@ def run_generate(args) -> int:
         np.save(f, t.as_array())
     tmp.replace(path)
     print(describe(t))
-    print(f"saved: {path}  (use it as --track {name})")
+    print(f"saved: {path}  (use it by name: {name}; draw it with `racerlab tracks show {name}`)")
     return 0
