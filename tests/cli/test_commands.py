@@ -1,0 +1,52 @@
+"""The `racerlab` command in-process: init, train, clone, quickstart, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from racerlab.cli import main
+from tests.conftest import aws_track_path
+
+
+def test_help_lists_every_command(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    for cmd in ("quickstart", "init", "train", "clone", "tracks", "evaluate"):
+        assert cmd in out
+
+
+def test_init_train_clone(tmp_path, capsys):
+    track = str(aws_track_path("reInvent2019_track"))
+    model = tmp_path / "m"
+    assert main(["init", str(model), "--track", track, "--max-speed", "2"]) == 0
+    assert main(["train", str(model), "--iterations", "2", "--cars", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "it    2 |" in out and "stopped: iteration limit of 2" in out
+    assert main(["clone", str(model), str(tmp_path / "c"), "--checkpoint", "last"]) == 0
+    assert json.loads((tmp_path / "c" / "lineage.json").read_text())["checkpoint"].startswith("2_Step-")
+
+
+def test_user_mistakes_are_one_line(tmp_path, capsys):
+    assert main(["train", str(tmp_path / "nothing")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("racerlab: error:") and "no such model folder" in err and "\n" not in err
+    model = tmp_path / "m"
+    main(["init", str(model), "--track", str(aws_track_path("reInvent2019_track"))])
+    (model / "hyperparameters.json").write_text(json.dumps({"lr": "fast"}))
+    assert main(["train", str(model), "--iterations", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "hyperparameters.json" in err and "lr" in err and "\n" not in err
+    assert main(["init", str(tmp_path / "x"), "--track", "no_such_track"]) == 2
+    assert "unknown track 'no_such_track'" in capsys.readouterr().err
+
+
+def test_quickstart_on_defaults(tmp_path, capsys):
+    model = tmp_path / "qs"
+    assert main(["quickstart", "--model", str(model), "--minutes", "0.1"]) == 0
+    out = capsys.readouterr().out
+    assert "result:" in out and (model / "quickstart" / "evaluation.png").is_file()
+    assert (model / "quickstart" / "training.png").is_file()
+    assert list(model.glob("evaluation-*/EvalMetrics.json"))
