@@ -1,12 +1,18 @@
 """Observations by name: each builds a batched observation of the simulator's current poses.
 
 `features` is racerlab's compact vector for fast training (see `_kernels.features`); the
-sensors (camera, stereo, lidar, sector lidar) register here under their own names. When the
-environment is given no `observation`, it follows the model's `sensor` list as AWS does.
+sensors (camera, stereo, lidar, sector lidar and a camera with a lidar, `racerlab.sim.sensors`)
+register here under their own names. When the environment is given no `observation`, it
+follows the model's `sensor` list as AWS does.
+
+A name may carry options after a colon, comma-separated, which go to the factory as
+`options`: ``"camera:dr"`` (domain randomization of the camera), ``"stereo+lidar:dr,walls"``
+(and the lidar sees the track borders as walls). See `racerlab.sim.sensors`.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 
 import gymnasium as gym
@@ -40,12 +46,29 @@ class FeaturesObservation:
 
 # name -> factory(sim, metadata) returning an object with `.space` (one car) and `__call__(rows=None)`
 # giving the batch; with `partial_update = True` it also accepts `rows` (indices of the only cars that
-# changed since the last call, after a partial reset)
+# changed since the last call, after a partial reset). A factory that takes options is called with
+# `options=` (a tuple of names) when the observation name has any.
 OBSERVATIONS: dict[str, Callable] = {"features": FeaturesObservation}
 
 
 def register_observation(name: str, factory: Callable) -> None:
     OBSERVATIONS[name] = factory
+
+
+def _sensor_factory(name: str) -> Callable:
+    def factory(sim, metadata=None, options=()):
+        from racerlab.sim.sensors import build_observation  # compiled kernels load only when a sensor is used
+
+        return build_observation(name, sim, metadata, options)
+
+    factory.__name__ = f"{name.replace('+', '_')}_observation"
+    return factory
+
+
+SENSOR_NAMES = ("camera", "stereo", "lidar", "sector_lidar", "camera+lidar", "camera+sector_lidar", "stereo+lidar",
+                "stereo+sector_lidar")
+for _name in SENSOR_NAMES:
+    register_observation(_name, _sensor_factory(_name))
 
 
 def observation_name_for(metadata: ModelMetadata) -> str:
@@ -67,8 +90,20 @@ def observation_name_for(metadata: ModelMetadata) -> str:
     return name or "features"
 
 
+def split_observation_name(name: str) -> tuple[str, tuple[str, ...]]:
+    """"stereo+lidar:dr,walls" -> ("stereo+lidar", ("dr", "walls"))."""
+    base, _, opts = name.partition(":")
+    return base.strip(), tuple(o.strip() for o in opts.split(",") if o.strip())
+
+
 def make_observation(name: str | None, sim, metadata: ModelMetadata):
     name = name or observation_name_for(metadata)
-    if name not in OBSERVATIONS:
-        raise ConfigError(f"observation {name!r} is not available; choose one of {', '.join(sorted(OBSERVATIONS))}")
-    return OBSERVATIONS[name](sim, metadata)
+    base, options = split_observation_name(name)
+    if base not in OBSERVATIONS:
+        raise ConfigError(f"observation {base!r} is not available; choose one of {', '.join(sorted(OBSERVATIONS))}")
+    factory = OBSERVATIONS[base]
+    if not options:
+        return factory(sim, metadata)
+    if "options" not in inspect.signature(factory).parameters:
+        raise ConfigError(f"observation {base!r} takes no options, got {name!r}")
+    return factory(sim, metadata, options=options)

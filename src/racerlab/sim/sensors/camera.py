@@ -1,0 +1,112 @@
+"""The front camera and the stereo camera (facts §4) for every car of a simulator.
+
+`Camera` renders 160×120 greyscale frames, uint8, as AWS's camera pipeline delivers them (RGB
+Y = 0.2989 R + 0.587 G + 0.114 B, truncated), from a pinhole camera 0.145 m ahead of and 0.13 m
+above the base origin, pitched 15° down, 64.7° horizontal field of view; stereo renders two such
+cameras 6 cm apart into the two channels (left eye first, as AWS stacks LEFT then RIGHT).
+
+With a `DomainRandomization`, each car draws a new look (light colour and brightness, tone curve,
+gradient, noise strength) whenever the camera sees it at step 0 of an episode, from the
+simulator's seeded generator; without one every frame has the default look and no noise.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+from racerlab.sim import _kernels as K
+from racerlab.sim.sensors import _render
+from racerlab.sim.sensors.geometry import (
+    IMAGE_H,
+    IMAGE_W,
+    SKY_AZ_BINS,
+    SKY_EL_STEP_RAD,
+    STEREO_HALF_BASELINE_M,
+    CameraModel,
+    RowPlan,
+    camera_position,
+)
+from racerlab.sim.sensors.look import DomainRandomization, Lighting, TrackLook
+from racerlab.sim.sensors.texture import track_raster
+
+NOISE_TILES = 4  # the noise tile holds this many frames' worth of values; each frame starts at a random offset
+
+
+class Camera:
+    """Renders every car's camera (one or two eyes) from the simulator's current poses."""
+
+    def __init__(self, sim, stereo: bool = False, randomization: DomainRandomization | None = None,
+                 look: TrackLook | None = None, model: CameraModel | None = None):
+        self.sim = sim
+        self.look = look or TrackLook()
+        self.model = model or CameraModel()
+        self.randomization = randomization
+        cam_x, cam_z = camera_position()
+        sides = (STEREO_HALF_BASELINE_M, -STEREO_HALF_BASELINE_M) if stereo else (0.0,)
+        self.eyes = np.array([[cam_x, y] for y in sides])
+        self.raster = track_raster(sim.track, self.look)
+        self.plan = RowPlan(self.model, cam_z, self.raster.cell, self.raster.num_levels, self.look.filter_px)
+        self.panorama = self.look.panorama(SKY_EL_STEP_RAD, self.plan.sky_el_bins, SKY_AZ_BINS)
+        self._raster_args = self._pack_raster()
+        p = self.plan
+        self._plan_args = (p.row_first, p.row_haze, p.row_sky, p.sub_x, p.sub_y0, p.sub_dy, p.sub_level,
+                           p.sub_step, p.sub_weight, p.sky_el, p.sky_az)
+        n, e = sim.num_cars, len(sides)
+        self.lighting = Lighting.default(n, self.look)
+        npix = self.model.height * self.model.width
+        self._noise = (sim.rng.standard_normal(NOISE_TILES * npix).astype(np.float32) if randomization
+                       else np.zeros(npix, dtype=np.float32))
+        self._noise_off = np.zeros((n, e), dtype=np.int64)
+        self.frames = np.zeros((n, self.model.height, self.model.width, e), dtype=np.uint8)
+        self._all = np.arange(n, dtype=np.int64)
+
+    def _pack_raster(self):
+        r = self.raster
+        g = r.grey
+        gf, cf = r.fractions() if self.randomization else (g, g)
+        return (g.data, gf.data, cf.data, g.off, g.stride, (g.w - 1).astype(np.float64),
+                (g.h - 1).astype(np.float64), r.level_inv_cell, float(r.x0), float(r.y0))
+
+    @property
+    def channels(self) -> int:
+        return int(self.eyes.shape[0])
+
+    def render(self, rows=None) -> np.ndarray:
+        """Render cars `rows` (all by default) into `self.frames` (B, H, W, eyes) and return it (not a copy)."""
+        idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        if self.randomization is not None:
+            self._randomize(idx)
+        lg = self.lighting
+        lit = (lg.plain, lg.coef, lg.tone, lg.light, lg.noise_amp, self._noise, self._noise_off)
+        car = self.sim.car
+        _render.render(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.eyes, self._plan_args,
+                       self._raster_args, self.panorama, lit, self.frames)
+        return self.frames
+
+    def _randomize(self, idx: np.ndarray) -> None:
+        """A new look for cars at step 0 of an episode, fresh noise offsets for every rendered car."""
+        rng = self.sim.rng
+        fresh = idx[self.sim.ctr[idx, K.KSTEPS] == 0]
+        self.lighting.draw(fresh, self.randomization, self.look, rng)
+        npix = self.model.height * self.model.width
+        self._noise_off[idx] = rng.integers(0, self._noise.size - npix, size=(idx.size, self.channels))
+
+
+class CameraObservation:
+    """`camera` (120, 160, 1) or `stereo` (120, 160, 2) uint8 frames of every car."""
+
+    partial_update = True
+
+    def __init__(self, sim, stereo: bool = False, randomization: DomainRandomization | None = None,
+                 look: TrackLook | None = None):
+        self.name = "stereo" if stereo else "camera"
+        self.camera = Camera(sim, stereo=stereo, randomization=randomization, look=look)
+
+    @property
+    def space(self) -> gym.Space:
+        return gym.spaces.Box(0, 255, shape=(IMAGE_H, IMAGE_W, self.camera.channels), dtype=np.uint8)
+
+    def __call__(self, rows=None) -> np.ndarray:
+        # a copy: callers keep observations across steps while the camera renders into its own buffer
+        return self.camera.render(rows).copy()

@@ -1,0 +1,210 @@
+"""The lidar and the sector lidar (facts §4) for every car of a simulator.
+
+AWS's lidar has 64 rays from −150° to +150° in a laser frame turned by π, mounted 0.029 m ahead of
+the base origin: ray 0 looks 30° left of ahead, the sweep passes the left side, the rear and the
+right side, and ray 63 looks 30° right; the 60° gap is ahead, where the camera looks. Ranges get
+Gaussian noise (σ = 0.01 m) and are clipped to [0.15, 1.0] m; a ray that hits nothing reads 1.0.
+
+What the rays hit:
+- objects: oriented rectangles `[x, y, yaw_rad, length_m, width_m]` set with `Lidar.set_objects`
+  (none by default; object avoidance and head-to-bot races pass their obstacles and bot cars,
+  and may say which car sees which, for cars that each run their own race);
+- the track borders, as walls, only with `walls=True`. AWS's tracks are flat paint with no
+  walls, so its lidar sees nothing there and reads 1.0; walls are a racerlab option for
+  lidar-only experiments.
+
+The sector lidar splits the 64 rays into 8 sectors of 8 consecutive rays and reads 1 where the
+sector's smallest range is below 0.5 m, else 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+from numba import njit
+
+from racerlab.sim import _kernels as K
+from racerlab.sim.sensors.geometry import LIDAR_RAYS, lidar_position, lidar_ray_angles
+
+MIN_RANGE_M, MAX_RANGE_M = 0.15, 1.0  # AWS ObservationClippingFilter
+NOISE_SIGMA_M = 0.01
+SECTORS = 8
+SECTOR_CLIP_M = 0.5
+REACH_M = MAX_RANGE_M + 6 * NOISE_SIGMA_M  # hits further than this read 1.0 whatever the noise
+GRID_CELL_M = 0.25
+
+
+@njit(cache=True, inline="always")
+def _ray_box(ox, oy, dx, dy, bx, by, byaw, half_l, half_w):
+    """Distance along the unit ray (ox, oy) + t (dx, dy) to an oriented rectangle; inf if missed, 0 if inside."""
+    cb = math.cos(byaw)
+    sb = math.sin(byaw)
+    px = ox - bx
+    py = oy - by
+    lx = cb * px + sb * py
+    ly = -sb * px + cb * py
+    ldx = cb * dx + sb * dy
+    ldy = -sb * dx + cb * dy
+    t0 = -np.inf
+    t1 = np.inf
+    for p, d, h in ((lx, ldx, half_l), (ly, ldy, half_w)):
+        if abs(d) < 1e-12:
+            if abs(p) > h:
+                return np.inf
+        else:
+            a = (-h - p) / d
+            b = (h - p) / d
+            t0 = max(t0, min(a, b))
+            t1 = min(t1, max(a, b))
+    if t1 < max(t0, 0.0):
+        return np.inf
+    return max(t0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
+    """Distance along the unit ray to segment a-b; inf if missed."""
+    ex = bx - ax
+    ey = by - ay
+    den = dx * ey - dy * ex
+    if abs(den) < 1e-15:
+        return np.inf
+    qx = ax - ox
+    qy = ay - oy
+    t = (qx * ey - qy * ex) / den
+    u = (qx * dy - qy * dx) / den
+    if t >= 0.0 and 0.0 <= u <= 1.0:
+        return t
+    return np.inf
+
+
+@njit(cache=True)
+def scan(cars, pose_x, pose_y, pose_yaw, mount_x, angles, boxes, visible, walls, edges, grid, out):
+    """Raw ranges (inf = nothing within reach) of cars `cars` into out[car, ray].
+
+    boxes (M, 5) [x, y, yaw, length, width] seen by car i where visible[i, m]; with `walls` the
+    road edges (E, 4) listed for the car's grid cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
+    """
+    cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
+    for k in range(cars.shape[0]):
+        i = cars[k]
+        c = math.cos(pose_yaw[i])
+        s = math.sin(pose_yaw[i])
+        ox = pose_x[i] + c * mount_x
+        oy = pose_y[i] + s * mount_x
+        e0 = 0
+        e1 = 0
+        if walls:
+            cx = min(max(int((ox - gx0) / gcell), 0), gnx - 1)
+            cy = min(max(int((oy - gy0) / gcell), 0), gny - 1)
+            e0 = cell_start[cy * gnx + cx]
+            e1 = cell_start[cy * gnx + cx + 1]
+        for a in range(angles.shape[0]):
+            ang = pose_yaw[i] + angles[a]
+            dx = math.cos(ang)
+            dy = math.sin(ang)
+            best = np.inf
+            for m in range(boxes.shape[0]):
+                if visible[i, m]:
+                    best = min(best, _ray_box(ox, oy, dx, dy, boxes[m, 0], boxes[m, 1], boxes[m, 2],
+                                              0.5 * boxes[m, 3], 0.5 * boxes[m, 4]))
+            for q in range(e0, e1):
+                e = cell_edges[q]
+                best = min(best, _ray_segment(ox, oy, dx, dy, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]))
+            out[i, a] = best
+
+
+def edge_grid(edges: np.ndarray, reach: float, cell: float = GRID_CELL_M):
+    """For every `cell` square around the edges, the edges within `reach` of it (CSR lists), as `scan` takes them."""
+    lo = np.minimum(edges[:, :2], edges[:, 2:]).min(axis=0) - reach - cell
+    hi = np.maximum(edges[:, :2], edges[:, 2:]).max(axis=0) + reach + cell
+    nx, ny = (np.ceil((hi - lo) / cell).astype(int) + 1).tolist()
+    lists: list[list[int]] = [[] for _ in range(nx * ny)]
+    for e, (ax, ay, bx, by) in enumerate(edges.tolist()):
+        c0 = int((min(ax, bx) - reach - lo[0]) // cell)
+        c1 = int((max(ax, bx) + reach - lo[0]) // cell)
+        r0 = int((min(ay, by) - reach - lo[1]) // cell)
+        r1 = int((max(ay, by) + reach - lo[1]) // cell)
+        for r in range(max(r0, 0), min(r1, ny - 1) + 1):
+            for c in range(max(c0, 0), min(c1, nx - 1) + 1):
+                lists[r * nx + c].append(e)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    start[1:] = np.cumsum([len(x) for x in lists])
+    flat = np.array([e for x in lists for e in x], dtype=np.int64)
+    return start, flat, float(lo[0]), float(lo[1]), float(cell), int(nx), int(ny)
+
+
+class Lidar:
+    """Ranges of every car's lidar (see the module docstring)."""
+
+    def __init__(self, sim, walls: bool = False, noise_sigma_m: float = NOISE_SIGMA_M):
+        self.sim = sim
+        self.walls = bool(walls)
+        self.noise_sigma_m = float(noise_sigma_m)
+        self.angles = lidar_ray_angles()
+        self.mount_x = lidar_position()
+        self.edges = np.ascontiguousarray(sim.track.road_edges, dtype=np.float64)
+        # a cell lists every edge within reach of any point in it (cell diagonal added)
+        self.grid = edge_grid(self.edges, REACH_M + GRID_CELL_M * math.sqrt(2.0)) if self.walls \
+            else (np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int64), 0.0, 0.0, 1.0, 1, 1)
+        self.set_objects(None)
+        self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
+        self.ranges = np.full((sim.num_cars, LIDAR_RAYS), MAX_RANGE_M, dtype=np.float32)
+        self._all = np.arange(sim.num_cars, dtype=np.int64)
+
+    def set_objects(self, boxes, visible=None) -> None:
+        """Rectangles the rays hit: (M, 5) [x, y, yaw_rad, length_m, width_m] in the world frame, or None.
+
+        `visible` (num_cars, M) bool says which car sees which box (default: every car sees all).
+        Call again whenever the objects move.
+        """
+        b = np.zeros((0, 5)) if boxes is None else np.asarray(boxes, dtype=np.float64).reshape(-1, 5)
+        n = self.sim.num_cars
+        v = np.ones((n, b.shape[0]), dtype=np.bool_) if visible is None else np.asarray(visible, dtype=np.bool_)
+        if v.shape != (n, b.shape[0]):
+            raise ValueError(f"visible must have shape {(n, b.shape[0])}, got {v.shape}")
+        self.boxes = np.ascontiguousarray(b)
+        self.visible = np.ascontiguousarray(v)
+
+    def scan(self, rows=None) -> np.ndarray:
+        """Measure cars `rows` (all by default) into `self.ranges` (B, 64) float32, m, and return it (not a copy)."""
+        idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        if self.boxes.shape[0] or self.walls:
+            car = self.sim.car
+            scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, self.angles, self.boxes,
+                 self.visible, self.walls, self.edges, self.grid, self.raw)
+            raw = self.raw[idx]
+            hit = np.isfinite(raw)
+            if self.noise_sigma_m > 0.0 and hit.any():
+                raw[hit] += self.sim.rng.normal(0.0, self.noise_sigma_m, size=int(hit.sum()))
+            self.ranges[idx] = np.clip(np.where(hit, raw, MAX_RANGE_M), MIN_RANGE_M, MAX_RANGE_M)
+        return self.ranges
+
+
+def sectors(ranges: np.ndarray) -> np.ndarray:
+    """(B, 8) float32: 1 where a sector's smallest range is below 0.5 m (AWS's binary sector filter)."""
+    r = ranges.reshape(ranges.shape[0], SECTORS, -1)
+    return (r.min(axis=2) < SECTOR_CLIP_M).astype(np.float32)
+
+
+class LidarObservation:
+    """`lidar` (64,) float32 ranges in [0.15, 1.0] m, or `sector_lidar` (8,) float32 in {0, 1}."""
+
+    partial_update = True
+
+    def __init__(self, sim, sector: bool = False, walls: bool = False):
+        self.name = "sector_lidar" if sector else "lidar"
+        self.sector = sector
+        self.lidar = Lidar(sim, walls=walls)
+
+    @property
+    def space(self) -> gym.Space:
+        if self.sector:
+            return gym.spaces.Box(0.0, 1.0, shape=(SECTORS,), dtype=np.float32)
+        return gym.spaces.Box(MIN_RANGE_M, MAX_RANGE_M, shape=(LIDAR_RAYS,), dtype=np.float32)
+
+    def __call__(self, rows=None) -> np.ndarray:
+        r = self.lidar.scan(rows)
+        return sectors(r) if self.sector else r.copy()
