@@ -90,3 +90,20 @@ def test_user_mistakes_exit_2_with_one_line(home, capsys, argv):
 def test_unknown_name_suggests_the_close_one(home, capsys):
     assert main(["tracks", "show", "lab_tecnical"]) == 2
     assert "Did you mean lab_technical" in capsys.readouterr().err
+
+
+def test_draw_track_on_given_axes_numbers_every_kth_waypoint():
+    from matplotlib.figure import Figure
+
+    from racerlab.track.plot import draw_track, label_step
+
+    t = track.load("lab_grand_prix")  # 233 waypoints: every 10th is numbered
+    ax = Figure().add_subplot()
+    assert draw_track(t, ax, label_every=None) is ax
+    labels = [x.get_text() for x in ax.texts if x.get_text()]  # the direction arrow is an empty annotation
+    assert label_step(233) == 10 and labels == [str(i) for i in range(0, 233, 10)]
+    assert ax.get_aspect() == 1.0 and "35.00 m" in ax.get_title()
+    bare = draw_track(track.load("lab_oval", reverse=True), waypoint_numbers=False, title=False)
+    assert not [x for x in bare.texts if x.get_text()] and bare.get_title() == ""
+    open_track = draw_track(track.load_file(aws_track_path("Straight_track")))
+    assert open_track.texts
