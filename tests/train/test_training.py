@@ -92,7 +92,7 @@ def test_resume_after_kill_9(model):
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    last = f.resolve_checkpoint("last")
+    last = f.resolve_checkpoint("last")  # the newest complete file, even if the kill beat the index update
     assert last.iteration >= 3
     r = train(model.path, iterations=1, **FAST)
     assert r.iterations == last.iteration + 1

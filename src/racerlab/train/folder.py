@@ -117,8 +117,10 @@ class ModelFolder:
         cps = self.checkpoints()
         if not cps:
             raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with `racerlab train {self.path}`")
-        if str(which) in ("best", "last"):
-            entry = self.checkpoint_index().get(f"{which}_checkpoint", {})
+        if str(which) == "last":
+            return cps[-1]  # files are written atomically: the newest one is complete even if the index lags
+        if str(which) == "best":
+            entry = self.checkpoint_index().get("best_checkpoint", {})
             hit = [c for c in cps if c.name == entry.get("name")]
             return hit[0] if hit else cps[-1]
         try:

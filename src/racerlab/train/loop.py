@@ -142,8 +142,7 @@ class Trainer:
             self.folder.update_index(info, float("nan"), None, None)
             self.last_good = self.agent.state_dict()
             return False
-        info = self.folder.resolve_checkpoint("last")
-        ck = self.folder.load_checkpoint(info)
+        info, ck = self._newest_readable(cps)
         from racerlab.metadata import parse_model_metadata
 
         check_compatible(parse_model_metadata(ck["metadata"], f"{info.name} (checkpoint)"), self.metadata,
@@ -162,6 +161,16 @@ class Trainer:
         self.logs.truncate(s.iteration, s.episodes)
         self.last_good = self.agent.state_dict()
         return not ck.get("cloned", False)
+
+    def _newest_readable(self, cps):
+        """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
+        for info in reversed(cps):
+            try:
+                return info, self.folder.load_checkpoint(info)
+            except RacerlabError as exc:
+                self.progress.note(f"skipping {info.name}: {exc}")
+        raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint; remove the folder's "
+                            "checkpoints/ to start over")
 
     # ---- one iteration -----------------------------------------------------------------------
     def _learn(self, ro) -> dict:
