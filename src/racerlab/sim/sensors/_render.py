@@ -7,7 +7,8 @@ a car's lighting not `plain` (domain randomization) the raster's ground and cent
 are read too, so that each material takes its own grey under the car's light colour, and a tone
 curve, a brightness gradient and noise follow. Output is truncated to uint8 as AWS's filter does.
 
-Argument groups (tuples, so the signature stays readable):
+Argument groups (tuples, so the signature stays readable; the kernel unpacks them once, and its
+helpers are inlined, because every array passed to a compiled call costs reference counting):
 - plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az
 - raster: grey, ground, center (flat uint8 pyramids), off, stride, wmax, hmax, inv_cell, x0, y0
 - lit: plain, coef, tone, light, noise_amp, noise, noise_off
@@ -40,7 +41,7 @@ def _lit(g, gf, cf, base, stride, ax, ay, kn, kg, kc):
         + kc * _bilinear(cf, base, stride, ax, ay)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, inline="always")
 def _grey_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n):
     """dst[k] += wt · bilinear grey at texel coordinates (fx + k·sx, fy + k·sy) of one level, k < n."""
     x = fx
@@ -63,18 +64,17 @@ def _grey_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n):
             y += sy
 
 
-@njit(cache=True, fastmath=True)
-def _lit_samples(raster, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, k3, dst, n):
-    """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (k3)."""
-    grey, gfrac, cfrac = raster[0], raster[1], raster[2]
-    kn = np.float32(k3[0])
-    kg = np.float32(k3[1])
-    kc = np.float32(k3[2])
+@njit(cache=True, fastmath=True, inline="always")
+def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, kn, kg, kc, dst, n):
+    """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (kn, kg, kc)."""
     x = fx
     y = fy
     for k in range(n):
-        cx = min(max(x, np.float32(0.0)), wm) if clamp else x
-        cy = min(max(y, np.float32(0.0)), hm) if clamp else y
+        cx = x
+        cy = y
+        if clamp:
+            cx = min(max(x, np.float32(0.0)), wm)
+            cy = min(max(y, np.float32(0.0)), hm)
         ix = np.int32(cx)
         iy = np.int32(cy)
         dst[k] += wt * _lit(grey, gfrac, cfrac, o + iy * stride + ix, stride, cx - np.float32(ix),
@@ -83,27 +83,7 @@ def _lit_samples(raster, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, k3, dst, 
         y += sy
 
 
-@njit(cache=True, fastmath=True)
-def _line(raster, level, fx0, fy0, sx, sy, wt, k3, dst, n):
-    """dst[k] += wt · raster value at texel coordinates (fx0 + k·sx, fy0 + k·sy) of `level`, k < n.
-
-    k3 = (neutral gain, ground, centre corrections) of the car's light; k3[0] < 0: the plain grey.
-    Lines that stay inside the level skip the clamping.
-    """
-    wm = raster[5][level]
-    hm = raster[6][level]
-    fx1 = fx0 + (n - 1) * sx
-    fy1 = fy0 + (n - 1) * sy
-    clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0 and max(fy0, fy1) <= hm)
-    args = (raster[3][level], raster[4][level], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
-            np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(wt))
-    if k3[0] < 0.0:
-        _grey_samples(raster[0], *args, dst, n)
-    else:
-        _lit_samples(raster, *args, k3, dst, n)
-
-
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, inline="always")
 def _spread(tmp, step, acc):
     """acc[col] += tmp interpolated linearly, tmp[j] being the value at column j · step."""
     inv = np.float32(1.0 / step)
@@ -114,66 +94,41 @@ def _spread(tmp, step, acc):
             acc[j * step + q] += a + q * d
 
 
-@njit(cache=True, fastmath=True)
-def _ground_row(r, ex, ey, c, s, plan, raster, k3, acc, tmp):
-    """Add image row r's ground lines to acc; a row whose plan reads every step-th column fills in between."""
-    row_first, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight = plan[0], plan[3], plan[4], plan[5], \
-        plan[6], plan[7], plan[8]
-    j0 = row_first[r]
-    j1 = row_first[r + 1]
-    if j1 == j0:
-        return
-    inv_cell, x0, y0 = raster[7], raster[8], raster[9]
-    w = acc.shape[0]
-    step = sub_step[j0]
-    n = w if step == 1 else w // step + 1
-    dst = acc if step == 1 else tmp
-    if step > 1:
-        dst[:n] = 0.0
-    for j in range(j0, j1):
-        lv = sub_level[j]
-        ic = inv_cell[lv]
-        ly = sub_y0[j]
-        fx0 = (ex + c * sub_x[j] - s * ly - x0) * ic - 0.5
-        fy0 = (ey + s * sub_x[j] + c * ly - y0) * ic - 0.5
-        sd = sub_dy[j] * ic * step
-        _line(raster, lv, fx0, fy0, -s * sd, c * sd, sub_weight[j], k3, dst, n)
-    if step > 1:
-        _spread(tmp, step, acc)
-
-
-@njit(cache=True, fastmath=True)
-def _sky_row(pano, el_row, az_row, yaw_bins, share, gain, acc):
-    """acc[col] += share · gain · panorama at the pixel's azimuth turned by the car's yaw."""
+@njit(cache=True, fastmath=True, inline="always")
+def _sky_row(pano, el_row, az_row, yaw_bins, share, acc):
+    """acc[col] += share · the panorama at the pixel's azimuth turned by the car's yaw."""
     nb = pano.shape[1] - 1
     for col in range(acc.shape[0]):
+        # yaw_bins is in [0, nb) and the pixel's azimuth within half a turn, so one wrap each way is enough
         a = az_row[col] + yaw_bins
-        a -= math.floor(a / nb) * nb
+        a = a + nb if a < 0.0 else a
+        a = a - nb if a >= nb else a
         i = min(int(a), nb - 1)
         fr = a - i
         p0 = pano[el_row[col], i]
-        acc[col] += share * gain * (p0 + fr * (pano[el_row[col], i + 1] - p0))
+        acc[col] += share * (p0 + fr * (pano[el_row[col], i + 1] - p0))
 
 
-@njit(cache=True, fastmath=True)
-def _finish_row(acc, r, height, car, eye, lit, noff, out):
-    """Tone curve, gradient and noise (unless plain), truncation to uint8 into out[car, r, :, eye]."""
-    plain, tone, light, amp, noise = lit[0], lit[2], lit[3], lit[4], lit[5]
+@njit(cache=True, fastmath=True, inline="always")
+def _finish_plain(acc, dst):
+    lo = np.float32(0.0)
+    hi = np.float32(255.0)
+    for col in range(acc.shape[0]):
+        dst[col] = np.uint8(np.int32(min(max(acc[col], lo), hi)))
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, dst):
+    """Tone curve, brightness gradient and noise, then truncation to uint8 into dst."""
     w = acc.shape[0]
-    if plain[car]:
-        for col in range(w):
-            out[car, r, col, eye] = np.uint8(min(max(acc[col], 0.0), 255.0))
-        return
-    gv = light[car, 0] + light[car, 2] * (2.0 * r / height - 1.0)
-    gu = light[car, 1] * 2.0 / w
-    a = amp[car]
-    base = noff + r * w
+    gv = gain + grad_v * (2.0 * r / height - 1.0)
+    gu = grad_u * 2.0 / w
     for col in range(w):
         v = min(max(acc[col], 0.0), 254.999)
         lo = int(v)
-        t = tone[car, lo] + (v - lo) * (tone[car, lo + 1] - tone[car, lo])
-        t = t * (gv + gu * (col - 0.5 * w)) + a * noise[base + col]
-        out[car, r, col, eye] = np.uint8(min(max(t, 0.0), 255.0))
+        t = tone[lo] + (v - lo) * (tone[lo + 1] - tone[lo])
+        t = t * (gv + gu * (col - 0.5 * w)) + amp * noise[base + col]
+        dst[col] = np.uint8(min(max(t, 0.0), 255.0))
 
 
 @njit(cache=True, fastmath=True)
@@ -182,30 +137,63 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, out):
 
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
     """
-    row_haze, row_sky, sky_el, sky_az = plan[1], plan[2], plan[9], plan[10]
-    plain, coef, noise_off = lit[0], lit[1], lit[6]
-    height = out.shape[1]
-    acc = np.empty(out.shape[2], dtype=np.float32)
-    tmp = np.empty(out.shape[2] + 1, dtype=np.float32)
-    k3 = np.empty(3)
+    row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az = plan
+    grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
+    plain, coef, tone, light, noise_amp, noise, noise_off = lit
+    height, width = out.shape[1], out.shape[2]
+    acc = np.empty(width, dtype=np.float32)
+    tmp = np.empty(width + 1, dtype=np.float32)
     nb = pano.shape[1] - 1
     for k in range(cars.shape[0]):
         i = cars[k]
         c = math.cos(pose_yaw[i])
         s = math.sin(pose_yaw[i])
-        if plain[i]:
-            k3[0] = -1.0
-        else:
-            k3[0] = coef[i, 0]
-            k3[1] = coef[i, 1] / 255.0
-            k3[2] = coef[i, 2] / 255.0
+        kn = np.float32(coef[i, 0])
+        kg = np.float32(coef[i, 1] / 255.0)
+        kc = np.float32(coef[i, 2] / 255.0)
         yaw_bins = pose_yaw[i] * (nb / TWO_PI)
+        yaw_bins -= math.floor(yaw_bins / nb) * nb
         for eye in range(eyes.shape[0]):
             ex = pose_x[i] + c * eyes[eye, 0] - s * eyes[eye, 1]
             ey = pose_y[i] + s * eyes[eye, 0] + c * eyes[eye, 1]
             for r in range(height):
                 acc[:] = row_haze[r] * coef[i, 3]
                 if row_sky[r] > 0.0:
-                    _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r], coef[i, 4], acc)
-                _ground_row(r, ex, ey, c, s, plan, raster, k3, acc, tmp)
-                _finish_row(acc, r, height, i, eye, lit, noise_off[i, eye], out)
+                    _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
+                j0 = row_first[r]
+                j1 = row_first[r + 1]
+                step = sub_step[j0] if j1 > j0 else 1
+                n = width if step == 1 else width // step + 1
+                dst = acc if step == 1 else tmp
+                if step > 1:
+                    dst[:n] = 0.0
+                for j in range(j0, j1):
+                    # the ground line in texel coordinates of its level
+                    lv = sub_level[j]
+                    ic = inv_cell[lv]
+                    fx0 = (ex + c * sub_x[j] - s * sub_y0[j] - x0) * ic - 0.5
+                    fy0 = (ey + s * sub_x[j] + c * sub_y0[j] - y0) * ic - 0.5
+                    sd = sub_dy[j] * ic * step
+                    sx = -s * sd
+                    sy = c * sd
+                    wm = wmax[lv]
+                    hm = hmax[lv]
+                    fx1 = fx0 + (n - 1) * sx
+                    fy1 = fy0 + (n - 1) * sy
+                    clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0
+                                 and max(fy0, fy1) <= hm)
+                    if plain[i]:
+                        _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
+                                      np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy),
+                                      np.float32(sub_weight[j]), dst, n)
+                    else:
+                        _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
+                                     np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy),
+                                     np.float32(sub_weight[j]), kn, kg, kc, dst, n)
+                if step > 1 and j1 > j0:
+                    _spread(tmp, step, acc)
+                if plain[i]:
+                    _finish_plain(acc, out[i, r, :, eye])
+                else:
+                    _finish_lit(acc, r, height, tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
+                                noise_off[i, eye] + r * width, out[i, r, :, eye])

@@ -31,6 +31,7 @@ from racerlab.sim.sensors.look import DomainRandomization, Lighting, TrackLook
 from racerlab.sim.sensors.texture import track_raster
 
 NOISE_TILES = 4  # the noise tile holds this many frames' worth of values; each frame starts at a random offset
+NOISE_SEED = 15
 
 
 class Camera:
@@ -42,21 +43,19 @@ class Camera:
         self.look = look or TrackLook()
         self.model = model or CameraModel()
         self.randomization = randomization
-        cam_x, cam_z = camera_position()
+        cam_x = camera_position()[0]
         sides = (STEREO_HALF_BASELINE_M, -STEREO_HALF_BASELINE_M) if stereo else (0.0,)
         self.eyes = np.array([[cam_x, y] for y in sides])
         self.raster = track_raster(sim.track, self.look)
-        self.plan = RowPlan(self.model, cam_z, self.raster.cell, self.raster.num_levels, self.look.filter_px)
-        self.panorama = self.look.panorama(SKY_EL_STEP_RAD, self.plan.sky_el_bins, SKY_AZ_BINS)
         self._raster_args = self._pack_raster()
-        p = self.plan
-        self._plan_args = (p.row_first, p.row_haze, p.row_sky, p.sub_x, p.sub_y0, p.sub_dy, p.sub_level,
-                           p.sub_step, p.sub_weight, p.sky_el, p.sky_az)
+        self.replan()
         n, e = sim.num_cars, len(sides)
         self.lighting = Lighting.default(n, self.look)
         npix = self.model.height * self.model.width
-        self._noise = (sim.rng.standard_normal(NOISE_TILES * npix).astype(np.float32) if randomization
-                       else np.zeros(npix, dtype=np.float32))
+        # a fixed tile of unit noise, read from a random offset each frame (the offsets come from the
+        # simulator's generator, so a seeded run repeats however the generator was seeded before)
+        self._noise = (np.random.default_rng(NOISE_SEED).standard_normal(NOISE_TILES * npix).astype(np.float32)
+                       if randomization else np.zeros(npix, dtype=np.float32))
         self._noise_off = np.zeros((n, e), dtype=np.int64)
         self.frames = np.zeros((n, self.model.height, self.model.width, e), dtype=np.uint8)
         self._all = np.arange(n, dtype=np.int64)
@@ -67,6 +66,16 @@ class Camera:
         gf, cf = r.fractions() if self.randomization else (g, g)
         return (g.data, gf.data, cf.data, g.off, g.stride, (g.w - 1).astype(np.float64),
                 (g.h - 1).astype(np.float64), r.level_inv_cell, float(r.x0), float(r.y0))
+
+    def replan(self, **options) -> None:
+        """Rebuild the row plan with `RowPlan` keyword options (anisotropy, max_subrows, level_bias):
+        the trade between speed, blur and shimmer of distant ground."""
+        cam_z = camera_position()[1]
+        p = self.plan = RowPlan(self.model, cam_z, self.raster.cell, self.raster.num_levels, self.look.filter_px,
+                                **options)
+        self.panorama = self.look.panorama(SKY_EL_STEP_RAD, p.sky_el_bins, SKY_AZ_BINS)
+        self._plan_args = (p.row_first, p.row_haze, p.row_sky, p.sub_x, p.sub_y0, p.sub_dy, p.sub_level,
+                           p.sub_step, p.sub_weight, p.sky_el, p.sky_az)
 
     @property
     def channels(self) -> int:

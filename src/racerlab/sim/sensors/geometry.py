@@ -39,6 +39,7 @@ GROUND_MAX_M = 30.0  # ground further than this ahead is drawn in the haze colou
 HAZE_NEAR_M, HAZE_FAR_M = 4.0, 30.0  # the ground fades into haze between these distances
 ANISOTROPY = 4.0  # a sample may stretch this much more along the view than across it
 MAX_SUBROWS = 3
+LEVEL_BIAS = -0.5  # + blurrier, - sharper (more shimmer): the raster level is floor(log2(footprint / texel) + bias)
 COLUMN_STEP_TEXELS = 0.75  # read every 2nd / 4th column where that many columns span less than this
 SKY_EL_STEP_RAD = math.radians(0.25)
 SKY_AZ_BINS = 1024
@@ -130,9 +131,11 @@ class RowPlan:
     panorama columns, car frame, + left).
     """
 
-    def __init__(self, model: CameraModel, cam_z: float, cell_m: float, num_levels: int, filter_px: float):
+    def __init__(self, model: CameraModel, cam_z: float, cell_m: float, num_levels: int, filter_px: float, *,
+                 anisotropy: float = ANISOTROPY, max_subrows: int = MAX_SUBROWS, level_bias: float = LEVEL_BIAS):
         self.model = model
         self.cam_z = float(cam_z)
+        self.anisotropy, self.max_subrows, self.level_bias = float(anisotropy), int(max_subrows), float(level_bias)
         h = model.height
         subs: list[tuple[int, float, float, float, int, int, float]] = []
         self.row_first = np.zeros(h + 1, dtype=np.int64)
@@ -167,7 +170,8 @@ class RowPlan:
         x_top, _ = m.ground_line(top, cz)
         x_bot, dy_bot = m.ground_line(r + 1.0, cz)
         extent = min(float(x_top), GROUND_MAX_M) - float(x_bot)
-        n = int(np.clip(math.ceil(max(extent, 0.0) / (ANISOTROPY * filter_px * abs(float(dy_bot)))), 1, MAX_SUBROWS))
+        n = int(np.clip(math.ceil(max(extent, 0.0) / (self.anisotropy * filter_px * abs(float(dy_bot)))), 1,
+                        self.max_subrows))
         haze = 0.0
         for k in range(n):
             v0 = top + share * k / n
@@ -178,7 +182,7 @@ class RowPlan:
                 continue
             along = float(m.ground_line(v0, cz)[0] - m.ground_line(v1, cz)[0])
             foot = max(filter_px * abs(dy), min(along, GROUND_MAX_M))
-            level = int(np.clip(round(math.log2(max(foot / cell_m, 1e-9))), 0, num_levels - 1))
+            level = int(np.clip(math.floor(math.log2(max(foot / cell_m, 1e-9)) + self.level_bias), 0, num_levels - 1))
             fade = float(np.clip((x - HAZE_NEAR_M) / (HAZE_FAR_M - HAZE_NEAR_M), 0.0, 1.0)) ** 0.7
             y0 = dy * (0.5 - 0.5 * m.width)
             texels = abs(dy) / (cell_m * 2.0 ** level)
