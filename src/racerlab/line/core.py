@@ -1,0 +1,160 @@
+"""`RacingLine` and `racing_line(track, ...)`: a solved line with its speed profile and lap times.
+
+The line is the path of the car's base point (midway between the axles, the point the simulator
+moves as a kinematic bicycle), kept `clearance_m` = half the wheel track + a wheel radius +
+`margin` from both borders, so the whole car stays on the road with `margin` to spare. Its speed
+is the fastest the simulator's car (`racerlab.sim.CarParams`) can drive it: grip in the corners,
+acceleration and braking in between (see `racerlab.line.profile`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from racerlab.line import geometry as G
+from racerlab.line import profile as P
+from racerlab.line.solve import METHODS, solve
+from racerlab.sim.car import MODEL_POINT_AHEAD_M, CarParams
+from racerlab.track import Track
+from racerlab.track import load as load_track
+
+WHEEL_RADIUS_M = 0.036  # a wheel reaches this far beyond its centre; the car's width is track_m + 2 × this
+DEFAULT_MARGIN_M = 0.1
+
+
+def car_clearance(car: CarParams | None = None, margin: float = DEFAULT_MARGIN_M) -> float:
+    """How far the base point must stay from a border so the whole car keeps `margin` to it, m."""
+    car = car or CarParams()
+    return 0.5 * car.track_m + WHEEL_RADIUS_M + margin
+
+
+def steering_for_curvature(curvature, wheelbase_m: float = 0.164) -> np.ndarray:
+    """Steering angle (°, + = left) that makes the base point follow `curvature` (1/m).
+
+    The inverse of the simulator's bicycle about the mid-wheelbase point: κ = cos β · tan δ / L
+    with sin β = κ·L/2, so tan δ = κ·L / cos β.
+    """
+    k = np.asarray(curvature, dtype=np.float64)
+    half = np.clip(0.5 * k * wheelbase_m, -0.999, 0.999)
+    return np.degrees(np.arctan(k * wheelbase_m / np.sqrt(1.0 - half**2)))
+
+
+@dataclass(frozen=True, eq=False)
+class RacingLine:
+    """A racing line on a track with the fastest speed the car can drive it at.
+
+    `xy`, `speed`, `curvature`, `time` have one row per point (M, about every 0.1 m), in driving
+    order, starting abreast of the start line; the loop closes from the last point back to the
+    first. `speed` and `time` are those of a flying lap (the car already at speed), which is what a
+    reward function should aim at; `lap_time` is the lap as the simulator's timer shows it from a
+    standing start at the start line (prepare step included), comparable with AWS lap times;
+    `flying_lap_time` is the lap once rolling.
+    """
+
+    track_name: str
+    method: str
+    margin_m: float
+    xy: np.ndarray  # (M, 2) m
+    speed: np.ndarray  # (M,) m/s, flying lap
+    curvature: np.ndarray  # (M,) 1/m, + = turning left
+    time: np.ndarray  # (M,) s from point 0 on a flying lap
+    lap_time: float  # s, standing start, as the simulator times it
+    flying_lap_time: float  # s
+    start_speed: np.ndarray  # (M,) m/s on the first lap from a standstill at point 0
+    car: CarParams = field(default_factory=CarParams)
+    clearance_m: float = 0.0
+    iterations: int = 0
+    converged: bool = True
+    solve_s: float = 0.0
+
+    @property
+    def closed(self) -> bool:
+        return True
+
+    @property
+    def s(self) -> np.ndarray:
+        """Arc length of each point from point 0, m."""
+        return G.arc_length(self.xy)[:-1]
+
+    @property
+    def length(self) -> float:
+        return float(G.arc_length(self.xy)[-1])
+
+    @property
+    def heading_deg(self) -> np.ndarray:
+        """Driving direction at each point, degrees as the reward params give `heading`."""
+        t = G.tangents(self.xy)
+        return np.degrees(np.arctan2(t[:, 1], t[:, 0]))
+
+    @property
+    def steering_deg(self) -> np.ndarray:
+        """Steering angle each point needs (bicycle model with the car's wheelbase), ° (+ = left)."""
+        return steering_for_curvature(self.curvature, self.car.wheelbase_m)
+
+    @property
+    def lateral_accel(self) -> np.ndarray:
+        """v²·κ at each point, m/s² (at most the car's grip)."""
+        return self.speed**2 * self.curvature
+
+    def summary(self) -> dict:
+        """The headline numbers, JSON-ready."""
+        return {"track": self.track_name, "method": self.method, "margin_m": self.margin_m,
+                "points": int(len(self.xy)), "length_m": round(self.length, 3),
+                "lap_time_s": round(self.lap_time, 3), "flying_lap_time_s": round(self.flying_lap_time, 3),
+                "min_speed_mps": round(float(self.speed.min()), 3),
+                "max_speed_mps": round(float(self.speed.max()), 3),
+                "iterations": self.iterations, "converged": self.converged, "solve_s": round(self.solve_s, 3)}
+
+    def __repr__(self) -> str:
+        return (f"RacingLine({self.track_name!r}, {self.method}, margin {self.margin_m} m, {len(self.xy)} points, "
+                f"{self.length:.2f} m, lap {self.lap_time:.3f} s, flying {self.flying_lap_time:.3f} s)")
+
+
+def racing_line(track: Track | str, margin: float = DEFAULT_MARGIN_M, method: str = "mincurv",
+                car: CarParams | None = None, step_m: float = 0.1) -> RacingLine:
+    """Solve the racing line of `track` (a `Track` or a track name/path) and its speed profile.
+
+    `method` is "mincurv" (minimum curvature: the fastest line in practice) or "shortest"
+    (shortest path); `margin` (m) is kept between the car's wheels and each border; `car` sets
+    the limits (default `CarParams()`, the simulator's car). Raises `TrackError` for a loop-less
+    (open) track or where the road is too narrow for the car and the margin.
+    """
+    from racerlab.errors import TrackError
+
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if margin < 0:
+        raise ValueError(f"margin must be >= 0 m, got {margin}")
+    t = track if isinstance(track, Track) else load_track(track)
+    if not t.closed:
+        raise TrackError(f"{t.name}: a racing line needs a closed loop; this track is open")
+    car = car or CarParams()
+    clearance = car_clearance(car, margin)
+    t0 = time.perf_counter()
+    sol = solve(t, clearance, method, step_m=step_m)
+    line = _with_profile(t, sol, method, margin, car, clearance)
+    return replace(line, solve_s=time.perf_counter() - t0)
+
+
+def _with_profile(t: Track, sol, method: str, margin: float, car: CarParams, clearance: float) -> RacingLine:
+    xy = sol.xy
+    k = G.menger_curvature(xy)
+    ds = np.hypot(*(np.roll(xy, -1, axis=0) - xy).T)
+    flying = P.speed_profile(k, ds, car)
+    standing = P.speed_profile(k, ds, car, v_start=0.0)
+    # the lap is complete when the model point, 0.14 m ahead of the base point, crosses the start line
+    finish = standing.time[-1] - _time_over(standing, ds, MODEL_POINT_AHEAD_M)
+    return RacingLine(t.name, method, margin, xy, flying.speed, k, flying.time[:-1], P.timer_lap_time(finish),
+                      flying.lap_time, standing.speed, car, clearance, sol.iterations, sol.converged)
+
+
+def _time_over(profile: P.Profile, ds: np.ndarray, last_m: float) -> float:
+    """Time the profile takes over its last `last_m` metres (the loop's end)."""
+    s_end = np.concatenate([[0.0], np.cumsum(ds[::-1])])
+    t_end = profile.time[-1] - profile.time[::-1]
+    return float(np.interp(last_m, s_end, t_end)) if last_m > 0 else 0.0
+
+

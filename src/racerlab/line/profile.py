@@ -1,0 +1,114 @@
+"""Speed profile along a path under the simulator's car limits, and the lap times it gives.
+
+The limits are exactly the ones `racerlab.sim.car.advance` applies, so that a driver that follows
+the path can reach the predicted time:
+
+* lateral: the grip caps v²·|κ| at `grip_mps2`, so a point of curvature κ allows √(grip/|κ|);
+* speed cap: commands are clipped to `max_speed_mps`;
+* longitudinal: speed follows the command with a first-order lag `speed_tau_s`, bounded by
+  `accel_mps2` and `brake_mps2`. With the command at the cap the car can gain at most
+  (cap - v)/τ per second, so the usable acceleration is min(accel, (cap - v)/τ); the same holds
+  for braking toward the minimum speed.
+
+A forward pass (accelerate as hard as allowed) and a backward pass (brake as late as allowed)
+over the lateral limit give the fastest speed at every point (the classic "ggv" method with a
+velocity-dependent acceleration and no friction circle, because the simulator has none).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from racerlab.sim.car import STEP_S, CarParams
+
+SUBSTEPS = 4  # integration steps per path segment in the passes
+
+
+class Profile(NamedTuple):
+    speed: np.ndarray  # (M,) m/s at each point
+    time: np.ndarray  # (M + 1,) s from point 0 to each point, last = back at point 0 (loops) or the end
+    lap_time: float  # time[-1]
+
+
+def lateral_limit(curvature: np.ndarray, car: CarParams) -> np.ndarray:
+    """Fastest speed the grip allows at each curvature (capped at the top speed), m/s."""
+    k = np.abs(np.asarray(curvature, dtype=np.float64))
+    with np.errstate(divide="ignore"):
+        v = np.sqrt(car.grip_mps2 / k)
+    return np.minimum(v, car.max_speed_mps)
+
+
+def _accel(v: float, car: CarParams) -> float:
+    return min(car.accel_mps2, (car.max_speed_mps - v) / car.speed_tau_s) if car.speed_tau_s > 0 else car.accel_mps2
+
+
+def _brake(v: float, car: CarParams) -> float:
+    return min(car.brake_mps2, (v - car.min_speed_mps) / car.speed_tau_s) if car.speed_tau_s > 0 else car.brake_mps2
+
+
+def _gain(v: float, ds: float, rate, car: CarParams) -> float:
+    """Speed after `ds` metres starting at `v` while changing speed at `rate(v)` m/s² (midpoint rule)."""
+    h = ds / SUBSTEPS
+    for _ in range(SUBSTEPS):
+        a = max(rate(v, car), 0.0)
+        v_half = math.sqrt(v * v + a * h)
+        v = math.sqrt(v * v + 2.0 * max(rate(v_half, car), 0.0) * h)
+    return v
+
+
+def _pass(limit: np.ndarray, ds: np.ndarray, order: np.ndarray, rate, car: CarParams, v_start: float) -> np.ndarray:
+    """One pass over `order` (indices): each point at most what the previous one reaches at `rate`."""
+    v = limit.copy()
+    v[order[0]] = min(v[order[0]], v_start)
+    prev = order[0]
+    for i, seg in zip(order[1:].tolist(), ds.tolist(), strict=True):
+        v[i] = min(v[i], _gain(float(v[prev]), seg, rate, car))
+        prev = i
+    return v
+
+
+def speed_profile(curvature, seg_lengths, car: CarParams | None = None, closed: bool = True,
+                  v_start: float | None = None) -> Profile:
+    """Fastest speed at each of M path points from their curvature and segment lengths.
+
+    `seg_lengths[i]` is the length from point i to point i+1 (for a loop the last one closes it,
+    so M of them; M-1 for an open path). For a loop without `v_start` the profile is periodic (a
+    flying lap); with `v_start` (0 for a standing start) point 0 starts at that speed, and a loop
+    ends back at point 0 at the flying lap's speed there.
+    """
+    car = car or CarParams()
+    k = np.asarray(curvature, dtype=np.float64)
+    ds = np.asarray(seg_lengths, dtype=np.float64)
+    m = len(k)
+    limit = lateral_limit(k, car)
+    if closed:
+        i0 = int(np.argmin(limit))  # the slowest corner: its speed is known, start both passes there
+        order = np.mod(np.arange(i0, i0 + m + 1), m)
+        v = _pass(limit, ds[order[:-1]], order, _accel, car, limit[i0])
+        v = _pass(v, ds[order[::-1][1:]], order[::-1], _brake, car, v[i0])
+        if v_start is None:
+            return _timed(v, np.append(v[1:], v[0]), ds)
+        limit = np.append(v, v[0])  # the flying lap already holds every braking constraint
+    else:
+        limit = _pass(limit, ds[::-1], np.arange(m)[::-1], _brake, car, limit[-1])
+    v = _pass(limit, ds, np.arange(len(limit)), _accel, car, math.inf if v_start is None else v_start)
+    return _timed(v[:m], v[1:], ds)
+
+
+def _timed(v: np.ndarray, v_next: np.ndarray, ds: np.ndarray) -> Profile:
+    dt = 2.0 * ds / np.maximum(v[: len(ds)] + v_next[: len(ds)], 1e-9)
+    t = np.concatenate([[0.0], np.cumsum(dt)])
+    return Profile(v, t, float(t[-1]))
+
+
+def timer_lap_time(drive_time_s: float, step_s: float = STEP_S) -> float:
+    """What the simulator's lap timer shows for a lap the car drives in `drive_time_s` from a standstill.
+
+    The episode's first step is the prepare step (car held), and a step judges the pose the
+    previous step left, so the lap is seen one step after the line is crossed: the timer counts
+    2 steps more than the ceil(drive / step) steps of driving.
+    """
+    return (2 + math.ceil(drive_time_s / step_s - 1e-9)) * step_s
