@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from racerlab.sim import _kernels as K
+from racerlab.sim.car import STEP_S, CarParams
 from racerlab.track import _kernels as TK
 
 
@@ -19,10 +20,16 @@ class PurePursuit:
 
     `path` is (M, 2) in driving order; `speed` is a scalar or (M,) per path point (m/s). The
     lookahead grows with speed (`lookahead_m + lookahead_gain_s * v`) so fast sections stay calm.
+
+    Without `car` the commanded speed is the speed of the path point the car is at. With `car`
+    (its `CarParams`), `speed` is the speed the car should *have* at each point, and the command
+    leads it: it is chosen so that, through the car's first-order speed lag, the car reaches the
+    speed of the point it will be at one step later (a speed look-ahead: it brakes in time for a
+    corner instead of a lag late, and asks for full throttle while the target is out of reach).
     """
 
     def __init__(self, path, speed=1.0, closed: bool = True, lookahead_m: float = 0.35,
-                 lookahead_gain_s: float = 0.12, wheelbase_m: float = 0.164):
+                 lookahead_gain_s: float = 0.12, wheelbase_m: float = 0.164, car: CarParams | None = None):
         p = np.asarray(path, dtype=np.float64)
         if closed and not np.array_equal(p[0], p[-1]):
             p = np.vstack([p, p[:1]])
@@ -36,6 +43,7 @@ class PurePursuit:
         self.lookahead_m = lookahead_m
         self.gain = lookahead_gain_s
         self.wheelbase = wheelbase_m
+        self.car = car
         self._hint = None
 
     @classmethod
@@ -64,8 +72,21 @@ class PurePursuit:
         alpha = np.arctan2(ty - rear[:, 1], tx - rear[:, 0]) - yaw
         dist = np.maximum(np.hypot(tx - rear[:, 0], ty - rear[:, 1]), 1e-6)
         steer = np.degrees(np.arctan2(2.0 * self.wheelbase * np.sin(alpha), dist))
-        speed = np.interp(np.mod(s, self.length) if self.closed else s, self.cum_s, self.speed)
-        return steer, speed
+        if self.car is None:
+            return steer, np.interp(self._wrap(s), self.cum_s, self.speed)
+        return steer, self._speed_command(s + 0.5 * self.wheelbase, v)
+
+    def _wrap(self, s):
+        return np.mod(s, self.length) if self.closed else np.clip(s, 0.0, self.length)
+
+    def _speed_command(self, s_base, v):
+        """The command that brings speed v to the target one step ahead through the lag exp(-t/τ)."""
+        target = np.interp(self._wrap(s_base + np.maximum(v, 0.0) * STEP_S), self.cum_s, self.speed)
+        tau = self.car.speed_tau_s
+        if tau <= 0:
+            return target
+        keep = math.exp(-STEP_S / tau)  # the share of the old speed left after one step
+        return (target - keep * v) / (1.0 - keep)
 
 
 def drive_lap(sim, controller, max_steps: int = 20_000, car: int = 0):
