@@ -362,3 +362,15 @@ def test_a_camera_model_trains(tmp_path):
     assert result.iterations == 2
     assert result.env_steps > 0 and result.best_checkpoint
     assert any((tmp_path / "cam" / "checkpoints").iterdir())
+
+
+# ---- racerlab sim view -----------------------------------------------------------------------------
+def test_sim_view_writes_a_png(tmp_path, capsys):
+    from racerlab.cli import main
+
+    out = tmp_path / "view.png"
+    assert main(["sim", "view", str(aws_track_path("reInvent2019_track")), "--out", str(out), "--cars", "3",
+                 "--walls"]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "wrote" in capsys.readouterr().out
+    assert main(["sim", "view", "no_such_track_anywhere", "--out", str(out)]) == 2
