@@ -185,19 +185,14 @@ def _resample(track: Track, xy: np.ndarray, m: int, closed: bool) -> np.ndarray:
 
 def _room(track: Track, ref, normal, segs, clearance, reach: float) -> tuple[np.ndarray, np.ndarray]:
     lo, hi = G.lateral_room(ref, normal, *segs, clearance, reach)
-    narrow = lo > hi
-    if narrow.any():
+    if np.any(lo > hi):
+        i = int(np.argmax(lo - hi))
+        where = track.project([ref[i]])
+        need = 2.0 * float(np.broadcast_to(clearance, lo.shape)[i])
         raise TrackError(
-            f"{track.name}: the road is too narrow for the car and the margin near "
-            f"{_where(track, ref[np.flatnonzero(narrow)[0]])}: the line needs {2 * np.max(clearance):.3f} m "
-            f"(car width plus twice the margin) but the road has {np.min(hi - lo + 2 * clearance):.3f} m; "
-            f"use a smaller --margin")
+            f"{track.name}: the road is {float(where.width[0]):.2f} m wide {float(where.s[0]):.1f} m from the start, "
+            f"too narrow for the car and the margin (they need {need:.2f} m); use a smaller margin (--margin)")
     return lo, hi
-
-
-def _where(track: Track, point) -> str:
-    s = float(track.project([point]).s[0])
-    return f"{s:.1f} m from the start"
 
 
 def _shortfall(xy: np.ndarray, segs, clearance: float, closed: bool) -> np.ndarray:

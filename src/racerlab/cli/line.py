@@ -1,0 +1,55 @@
+"""`racerlab line TRACK`: the racing line, its speed profile and the theoretical best lap, as files a
+racer uses in a reward function and an action space."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("line", help="racing line, speed profile and theoretical best lap of a track",
+                       description="Solve the racing line of TRACK (minimum curvature or shortest path, keeping "
+                                   "the whole car MARGIN inside the borders) and the fastest speed the "
+                                   "simulator's car can drive on it; print the lap time and write a picture, "
+                                   "the line as .npy and .csv, a Python list [[x, y, speed], ...] to paste "
+                                   "into a reward function and a discrete action space (model_metadata.json) "
+                                   "fitted to the line.")
+    p.add_argument("track", metavar="TRACK", help="a track name (see `racerlab tracks list`) or a .npy file")
+    p.add_argument("--margin", type=float, default=None, metavar="M",
+                   help="metres kept between the car's wheels and each border (default 0.1)")
+    p.add_argument("--method", choices=["mincurv", "shortest"], default="mincurv",
+                   help="minimum curvature (the fast line, default) or shortest path")
+    p.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="folder for the files (default ./<track>_<method>_line)")
+    p.add_argument("--reverse", action="store_true", help="the track driven the other way")
+    p.add_argument("--actions", type=int, default=None, metavar="N",
+                   help="number of discrete actions in model_metadata.json (default 15, at least 3)")
+    p.set_defaults(func=run_line)
+
+
+def run_line(args) -> int:
+    from racerlab.errors import RacerlabError
+    from racerlab.line import DEFAULT_MARGIN_M, racing_line
+    from racerlab.line.export import DEFAULT_ACTIONS, write_all
+    from racerlab.track import load
+
+    margin = DEFAULT_MARGIN_M if args.margin is None else args.margin
+    n_actions = DEFAULT_ACTIONS if args.actions is None else args.actions
+    if margin < 0:
+        raise RacerlabError(f"--margin must be >= 0 m, got {margin}")
+    if n_actions < 3:
+        raise RacerlabError(f"--actions must be at least 3, got {n_actions}")
+    track = load(args.track, reverse=args.reverse)
+    line = racing_line(track, margin=margin, method=args.method)
+    out = args.out or Path(f"{track.name}_{args.method}_line")
+    paths = write_all(line, track, out, n_actions)
+    s = line.summary()
+    state = "" if line.converged else " (not fully converged: the line may be a little off the optimum)"
+    print(f"{track.name}{' (reversed)' if args.reverse else ''}: {args.method} line, margin {margin} m, "
+          f"{s['length_m']} m in {s['points']} points{state}")
+    print(f"theoretical best lap {line.lap_time:.3f} s (standing start, as the simulator times it), "
+          f"flying lap {line.flying_lap_time:.3f} s, speed {s['min_speed_mps']}-{s['max_speed_mps']} m/s, "
+          f"solved in {line.solve_s:.2f} s")
+    for kind, path in paths.items():
+        print(f"  {kind:15s} {path}")
+    return 0
