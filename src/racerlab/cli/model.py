@@ -56,8 +56,8 @@ def run_train(args) -> int:
 
     result = train(args.model, minutes=args.minutes, episodes=args.episodes, iterations=args.iterations,
                    num_cars=args.cars, device=args.device, seed=args.seed, tracks=args.track)
-    print(f"model: {result.model_dir} (checkpoints in {result.model_dir / 'checkpoints'}, logs in "
-          f"{result.model_dir / 'logs'})")
+    print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/); next: "
+          f"`racerlab evaluate {result.model_dir}` or `racerlab report {result.model_dir}`")
     return 0
 
 

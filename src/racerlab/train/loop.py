@@ -311,7 +311,7 @@ class Trainer:
                 entry = self.iterate(t_start)
                 if entry:
                     result.history.append(entry)
-                    self.progress.iteration(entry, self._eta(t_start, start_episodes))
+                    self.progress.iteration(entry, self._eta(t_start, start_episodes, start_iteration))
             result.stopped = reason
         except KeyboardInterrupt:
             result.stopped = "interrupted (Ctrl-C); the last complete iteration is saved"
@@ -324,11 +324,14 @@ class Trainer:
         self.progress.finish(result)
         return result
 
-    def _eta(self, t_start, start_episodes) -> float | None:
+    def _eta(self, t_start, start_episodes, start_iteration) -> float | None:
         stop, s = self.cfg.stop, self.state
         elapsed = time.perf_counter() - t_start
         if stop.minutes:
             return max(stop.minutes * 60 - elapsed, 0.0)
+        if stop.iterations and s.iteration > start_iteration:
+            done_it = s.iteration - start_iteration
+            return elapsed / done_it * max(stop.iterations - done_it, 0)
         max_eps = stop.episodes or (0 if stop.iterations else self.hp.term_cond_max_episodes)
         done = s.episodes - start_episodes
         if max_eps and done:
