@@ -26,7 +26,14 @@ import numpy as np
 from numba import njit
 
 from racerlab.sim import _kernels as K
-from racerlab.sim.sensors.geometry import LIDAR_RAYS, lidar_position, lidar_ray_angles
+from racerlab.sim.sensors.geometry import (
+    LIDAR_MAX_ANGLE_RAD,
+    LIDAR_MIN_ANGLE_RAD,
+    LIDAR_RAYS,
+    LIDAR_YAW_RAD,
+    lidar_position,
+    lidar_ray_angles,
+)
 
 MIN_RANGE_M, MAX_RANGE_M = 0.15, 1.0  # AWS ObservationClippingFilter
 NOISE_SIGMA_M = 0.01
@@ -37,35 +44,8 @@ GRID_CELL_M = 0.25
 
 
 @njit(cache=True, inline="always")
-def _ray_box(ox, oy, dx, dy, bx, by, byaw, half_l, half_w):
-    """Distance along the unit ray (ox, oy) + t (dx, dy) to an oriented rectangle; inf if missed, 0 if inside."""
-    cb = math.cos(byaw)
-    sb = math.sin(byaw)
-    px = ox - bx
-    py = oy - by
-    lx = cb * px + sb * py
-    ly = -sb * px + cb * py
-    ldx = cb * dx + sb * dy
-    ldy = -sb * dx + cb * dy
-    t0 = -np.inf
-    t1 = np.inf
-    for p, d, h in ((lx, ldx, half_l), (ly, ldy, half_w)):
-        if abs(d) < 1e-12:
-            if abs(p) > h:
-                return np.inf
-        else:
-            a = (-h - p) / d
-            b = (h - p) / d
-            t0 = max(t0, min(a, b))
-            t1 = min(t1, max(a, b))
-    if t1 < max(t0, 0.0):
-        return np.inf
-    return max(t0, 0.0)
-
-
-@njit(cache=True, inline="always")
 def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
-    """Distance along the unit ray to segment a-b; inf if missed."""
+    """Distance along the unit ray (ox, oy) + t (dx, dy) to segment a-b; inf if missed."""
     ex = bx - ax
     ey = by - ay
     den = dx * ey - dy * ex
@@ -75,45 +55,101 @@ def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
     qy = ay - oy
     t = (qx * ey - qy * ex) / den
     u = (qx * dy - qy * dx) / den
-    if t >= 0.0 and 0.0 <= u <= 1.0:
+    if t >= 0.0 and -1e-12 <= u <= 1.0 + 1e-12:
         return t
     return np.inf
 
 
-@njit(cache=True)
-def scan(cars, pose_x, pose_y, pose_yaw, mount_x, angles, boxes, visible, walls, edges, grid, out):
-    """Raw ranges (inf = nothing within reach) of cars `cars` into out[car, ray].
+@njit(cache=True, inline="always")
+def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
+    """Intersect rays lo..hi (indices, clipped to the scan) with segment a-b; keep the nearer hits in best."""
+    for k in range(max(lo, 0), min(hi, nrays - 1) + 1):
+        ang = base + k * step
+        t = _ray_segment(ox, oy, math.cos(ang), math.sin(ang), ax, ay, bx, by)
+        if t < best[k]:
+            best[k] = t
 
-    boxes (M, 5) [x, y, yaw, length, width] seen by car i where visible[i, m]; with `walls` the
-    road edges (E, 4) listed for the car's grid cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
+
+@njit(cache=True, inline="always")
+def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
+    """Cast segment a-b onto the rays it can meet: those within the angle it spans seen from (ox, oy).
+
+    Ray k points at world angle base + k·step; a segment further than `reach` is skipped.
+    """
+    ex = bx - ax
+    ey = by - ay
+    ll = ex * ex + ey * ey
+    t = min(max(((ox - ax) * ex + (oy - ay) * ey) / ll, 0.0), 1.0) if ll > 0.0 else 0.0
+    if math.hypot(ax + t * ex - ox, ay + t * ey - oy) > reach:
+        return
+    period = 2.0 * math.pi / step
+    u0 = (math.atan2(ay - oy, ax - ox) - base) / step
+    u1 = (math.atan2(by - oy, bx - ox) - base) / step
+    u0 -= math.floor(u0 / period) * period
+    u1 -= math.floor(u1 / period) * period
+    lo = min(u0, u1)
+    hi = max(u0, u1)
+    eps = 1e-9
+    if hi - lo <= 0.5 * period:
+        _hit_rays(ox, oy, base, step, nrays, int(math.ceil(lo - eps)), int(math.floor(hi + eps)), ax, ay, bx, by,
+                  best)
+    else:  # the span crosses angle `base`: rays from hi up, and from 0 to lo
+        _hit_rays(ox, oy, base, step, nrays, int(math.ceil(hi - eps)), nrays - 1, ax, ay, bx, by, best)
+        _hit_rays(ox, oy, base, step, nrays, 0, int(math.floor(lo + eps)), ax, ay, bx, by, best)
+
+
+@njit(cache=True, inline="always")
+def _cast_box(ox, oy, base, step, nrays, reach, box, best):
+    """Cast the four sides of an oriented rectangle [x, y, yaw, length, width]; range 0 from inside it."""
+    cb = math.cos(box[2])
+    sb = math.sin(box[2])
+    hl = 0.5 * box[3]
+    hw = 0.5 * box[4]
+    px = ox - box[0]
+    py = oy - box[1]
+    if abs(cb * px + sb * py) <= hl and abs(-sb * px + cb * py) <= hw:
+        best[:] = 0.0
+        return
+    cx = (hl, -hl, -hl, hl)
+    cy = (hw, hw, -hw, -hw)
+    for q in range(4):
+        r = (q + 1) % 4
+        _cast(ox, oy, base, step, nrays, reach, box[0] + cb * cx[q] - sb * cy[q], box[1] + sb * cx[q] + cb * cy[q],
+              box[0] + cb * cx[r] - sb * cy[r], box[1] + sb * cx[r] + cb * cy[r], best)
+
+
+@njit(cache=True)
+def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, boxes, visible, walls, edges, grid, reach,
+         out):
+    """Raw ranges (inf = nothing within `reach`) of cars `cars` into out[car, ray].
+
+    Ray k looks at first_angle + k·step from the car's heading. boxes (M, 5) [x, y, yaw, length, width]
+    are seen by car i where visible[i, m]; with `walls` the road edges (E, 4) listed for the car's grid
+    cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
     """
     cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
+    nrays = out.shape[1]
     for k in range(cars.shape[0]):
         i = cars[k]
         c = math.cos(pose_yaw[i])
         s = math.sin(pose_yaw[i])
         ox = pose_x[i] + c * mount_x
         oy = pose_y[i] + s * mount_x
-        e0 = 0
-        e1 = 0
+        base = pose_yaw[i] + first_angle
+        best = out[i]
+        best[:] = np.inf
+        for m in range(boxes.shape[0]):
+            if visible[i, m]:
+                _cast_box(ox, oy, base, step, nrays, reach, boxes[m], best)
         if walls:
             cx = min(max(int((ox - gx0) / gcell), 0), gnx - 1)
             cy = min(max(int((oy - gy0) / gcell), 0), gny - 1)
-            e0 = cell_start[cy * gnx + cx]
-            e1 = cell_start[cy * gnx + cx + 1]
-        for a in range(angles.shape[0]):
-            ang = pose_yaw[i] + angles[a]
-            dx = math.cos(ang)
-            dy = math.sin(ang)
-            best = np.inf
-            for m in range(boxes.shape[0]):
-                if visible[i, m]:
-                    best = min(best, _ray_box(ox, oy, dx, dy, boxes[m, 0], boxes[m, 1], boxes[m, 2],
-                                              0.5 * boxes[m, 3], 0.5 * boxes[m, 4]))
-            for q in range(e0, e1):
+            for q in range(cell_start[cy * gnx + cx], cell_start[cy * gnx + cx + 1]):
                 e = cell_edges[q]
-                best = min(best, _ray_segment(ox, oy, dx, dy, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]))
-            out[i, a] = best
+                _cast(ox, oy, base, step, nrays, reach, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3], best)
+        for a in range(nrays):
+            if best[a] > reach:
+                best[a] = np.inf
 
 
 def edge_grid(edges: np.ndarray, reach: float, cell: float = GRID_CELL_M):
@@ -144,6 +180,7 @@ class Lidar:
         self.walls = bool(walls)
         self.noise_sigma_m = float(noise_sigma_m)
         self.angles = lidar_ray_angles()
+        self.step = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
         self.mount_x = lidar_position()
         self.edges = np.ascontiguousarray(sim.track.road_edges, dtype=np.float64)
         # a cell lists every edge within reach of any point in it (cell diagonal added)
@@ -173,8 +210,8 @@ class Lidar:
         idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         if self.boxes.shape[0] or self.walls:
             car = self.sim.car
-            scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, self.angles, self.boxes,
-                 self.visible, self.walls, self.edges, self.grid, self.raw)
+            scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD,
+                 self.step, self.boxes, self.visible, self.walls, self.edges, self.grid, REACH_M, self.raw)
             raw = self.raw[idx]
             hit = np.isfinite(raw)
             if self.noise_sigma_m > 0.0 and hit.any():

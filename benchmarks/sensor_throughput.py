@@ -1,0 +1,149 @@
+"""Sensor throughput on one core: camera frames/s, lidar car-steps/s, and Gymnasium's CarRacing-v3 for scale.
+
+Prints one JSON line per measurement:
+- `camera_render`: the camera observation alone (render + copy of the batch) at 1 and 64 cars, default look
+  and with domain randomization; budget >= 10 000 frames/s at 64 cars;
+- `camera_env`: the vector env stepping with the camera observation (dynamics, rules, render) at 64 cars;
+- `stereo_render`: both eyes, 64 cars;
+- `lidar_env`: the vector env with the lidar observation at 256 cars, as AWS (no walls, no objects), with the
+  borders as walls, and with 6 box obstacles; budget >= 100 000 car-steps/s;
+- `carracing_v3`: Gymnasium's CarRacing-v3 (96×96 RGB, Box2D, random actions) steps/s, and our 64-car camera
+  rate divided by it (goal >= 50×). Needs `pip install "racerlab[bench]"`; skipped with a note otherwise.
+
+Each rate is the best of several short trials (the machine may be shared; the best trial is the closest to an
+idle core), with the median alongside. The process is pinned to one core; `load_avg` is the 1-minute load
+average at the end, for judging how busy the machine was.
+
+Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+
+import numpy as np  # noqa: E402
+
+from racerlab.sim.core import Simulator  # noqa: E402
+from racerlab.sim.env import DeepRacerVectorEnv  # noqa: E402
+from racerlab.sim.sensors import build_observation  # noqa: E402
+
+TRIALS = 10
+
+
+def rates(fn, units_per_call: float, seconds: float) -> tuple[float, float]:
+    """(best, median) units per second over TRIALS trials of about seconds / TRIALS each."""
+    fn()  # warm up (compilation is cached, but touch every path)
+    out = []
+    for _ in range(TRIALS):
+        calls = 0
+        t0 = time.perf_counter()
+        while True:
+            fn()
+            calls += 1
+            elapsed = time.perf_counter() - t0
+            if elapsed >= seconds / TRIALS:
+                break
+        out.append(units_per_call * calls / elapsed)
+    return max(out), statistics.median(out)
+
+
+def emit(line: dict) -> None:
+    line["load_avg"] = round(os.getloadavg()[0], 2)
+    print(json.dumps(line), flush=True)
+
+
+def camera_render(track, cars: int, name: str, seconds: float) -> tuple[float, float]:
+    sim = Simulator(track, cars, seed=0)
+    base, _, opts = name.partition(":")
+    obs = build_observation(base, sim, options=tuple(o for o in opts.split(",") if o))
+    return rates(obs, cars, seconds)
+
+
+def env_rate(track, cars: int, observation: str, seconds: float, boxes: int = 0) -> tuple[float, float]:
+    env = DeepRacerVectorEnv(cars, track, observation=observation)
+    env.reset(seed=0)
+    if boxes:
+        _place_boxes(env, boxes)
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, env.single_action_space.n, size=(64, cars))
+    k = [0]
+
+    def step():
+        env.step(actions[k[0] % 64])
+        k[0] += 1
+
+    return rates(step, cars, seconds)
+
+
+def _place_boxes(env, n: int) -> None:
+    """n AWS-sized box obstacles (about 0.4 × 0.2 m) on the centre line, evenly spread; every car sees them."""
+    t = env.sim.track
+    s = np.arange(n) / n * t.length
+    pts = t.point_at(s)
+    yaw = t.heading_at(s)
+    boxes = np.column_stack([pts, yaw, np.full(n, 0.2), np.full(n, 0.4)])
+    env._engine.observation.lidar.set_objects(boxes)
+
+
+def carracing(seconds: float) -> tuple[float, float] | None:
+    try:
+        import gymnasium as gym
+
+        env = gym.make("CarRacing-v3")
+    except Exception as exc:  # noqa: BLE001 - box2d or pygame missing: say so and go on
+        emit({"bench": "carracing_v3", "skipped": f"{type(exc).__name__}: {exc}",
+              "install": 'pip install "racerlab[bench]"'})
+        return None
+    env.reset(seed=0)
+    env.action_space.seed(0)
+
+    def step():
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        if term or trunc:
+            env.reset()
+
+    return rates(step, 1, seconds)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--track", default="lab_technical")
+    ap.add_argument("--seconds", type=float, default=3.0)
+    args = ap.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    sec = args.seconds
+    cam64 = None
+    for name in ("camera", "camera:dr"):
+        for cars in (1, 64):
+            best, med = camera_render(args.track, cars, name, sec)
+            line = {"bench": "camera_render", "observation": name, "cars": cars, "frames_per_s": round(best),
+                    "median": round(med)}
+            if cars == 64 and name == "camera":
+                cam64 = best
+                line["budget"] = ">= 10000"
+            emit(line)
+    best, med = camera_render(args.track, 64, "stereo", sec)
+    emit({"bench": "stereo_render", "cars": 64, "frames_per_s": round(best), "median": round(med)})
+    best, med = env_rate(args.track, 64, "camera", sec)
+    emit({"bench": "camera_env", "cars": 64, "car_steps_per_s": round(best), "median": round(med)})
+    for label, obs, boxes in (("aws", "lidar", 0), ("walls", "lidar:walls", 0), ("6_boxes", "lidar", 6)):
+        best, med = env_rate(args.track, 256, obs, sec, boxes)
+        emit({"bench": "lidar_env", "variant": label, "cars": 256, "car_steps_per_s": round(best),
+              "median": round(med), "budget": ">= 100000"})
+    cr = carracing(sec)
+    if cr is not None:
+        emit({"bench": "carracing_v3", "steps_per_s": round(cr[0]), "median": round(cr[1]),
+              "camera_64_over_carracing": round(cam64 / cr[0], 1), "goal": ">= 50"})
+
+
+if __name__ == "__main__":
+    main()
