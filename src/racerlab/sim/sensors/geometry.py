@@ -83,12 +83,13 @@ class CameraModel:
     def focal_px(self) -> float:
         return 0.5 * self.width / math.tan(0.5 * self.hfov_rad)
 
-    def rays(self, du: float = 0.0, dv: float = 0.0) -> np.ndarray:
-        """(H, W, 3) ray directions in the car frame (x ahead, y left, z up) through pixel centres + (du, dv) px."""
+    def rays(self, du=0.0, dv=0.0) -> np.ndarray:
+        """(H, W, 3) ray directions in the car frame (x ahead, y left, z up) through pixel centres + (du, dv) px
+        (scalars, or arrays that broadcast against (H, W))."""
         f = self.focal_px
-        u = (np.arange(self.width) + 0.5 + du - 0.5 * self.width) / f  # right
-        v = (np.arange(self.height) + 0.5 + dv - 0.5 * self.height) / f  # down
-        uu, vv = np.meshgrid(u, v)
+        uu = (np.arange(self.width)[None, :] + 0.5 + du - 0.5 * self.width) / f  # right
+        vv = (np.arange(self.height)[:, None] + 0.5 + dv - 0.5 * self.height) / f  # down
+        uu, vv = np.broadcast_arrays(uu, vv)
         c, s = math.cos(self.pitch_rad), math.sin(self.pitch_rad)
         return np.stack([c - vv * s, -uu, -s - vv * c], axis=-1)
 
@@ -192,21 +193,15 @@ class RowPlan:
         return haze
 
     def _sky_tables(self) -> None:
+        """Panorama row and azimuth of each pixel, seen through the middle of its row's part above the horizon."""
         m = self.model
-        h, w = m.height, m.width
-        vh = m.horizon_v
-        f = m.focal_px
-        c, s = math.cos(m.pitch_rad), math.sin(m.pitch_rad)
-        rows = np.arange(h, dtype=np.float64)
-        v = 0.5 * (rows + np.minimum(rows + 1.0, max(vh, 0.0)))  # middle of each row's sky part
-        vn = (v[:, None] - 0.5 * h) / f
-        un = (np.arange(w) + 0.5 - 0.5 * w)[None, :] / f
-        rx, ry, rz = c - vn * s, -un + 0.0 * vn, -s - vn * c
-        el = np.arctan2(rz, np.hypot(rx, ry))
-        az = np.arctan2(ry, rx)
+        rows = np.arange(m.height, dtype=np.float64)
+        sky_mid = 0.5 * (rows + np.minimum(rows + 1.0, max(m.horizon_v, 0.0)))
+        r = m.rays(dv=(sky_mid - (rows + 0.5))[:, None])
+        el = np.arctan2(r[..., 2], np.hypot(r[..., 0], r[..., 1]))
         self.sky_el_bins = int(math.ceil(max(float(el.max()), 0.0) / SKY_EL_STEP_RAD)) + 2
         self.sky_el = np.clip(np.floor(el / SKY_EL_STEP_RAD), 0, self.sky_el_bins - 1).astype(np.int64)
-        self.sky_az = np.ascontiguousarray(az * (SKY_AZ_BINS / (2 * math.pi)))
+        self.sky_az = np.ascontiguousarray(np.arctan2(r[..., 1], r[..., 0]) * (SKY_AZ_BINS / (2 * math.pi)))
 
     @property
     def num_samples(self) -> int:

@@ -276,13 +276,21 @@ class TrackRaster:
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_RECENT: list = []  # (track ref, look) of the cached rasters, oldest first
+MAX_CACHED = 8  # rasters take 5-30 MB each and tracks stay loaded (racerlab.track.load caches them)
 
 
 def track_raster(track: Track, look: TrackLook | None = None) -> TrackRaster:
     """The raster of `track`, built once per track object and look (a forward and a reversed track look the same,
-    so pass the forward one)."""
+    so pass the forward one); the last MAX_CACHED are kept."""
     look = look or TrackLook()
     per_track = _CACHE.setdefault(track, {})
     if look not in per_track:
         per_track[look] = TrackRaster(track, look)
+        _RECENT.append((weakref.ref(track), look))
+        while len(_RECENT) > MAX_CACHED:
+            ref, old_look = _RECENT.pop(0)
+            old = ref()
+            if old is not None and old in _CACHE:
+                _CACHE[old].pop(old_look, None)
     return per_track[look]
