@@ -351,7 +351,7 @@ def test_partial_update_renders_only_the_given_rows(aws_track):
 
 
 # ---- training -----------------------------------------------------------------------------------
-@pytest.mark.slow  # about 2 minutes on 2 cores
+@pytest.mark.slow  # 1.5 to 2 minutes on 2 cores
 def test_a_camera_model_trains(tmp_path):
     """Two iterations of a camera model: rollouts of rendered frames, a CNN update, the next rollout, checkpoints."""
     from racerlab.train import train
