@@ -43,12 +43,17 @@ def action_space(line: RacingLine, n_actions: int = DEFAULT_ACTIONS, seed: int =
     feats = np.stack([steer / MAX_STEER_DEG, line.speed / line.car.max_speed_mps], axis=1)
     centres = _kmeans(feats, dt, n_actions - 2, seed)
     s_act = np.round(centres[:, 0] * MAX_STEER_DEG, 1)
-    v_act = np.minimum(centres[:, 1] * line.car.max_speed_mps, grip_speed(s_act, line))
-    v_lock = min(float(line.speed.min()), float(grip_speed(MAX_STEER_DEG, line)))
-    pairs = {(float(s), round(float(v), 2)) for s, v in zip(s_act, v_act, strict=True)}
-    pairs |= {(-MAX_STEER_DEG, round(v_lock, 2)), (MAX_STEER_DEG, round(v_lock, 2))}
+    v_act = _floor_cm(np.minimum(centres[:, 1] * line.car.max_speed_mps, grip_speed(s_act, line)))
+    v_lock = float(_floor_cm(min(float(line.speed.min()), float(grip_speed(MAX_STEER_DEG, line)))))
+    pairs = {(float(s), float(v)) for s, v in zip(s_act, v_act, strict=True)}
+    pairs |= {(-MAX_STEER_DEG, v_lock), (MAX_STEER_DEG, v_lock)}
     ordered = sorted(pairs)
     return DiscreteActions(tuple(p[0] for p in ordered), tuple(p[1] for p in ordered))
+
+
+def _floor_cm(v):
+    """Speeds rounded down to 0.01 m/s (down, so that no rounding pushes one past the grip)."""
+    return np.floor(np.asarray(v) * 100.0 + 1e-9) / 100.0
 
 
 def _kmeans(x: np.ndarray, w: np.ndarray, k: int, seed: int, iters: int = 100) -> np.ndarray:

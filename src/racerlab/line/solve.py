@@ -60,7 +60,11 @@ def offsets(ref: np.ndarray, normal: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     2 p_i + p_{i+1}) / h² (the signed curvature of evenly spaced points): the tangential component
     only says how unevenly the points are spaced, which the resampling fixes anyway, and
     minimising it too makes the offsets fight the resampling (the line then circles a few cm
-    around the optimum without settling).
+    around the optimum without settling). As in TUMFTM's formulation the spacing h is the
+    reference's, so a wider arc is not counted as a straighter one: the objective keeps a pull
+    toward shorter lines. That is what makes the line fast: on a ring it is the inner circle,
+    which under a grip limit is also the quickest (lap time 2π·√(r/grip) grows with r); the exact
+    ∫κ² ds would send it round the outside, 9 % slower on reInvent2019_track.
     """
     m = len(ref)
     h = float(G.arc_length(ref, closed)[-1]) / (m if closed else m - 1)
@@ -196,9 +200,14 @@ def _room(track: Track, ref, normal, segs, clearance, reach: float) -> tuple[np.
 
 
 def _shortfall(xy: np.ndarray, segs, clearance: float, closed: bool) -> np.ndarray:
-    """How much clearance each point (and the midpoint of its next segment) lacks, m (0 where enough)."""
+    """How much clearance each point and the chords to its neighbours lack, m (0 where enough).
+
+    The chords are checked at their quarter points: a car drives the chord, and near a sharp
+    corner of a border the middle of a 10 cm chord is not always its closest point.
+    """
     nxt = np.roll(xy, -1, axis=0) if closed else np.vstack([xy[1:], xy[-1:]])
     d_pt = G.border_distance(xy, *segs)
-    d_mid = G.border_distance(0.5 * (xy + nxt), *segs)
-    d = np.minimum(d_pt, np.minimum(d_mid, np.roll(d_mid, 1) if closed else np.concatenate([d_mid[:1], d_mid[:-1]])))
+    d_seg = np.min([G.border_distance(xy + f * (nxt - xy), *segs) for f in (0.25, 0.5, 0.75)], axis=0)
+    before = np.roll(d_seg, 1) if closed else np.concatenate([d_seg[:1], d_seg[:-1]])
+    d = np.minimum(d_pt, np.minimum(d_seg, before))
     return np.maximum(clearance - 5e-4 - d, 0.0)
