@@ -1,0 +1,78 @@
+"""`racerlab line` in-process: the files it writes, what is in them, and one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import runpy
+
+import numpy as np
+import pytest
+
+from racerlab.cli import main
+from racerlab.line import racing_line
+from racerlab.line.export import action_space, grip_speed
+from racerlab.metadata import MAX_SPEED, MIN_SPEED, parse_model_metadata
+from tests.conftest import aws_track_path
+
+
+def test_cli_prints_the_lap_and_writes_every_file(tmp_path, capsys):
+    track = aws_track_path("reInvent2019_track")
+    out = tmp_path / "line"
+    assert main(["line", str(track), "--margin", "0.1", "--method", "mincurv", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    line = racing_line(str(track))
+    assert f"theoretical best lap {line.lap_time:.3f} s" in text
+    stem = out / "reInvent2019_track_mincurv"
+    png = stem.with_suffix(".png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 20_000
+    xy = np.load(stem.with_suffix(".npy"))
+    assert xy.shape == line.xy.shape and np.allclose(xy, line.xy)
+    rows = list(csv.DictReader(stem.with_suffix(".csv").open()))
+    assert len(rows) == len(xy) and float(rows[-1]["time_s"]) < line.flying_lap_time
+    assert float(rows[0]["s_m"]) == 0.0 and max(float(r["speed_mps"]) for r in rows) <= 4.0
+    pasted = runpy.run_path(str(stem.with_suffix(".py")))
+    assert np.allclose(np.array(pasted["racing_line"]), np.column_stack([line.xy, line.speed]), atol=1e-3)
+    assert pasted["LAP_TIME"] == pytest.approx(line.lap_time, abs=1e-3)
+    meta = parse_model_metadata(json.loads((out / "model_metadata.json").read_text()))
+    assert meta.action_space_type == "discrete" and meta.actions.n == 15
+
+
+def test_shortest_method_and_default_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["line", str(aws_track_path("reinvent_base")), "--method", "shortest", "--actions", "7"]) == 0
+    folder = tmp_path / "reinvent_base_shortest_line"
+    assert (folder / "reinvent_base_shortest.png").is_file()
+    assert len(json.loads((folder / "model_metadata.json").read_text())["action_space"]) <= 7
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--margin", "0.3"], "too narrow"),
+    (["--margin", "-0.1"], "--margin must be >= 0"),
+    (["--actions", "2"], "--actions must be at least 3"),
+])
+def test_user_mistakes_are_one_line(tmp_path, capsys, argv, words):
+    track = str(aws_track_path("Virtual_May19_Train_track"))  # 0.60 m wide
+    assert main(["line", track, "--out", str(tmp_path), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("racerlab: error:") and words in err and "\n" not in err
+
+
+def test_open_track_is_refused_in_one_line(tmp_path, capsys):
+    assert main(["line", str(aws_track_path("Straight_track")), "--out", str(tmp_path)]) == 2
+    assert "closed loop" in capsys.readouterr().err
+
+
+def test_action_space_covers_the_line_within_the_cars_limits(aws_track):
+    line = racing_line(aws_track("2022_reinvent_champ"))
+    acts = action_space(line, 12)
+    steer, speed = np.array(acts.steering_deg), np.array(acts.speed)
+    assert acts.n <= 12 and len(set(zip(steer, speed, strict=True))) == acts.n
+    assert np.all(np.abs(steer) <= 30.0) and np.all((speed >= MIN_SPEED) & (speed <= MAX_SPEED))
+    assert np.all(speed <= grip_speed(steer, line) + 1e-9)  # no action slides the car
+    assert {-30.0, 30.0} <= set(steer.tolist())  # recovery at full lock both ways
+    # every point of the line has an action within 3° of its steering
+    need = line.steering_deg
+    assert np.max(np.min(np.abs(need[:, None] - steer[None, :]), axis=1)) < 3.0
+    # the same line gives the same actions
+    assert action_space(line, 12) == acts
