@@ -21,7 +21,7 @@ Calibration of the defaults. Gazebo gives the AWS car's wheels a friction coeffi
 and `brake_mps2`. No source gives the car's acceleration; `accel_mps2` = 3.0 m/s² (a standstill
 to 4 m/s in about 1.5 s) is the value that, with the others, puts the theoretical best lap of
 `reInvent2019_track` (racing line + speed profile of `racerlab.line`, 4 m/s cap, standing start
-timed as the simulator times it) at 6.87 s with the default 0.1 m margin and 6.60 s with none:
+timed as the simulator times it) at 6.87 s with the default 0.1 m margin and 6.53 s with none:
 inside the 6.5-7.2 s anchor and just under the all-time best human-trained lap in the AWS
 simulator there, 7.198 s (reference/track_records.md). The first defaults (grip 6.5, accel 6,
 brake 8 m/s²) gave 6.13 s, 15 % under the best lap anyone has driven there. `speed_tau_s`
