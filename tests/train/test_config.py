@@ -58,3 +58,11 @@ def test_init_camera_and_continuous(tmp_path):
     assert data["action_space"] == {"steering_angle": {"low": -30.0, "high": 30.0}, "speed": {"low": 1.0, "high": 3.0}}
     with pytest.raises(RacerlabError, match="SAC needs a continuous action space"):
         init_model(tmp_path / "s", algorithm="sac")
+
+
+def test_observation_with_sensor_options(tmp_path):
+    from racerlab.train.config import parse_training_config
+
+    assert parse_training_config({"run": {"observation": "camera:dr"}}).run.observation == "camera:dr"
+    with pytest.raises(ConfigError, match="run.observation must be one of"):
+        parse_training_config({"run": {"observation": "radar:dr"}})

@@ -37,7 +37,11 @@ class World:
         self.reward = reward
         self.metadata = metadata
 
-    def observe(self):
+    def observe(self, rows=None):
+        """The batch observation; sensors that can render just `rows` (the cars whose observation is
+        needed) skip the others, whose rows then hold stale values."""
+        if rows is not None and getattr(self.observation, "partial_update", False):
+            return self.observation(np.asarray(rows, dtype=np.int64))
         return self.observation()
 
     def commands(self, actions):
@@ -126,10 +130,17 @@ class Collector:
             self._step(agent, state, greedy)
         return state.finish(agent, first_episode_number, time.perf_counter() - t0)
 
+    def _observe(self, mask):
+        """Observations of the cars in `mask` (global car indices), rendered only for them."""
+        parts = []
+        for k, w in enumerate(self.worlds):
+            lo, hi = self.offsets[k], self.offsets[k + 1]
+            parts.append(w.observe(np.flatnonzero(mask[lo:hi])))
+        return take(concat_obs(parts), np.flatnonzero(mask))
+
     def _step(self, agent, state, greedy):
-        obs_all = concat_obs([w.observe() for w in self.worlds])
         idx = np.flatnonzero(state.active)
-        obs = take(obs_all, idx)
+        obs = self._observe(state.active)
         actions, logp, values = agent.act(obs, greedy=greedy)
         full_actions = np.zeros((self.num_cars, *actions.shape[1:]), dtype=actions.dtype)
         full_actions[idx] = actions
@@ -150,7 +161,7 @@ class Collector:
             trunc[lo:hi] = w.sim.truncated
         done &= state.active
         if done.any():
-            final_obs = take(concat_obs([w.observe() for w in self.worlds]), np.flatnonzero(done & trunc))
+            final_obs = self._observe(done & trunc) if (done & trunc).any() else None
             state.end_episodes(np.flatnonzero(done), trunc, codes, final_obs)
 
 
