@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--method", choices=["mincurv", "shortest"], default="mincurv",
                    help="minimum curvature (the fast line, default) or shortest path")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="folder for the files (default ./<track>_<method>_line)")
+                   help="folder for the files (default ./<track>_<method>_line, <track>_reversed_... with --reverse)")
     p.add_argument("--reverse", action="store_true", help="the track driven the other way")
     p.add_argument("--actions", type=int, default=None, metavar="N",
                    help="number of discrete actions in model_metadata.json (default 15, at least 3)")
@@ -41,11 +41,11 @@ def run_line(args) -> int:
         raise RacerlabError(f"--actions must be at least 3, got {n_actions}")
     track = load(args.track, reverse=args.reverse)
     line = racing_line(track, margin=margin, method=args.method)
-    out = args.out or Path(f"{track.name}_{args.method}_line")
+    out = args.out or Path(f"{line.track_name}_{args.method}_line")
     paths = write_all(line, track, out, n_actions)
     s = line.summary()
     state = "" if line.converged else " (not fully converged: the line may be a little off the optimum)"
-    print(f"{track.name}{' (reversed)' if args.reverse else ''}: {args.method} line, margin {margin} m, "
+    print(f"{line.track_name}: {args.method} line, margin {margin} m, "
           f"{s['length_m']} m in {s['points']} points{state}")
     print(f"theoretical best lap {line.lap_time:.3f} s (standing start, as the simulator times it), "
           f"flying lap {line.flying_lap_time:.3f} s, speed {s['min_speed_mps']}-{s['max_speed_mps']} m/s, "

@@ -147,7 +147,8 @@ def _with_profile(t: Track, sol, method: str, margin: float, car: CarParams, cle
     standing = P.speed_profile(k, ds, car, v_start=0.0)
     # the lap is complete when the model point, 0.14 m ahead of the base point, crosses the start line
     finish = standing.time[-1] - _time_over(standing, ds, MODEL_POINT_AHEAD_M)
-    return RacingLine(t.name, method, margin, xy, flying.speed, k, flying.time[:-1], P.timer_lap_time(finish),
+    name = f"{t.name}_reversed" if t.reversed else t.name
+    return RacingLine(name, method, margin, xy, flying.speed, k, flying.time[:-1], P.timer_lap_time(finish),
                       flying.lap_time, standing.speed, car, clearance, sol.iterations, sol.converged)
 
 
