@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from racerlab.errors import TrackError
 from racerlab.line import geometry as G
 from racerlab.line import profile as P
 from racerlab.line.solve import METHODS, solve
@@ -71,10 +72,6 @@ class RacingLine:
     solve_s: float = 0.0
 
     @property
-    def closed(self) -> bool:
-        return True
-
-    @property
     def s(self) -> np.ndarray:
         """Arc length of each point from point 0, m."""
         return G.arc_length(self.xy)[:-1]
@@ -122,8 +119,6 @@ def racing_line(track: Track | str, margin: float = DEFAULT_MARGIN_M, method: st
     the limits (default `CarParams()`, the simulator's car). Raises `TrackError` for a loop-less
     (open) track or where the road is too narrow for the car and the margin.
     """
-    from racerlab.errors import TrackError
-
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if margin < 0:
