@@ -93,7 +93,7 @@ def drive_lap(sim, controller, max_steps: int = 20_000, car: int = 0):
     """Drive car `car` of `sim` from its current episode start until the episode ends.
 
     Returns (status name, steps, lap time s, trajectory (T, 2) of base positions). Lap time is
-    the simulated time from the first RUN step to lap completion, as AWS times a lap.
+    steps × 1/15 s, the prepare step included, as AWS times a lap (NaN when no lap was completed).
     """
     traj = [sim.car[car, [K.CX, K.CY]].copy()]
     for _ in range(max_steps):
