@@ -15,7 +15,7 @@ from racerlab.sim.env import DeepRacerEnv, DeepRacerVectorEnv
 from racerlab.sim.observations import make_observation, observation_name_for
 from racerlab.sim.sensors import Camera, Lidar, build_observation
 from racerlab.sim.sensors.geometry import CameraModel, camera_position, lidar_position, lidar_ray_angles
-from racerlab.sim.sensors.lidar import sectors
+from racerlab.sim.sensors.lidar import discretized_sectors, sectors
 from racerlab.sim.sensors.look import DomainRandomization, TrackLook
 from racerlab.track import from_array
 from tests.conftest import aws_track_path
@@ -241,6 +241,48 @@ def test_lidar_walls_are_an_option(straight):
     assert r == pytest.approx(np.clip(wall, 0.15, 1.0), abs=1e-6)
 
 
+def test_discretized_sectors_follow_aws_filter():
+    # AWS ObservationSectorDiscretizeFilter: sector minimum, clipped to clipping_dist, bin
+    # floor(min / (clip / values)); the bin at clip itself (nothing seen) is dropped
+    ranges = np.full((1, 64), 2.0, np.float32)
+    ranges[0, 3] = 0.2  # sector 0: bin 0 of [0, 0.25)
+    ranges[0, 8:16] = 1.99  # sector 1: bin 7
+    ranges[0, 20] = 0.25  # sector 2: exactly on a bin edge -> bin 1
+    ranges[0, 63] = 0.74  # sector 7: bin 2
+    got = discretized_sectors(ranges, 8, 8, 2.0).reshape(8, 8)
+    want = np.zeros((8, 8))
+    want[0, 0] = want[1, 7] = want[2, 1] = want[7, 2] = 1.0
+    assert got.tolist() == want.tolist()
+    # 4 sectors of 16 rays, bins of 0.5 m: 0.2 | 0.25 | nothing within 1.0 | 0.74
+    assert discretized_sectors(ranges, 4, 2, 1.0).reshape(4, 2).tolist() == [[1, 0], [1, 0], [0, 0], [0, 1]]
+
+
+def test_discretized_sector_lidar_from_model_metadata(straight):
+    meta = {"action_space": [{"steering_angle": 0, "speed": 1}], "sensor": ["FRONT_FACING_CAMERA",
+            "DISCRETIZED_SECTOR_LIDAR"], "lidar_config": {"num_sectors": 4, "num_values_per_sector": 5,
+                                                          "clipping_dist": 1.5}}
+    env = DeepRacerEnv(straight, model_metadata=meta)
+    assert env._engine.observation.name == "camera+discretized_sector_lidar"
+    assert env.observation_space["discretized_sector_lidar"].shape == (20,)
+    env.reset(seed=0)
+    sim = env.sim
+    sim.set_pose(0, 0.0, 0.0, 0.0)
+    lid = env._engine.observation.parts["discretized_sector_lidar"]
+    lid.lidar.noise_sigma_m = 0.0
+    # a box 1.2 m behind the lidar: beyond the plain lidar's 1.0 m, inside clipping_dist 1.5;
+    # ray 31/32 are the middle rays of sector 1 (rays 16-31) and sector 2 (rays 32-47)
+    lid.lidar.set_objects([[lidar_position() - 1.2 - 0.1, 0.0, 0.0, 0.2, 0.1]])
+    got = lid()[0].reshape(4, 5)
+    want = np.zeros((4, 5))
+    near = 1.2 / math.cos(math.radians(180 - 177.619))  # 1.201 m -> bin floor(1.201 / 0.3) = 4
+    want[1, int(near // 0.3)] = want[2, int(near // 0.3)] = 1.0
+    assert got.tolist() == want.tolist()
+    for bad, msg in (({"num_sectors": 7}, "divide"), ({"num_values_per_sector": 0}, ">= 1"),
+                     ({"clipping_dist": "far"}, "number"), ({"range": 2}, "unknown key")):
+        with pytest.raises(ConfigError, match=msg):
+            DeepRacerEnv(straight, model_metadata={**meta, "lidar_config": bad})
+
+
 # ---- observations -------------------------------------------------------------------------------
 SHAPES = {
     "camera": {"camera": ((120, 160, 1), np.uint8)},
@@ -251,6 +293,7 @@ SHAPES = {
     "stereo+lidar": {"stereo": ((120, 160, 2), np.uint8), "lidar": ((64,), np.float32)},
     "camera+sector_lidar": {"camera": ((120, 160, 1), np.uint8), "sector_lidar": ((8,), np.float32)},
     "stereo+sector_lidar:dr,walls": {"stereo": ((120, 160, 2), np.uint8), "sector_lidar": ((8,), np.float32)},
+    "discretized_sector_lidar": {"discretized_sector_lidar": ((64,), np.float32)},  # AWS defaults 8 × 8
 }
 
 
@@ -269,7 +312,9 @@ def test_shapes_and_dtypes_per_sensor_combination(aws_track, name):
 @pytest.mark.parametrize("sensor, name", [(["FRONT_FACING_CAMERA"], "camera"), (["STEREO_CAMERAS"], "stereo"),
                                           (["FRONT_FACING_CAMERA", "LIDAR"], "camera+lidar"),
                                           (["STEREO_CAMERAS", "LIDAR"], "stereo+lidar"),
-                                          (["STEREO_CAMERAS", "SECTOR_LIDAR"], "stereo+sector_lidar")])
+                                          (["STEREO_CAMERAS", "SECTOR_LIDAR"], "stereo+sector_lidar"),
+                                          (["FRONT_FACING_CAMERA", "DISCRETIZED_SECTOR_LIDAR"],
+                                           "camera+discretized_sector_lidar")])
 def test_observation_follows_the_aws_sensor_list(aws_track, sensor, name):
     meta = {"action_space": [{"steering_angle": 0, "speed": 1}], "sensor": sensor}
     env = DeepRacerEnv(aws_track("reInvent2019_track"), model_metadata=meta)
@@ -280,8 +325,8 @@ def test_observation_follows_the_aws_sensor_list(aws_track, sensor, name):
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")
-@pytest.mark.parametrize("name", ["camera", "stereo", "lidar", "sector_lidar", "camera+lidar", "stereo+lidar",
-                                  "camera:dr", "lidar:walls", "features"])
+@pytest.mark.parametrize("name", ["camera", "stereo", "lidar", "sector_lidar", "discretized_sector_lidar",
+                                  "camera+lidar", "stereo+lidar", "camera:dr", "lidar:walls", "features"])
 def test_env_checker_passes_for_each_observation(aws_track, name):
     check_env(DeepRacerEnv(aws_track("reInvent2019_track"), observation=name))
 

@@ -65,8 +65,9 @@ def _sensor_factory(name: str) -> Callable:
     return factory
 
 
-SENSOR_NAMES = ("camera", "stereo", "lidar", "sector_lidar", "camera+lidar", "camera+sector_lidar", "stereo+lidar",
-                "stereo+sector_lidar")
+SENSOR_NAMES = ("camera", "stereo", "lidar", "sector_lidar", "discretized_sector_lidar", "camera+lidar",
+                "camera+sector_lidar", "camera+discretized_sector_lidar", "stereo+lidar", "stereo+sector_lidar",
+                "stereo+discretized_sector_lidar")
 for _name in SENSOR_NAMES:
     register_observation(_name, _sensor_factory(_name))
 
@@ -85,7 +86,7 @@ def observation_name_for(metadata: ModelMetadata) -> str:
     else:
         name = None
     if lidar is not None:
-        lid = "lidar" if lidar == "LIDAR" else "sector_lidar"
+        lid = lidar.lower()  # lidar, sector_lidar, discretized_sector_lidar
         name = f"{name}+{lid}" if name else lid
     return name or "features"
 

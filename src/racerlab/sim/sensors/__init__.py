@@ -2,9 +2,10 @@
 
 Each is an observation (registered by name in `racerlab.sim.observations`) that reads the poses of
 every car of a `Simulator` and returns the batch: `camera` (B, 120, 160, 1) uint8, `stereo`
-(B, 120, 160, 2) uint8, `lidar` (B, 64) float32, `sector_lidar` (B, 8) float32. A camera with a
-lidar, as AWS combines them, is a dict of the two keyed by those names ("camera+lidar",
-"stereo+lidar", "camera+sector_lidar", "stereo+sector_lidar").
+(B, 120, 160, 2) uint8, `lidar` (B, 64) float32, `sector_lidar` (B, 8) float32,
+`discretized_sector_lidar` (B, sectors × values) float32 (set by the model's `lidar_config`). A
+camera with a lidar, as AWS combines them, is a dict of the two keyed by those names
+("camera+lidar", "stereo+lidar", "camera+sector_lidar", ...).
 
 Options follow the name after a colon, comma-separated:
 - `dr`: domain randomization of the camera's look per episode (`look.DomainRandomization`);
@@ -29,7 +30,7 @@ from racerlab.sim.sensors.lidar import Lidar, LidarObservation
 from racerlab.sim.sensors.look import DomainRandomization, TrackLook
 
 CAMERAS = ("camera", "stereo")
-LIDARS = ("lidar", "sector_lidar")
+LIDARS = ("lidar", "sector_lidar", "discretized_sector_lidar")
 SENSOR_OBSERVATIONS = CAMERAS + LIDARS + tuple(f"{c}+{li}" for c in CAMERAS for li in LIDARS)
 OPTIONS = {"dr": "domain randomization of the camera", "walls": "the lidar sees the track borders as walls"}
 
@@ -75,5 +76,7 @@ def build_observation(name: str, sim, metadata=None, options=()):
             built.append(CameraObservation(sim, stereo=p == "stereo",
                                            randomization=DomainRandomization() if "dr" in opts else None))
         else:
-            built.append(LidarObservation(sim, sector=p == "sector_lidar", walls="walls" in opts))
+            built.append(LidarObservation(sim, walls="walls" in opts, kind=p,
+                                          lidar_config=getattr(metadata, "lidar_config", None),
+                                          source=getattr(metadata, "source", "model_metadata.json")))
     return built[0] if len(built) == 1 else CombinedObservation(built)

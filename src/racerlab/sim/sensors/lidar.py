@@ -14,7 +14,10 @@ What the rays hit:
   lidar-only experiments.
 
 The sector lidar splits the 64 rays into 8 sectors of 8 consecutive rays and reads 1 where the
-sector's smallest range is below 0.5 m, else 0.
+sector's smallest range is below 0.5 m, else 0. The discretized sector lidar (AWS's
+`ObservationSectorDiscretizeFilter`) takes each sector's smallest range, up to `clipping_dist`, and
+one-hot encodes it in `num_values_per_sector` equal bins; a sector that sees nothing closer than
+`clipping_dist` reads all zeros. Its settings come from `lidar_config` in `model_metadata.json`.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import gymnasium as gym
 import numpy as np
 from numba import njit
 
+from racerlab.errors import ConfigError
 from racerlab.sim import _kernels as K
 from racerlab.sim.sensors.geometry import (
     LIDAR_MAX_ANGLE_RAD,
@@ -39,8 +43,11 @@ MIN_RANGE_M, MAX_RANGE_M = 0.15, 1.0  # AWS ObservationClippingFilter
 NOISE_SIGMA_M = 0.01
 SECTORS = 8
 SECTOR_CLIP_M = 0.5
-REACH_M = MAX_RANGE_M + 6 * NOISE_SIGMA_M  # hits further than this read 1.0 whatever the noise
+NOISE_REACH_SIGMAS = 6  # a hit further than max range + 6 σ reads max range whatever the noise
 GRID_CELL_M = 0.25
+GAZEBO_RANGE_M = (0.15, 12.0)  # the simulated sensor's own range (facts §4)
+# AWS DiscretizedSectorLidarDefaults (boto/s3/constants.py)
+DISCRETIZED_DEFAULTS = {"num_sectors": 8, "num_values_per_sector": 8, "clipping_dist": 2.0}
 
 
 @njit(cache=True, inline="always")
@@ -175,20 +182,23 @@ def edge_grid(edges: np.ndarray, reach: float, cell: float = GRID_CELL_M):
 class Lidar:
     """Ranges of every car's lidar (see the module docstring)."""
 
-    def __init__(self, sim, walls: bool = False, noise_sigma_m: float = NOISE_SIGMA_M):
+    def __init__(self, sim, walls: bool = False, noise_sigma_m: float = NOISE_SIGMA_M,
+                 max_range_m: float = MAX_RANGE_M):
         self.sim = sim
         self.walls = bool(walls)
         self.noise_sigma_m = float(noise_sigma_m)
+        self.max_range_m = float(max_range_m)
+        self.reach_m = self.max_range_m + NOISE_REACH_SIGMAS * self.noise_sigma_m
         self.angles = lidar_ray_angles()
         self.step = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
         self.mount_x = lidar_position()
         self.edges = np.ascontiguousarray(sim.track.road_edges, dtype=np.float64)
         # a cell lists every edge within reach of any point in it (cell diagonal added)
-        self.grid = edge_grid(self.edges, REACH_M + GRID_CELL_M * math.sqrt(2.0)) if self.walls \
+        self.grid = edge_grid(self.edges, self.reach_m + GRID_CELL_M * math.sqrt(2.0)) if self.walls \
             else (np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int64), 0.0, 0.0, 1.0, 1, 1)
         self.set_objects(None)
         self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
-        self.ranges = np.full((sim.num_cars, LIDAR_RAYS), MAX_RANGE_M, dtype=np.float32)
+        self.ranges = np.full((sim.num_cars, LIDAR_RAYS), self.max_range_m, dtype=np.float32)
         self._all = np.arange(sim.num_cars, dtype=np.int64)
 
     def set_objects(self, boxes, visible=None) -> None:
@@ -206,17 +216,20 @@ class Lidar:
         self.visible = np.ascontiguousarray(v)
 
     def scan(self, rows=None) -> np.ndarray:
-        """Measure cars `rows` (all by default) into `self.ranges` (B, 64) float32, m, and return it (not a copy)."""
+        """Measure cars `rows` (all by default) into `self.ranges` (B, 64) float32, m, and return it (not a copy).
+
+        Ranges are clipped to [0.15, max_range_m]; a ray that hits nothing reads max_range_m.
+        """
         idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         if self.boxes.shape[0] or self.walls:
             car = self.sim.car
             scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD,
-                 self.step, self.boxes, self.visible, self.walls, self.edges, self.grid, REACH_M, self.raw)
+                 self.step, self.boxes, self.visible, self.walls, self.edges, self.grid, self.reach_m, self.raw)
             raw = self.raw[idx]
             hit = np.isfinite(raw)
             if self.noise_sigma_m > 0.0 and hit.any():
                 raw[hit] += self.sim.rng.normal(0.0, self.noise_sigma_m, size=int(hit.sum()))
-            self.ranges[idx] = np.clip(np.where(hit, raw, MAX_RANGE_M), MIN_RANGE_M, MAX_RANGE_M)
+            self.ranges[idx] = np.clip(np.where(hit, raw, self.max_range_m), MIN_RANGE_M, self.max_range_m)
         return self.ranges
 
 
@@ -226,22 +239,67 @@ def sectors(ranges: np.ndarray) -> np.ndarray:
     return (r.min(axis=2) < SECTOR_CLIP_M).astype(np.float32)
 
 
+def discretized_sectors(ranges: np.ndarray, num_sectors: int, num_values: int, clipping_dist: float) -> np.ndarray:
+    """(B, num_sectors * num_values) float32 one-hot bins of each sector's smallest range (AWS's
+    ObservationSectorDiscretizeFilter): bin floor(min(r, clip) / (clip / num_values)); the bin at
+    `clip` itself (nothing seen) is dropped, so such a sector reads all zeros."""
+    b = ranges.shape[0]
+    m = np.minimum(ranges.reshape(b, num_sectors, -1).min(axis=2), clipping_dist)
+    idx = np.floor(m / (clipping_dist / num_values)).astype(np.int64)
+    out = np.zeros((b, num_sectors, num_values + 1), dtype=np.float32)
+    np.put_along_axis(out, np.minimum(idx, num_values)[..., None], 1.0, axis=2)
+    return out[:, :, :num_values].reshape(b, num_sectors * num_values)
+
+
+def discretized_config(lidar_config: dict | None, source: str = "model_metadata.json") -> tuple[int, int, float]:
+    """(num_sectors, num_values_per_sector, clipping_dist) from a model's `lidar_config`, AWS defaults
+    for missing keys; clipping_dist is clamped to the sensor's range as AWS does."""
+    cfg = dict(DISCRETIZED_DEFAULTS)
+    given = dict(lidar_config or {})
+    unknown = sorted(set(given) - set(cfg))
+    if unknown:
+        raise ConfigError(f"{source}: lidar_config has unknown key {unknown[0]!r}; allowed: {', '.join(cfg)}")
+    cfg.update(given)
+    n, v, clip = cfg["num_sectors"], cfg["num_values_per_sector"], cfg["clipping_dist"]
+    for key in ("num_sectors", "num_values_per_sector"):
+        if isinstance(cfg[key], bool) or not isinstance(cfg[key], int) or cfg[key] < 1:
+            raise ConfigError(f"{source}: lidar_config.{key} must be a whole number >= 1, got {cfg[key]!r}")
+    if LIDAR_RAYS % n:
+        raise ConfigError(f"{source}: lidar_config.num_sectors must divide the {LIDAR_RAYS} lidar rays, got {n}")
+    if isinstance(clip, bool) or not isinstance(clip, int | float) or not math.isfinite(clip):
+        raise ConfigError(f"{source}: lidar_config.clipping_dist must be a number of metres, got {clip!r}")
+    return n, v, float(min(max(clip, GAZEBO_RANGE_M[0]), GAZEBO_RANGE_M[1]))
+
+
 class LidarObservation:
-    """`lidar` (64,) float32 ranges in [0.15, 1.0] m, or `sector_lidar` (8,) float32 in {0, 1}."""
+    """`lidar` (64,) float32 ranges in [0.15, 1.0] m, `sector_lidar` (8,) float32 in {0, 1}, or
+    `discretized_sector_lidar` (num_sectors * num_values_per_sector,) float32 one-hot bins."""
 
     partial_update = True
+    KINDS = ("lidar", "sector_lidar", "discretized_sector_lidar")
 
-    def __init__(self, sim, sector: bool = False, walls: bool = False):
-        self.name = "sector_lidar" if sector else "lidar"
-        self.sector = sector
-        self.lidar = Lidar(sim, walls=walls)
+    def __init__(self, sim, sector: bool = False, walls: bool = False, kind: str | None = None,
+                 lidar_config: dict | None = None, source: str = "model_metadata.json"):
+        kind = kind or ("sector_lidar" if sector else "lidar")
+        if kind not in self.KINDS:
+            raise ValueError(f"LidarObservation kind must be one of {self.KINDS}, got {kind!r}")
+        self.name = kind
+        self.sector = kind == "sector_lidar"
+        self.discretized = discretized_config(lidar_config, source) if kind == "discretized_sector_lidar" else None
+        reach = self.discretized[2] if self.discretized else MAX_RANGE_M
+        self.lidar = Lidar(sim, walls=walls, max_range_m=reach)
 
     @property
     def space(self) -> gym.Space:
+        if self.discretized:
+            n, v, _ = self.discretized
+            return gym.spaces.Box(0.0, 1.0, shape=(n * v,), dtype=np.float32)
         if self.sector:
             return gym.spaces.Box(0.0, 1.0, shape=(SECTORS,), dtype=np.float32)
         return gym.spaces.Box(MIN_RANGE_M, MAX_RANGE_M, shape=(LIDAR_RAYS,), dtype=np.float32)
 
     def __call__(self, rows=None) -> np.ndarray:
         r = self.lidar.scan(rows)
+        if self.discretized:
+            return discretized_sectors(r, *self.discretized)
         return sectors(r) if self.sector else r.copy()
