@@ -11,12 +11,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from racerlab.errors import ConfigError
-from racerlab.sim.observations import split_observation_name
+from racerlab.sim.observations import OBSERVATIONS, split_observation_name
 
 BEST_MODEL_METRICS = ("progress", "reward", "laptime")
 REWARD_ORDERS = ("aws", "after_action")
-OBSERVATIONS = ("", "features", "camera", "stereo", "lidar", "sector_lidar", "camera+lidar", "stereo+lidar",
-                "camera+sector_lidar", "stereo+sector_lidar")
 
 
 @dataclass(frozen=True)
@@ -155,8 +153,9 @@ def _validate(c: TrainingConfig) -> None:
     _check(c.run.num_cars >= len(c.track.names), s, "run.num_cars must be at least the number of tracks")
     _check(c.run.threads >= 0, s, "run.threads must be >= 0")
     base = split_observation_name(c.run.observation)[0]
-    _check(base in OBSERVATIONS, s, f"run.observation must be one of {OBSERVATIONS}, optionally with options "
-                                    "after a colon (camera:dr, lidar:walls)")
+    _check(base in ("", *OBSERVATIONS), s, f"run.observation must be empty (follow model_metadata.json) or one of "
+                                         f"{', '.join(OBSERVATIONS)}, optionally with options after a colon "
+                                         "(camera:dr, lidar:walls)")
     _check(c.run.reward_order in REWARD_ORDERS, s, f"run.reward_order must be one of {REWARD_ORDERS}")
     _check(c.run.max_steps_per_iteration >= 100, s, "run.max_steps_per_iteration must be >= 100")
     _check(c.run.max_episode_steps >= 10, s, "run.max_episode_steps must be >= 10")
