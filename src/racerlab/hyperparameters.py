@@ -19,12 +19,10 @@ should not silently train with the default.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 from racerlab.errors import ConfigError
-from racerlab.metadata import parse_number
+from racerlab.metadata import parse_number, read_json_file
 
 EXPLORATION_TYPES = ("categorical", "e-greedy", "additive_noise")
 LOSS_TYPES = ("huber", "mean squared error")
@@ -132,11 +130,4 @@ def parse_hyperparameters(data: dict, source: str = "hyperparameters.json") -> H
 
 
 def load_hyperparameters(path) -> Hyperparameters:
-    p = Path(path)
-    try:
-        data = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: file not found") from None
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"{p}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
-    return parse_hyperparameters(data, str(p))
+    return parse_hyperparameters(read_json_file(path), str(path))

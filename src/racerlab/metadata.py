@@ -213,15 +213,19 @@ def parse_model_metadata(data: dict, source: str = "model_metadata.json") -> Mod
     return ModelMetadata(actions, sensor, net, algo, version, dict(lidar_config), src)
 
 
-def load_model_metadata(path) -> ModelMetadata:
+def read_json_file(path):
+    """A JSON config file's content; a missing file or bad JSON is a one-line ConfigError."""
     p = Path(path)
     try:
-        data = json.loads(p.read_text())
+        return json.loads(p.read_text())
     except FileNotFoundError:
         raise ConfigError(f"{p}: file not found") from None
     except json.JSONDecodeError as exc:
         raise ConfigError(f"{p}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
-    return parse_model_metadata(data, str(p))
+
+
+def load_model_metadata(path) -> ModelMetadata:
+    return parse_model_metadata(read_json_file(path), str(path))
 
 
 def as_model_metadata(value) -> ModelMetadata:

@@ -14,7 +14,6 @@ model is timed the same way.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -225,7 +224,7 @@ def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None
 
 def _write_summary(result: EvaluationResult) -> None:
     result.files["summary"] = result.out_dir / SUMMARY_NAME
-    logs.atomic_write_json(result.files["summary"], finite_json(result.summary()), indent=2)
+    logs.atomic_write_json(result.files["summary"], logs.finite_json(result.summary()), indent=2)
 
 
 def _top_speed(metadata) -> float:
@@ -234,12 +233,3 @@ def _top_speed(metadata) -> float:
     return float(min(max(top, 0.5), 4.0))
 
 
-def finite_json(obj):
-    """NaN and inf become null: summary.json stays strict JSON."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: finite_json(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [finite_json(v) for v in obj]
-    return obj

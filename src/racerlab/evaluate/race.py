@@ -13,7 +13,7 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.api import EvaluationResult, evaluate, finite_json, load_model
+from racerlab.evaluate.api import EvaluationResult, evaluate, load_model
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
@@ -83,7 +83,7 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
                         sorted(results, key=lambda r: rank_key(r.result)))
     if out is not False:
         path = Path(out) if out else Path(f"race-{datetime.now().strftime(STAMP_FORMAT)}.json")
-        board.path = logs.atomic_write_json(path, finite_json(board.to_json()), indent=2)
+        board.path = logs.atomic_write_json(path, logs.finite_json(board.to_json()), indent=2)
     return board
 
 

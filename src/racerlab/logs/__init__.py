@@ -56,6 +56,7 @@ from racerlab.logs.metrics import (
     LogFileError,
     MetricsLog,
     TrainingMetrics,
+    finite_json,
     read_metrics_jsonl,
 )
 from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
@@ -65,7 +66,8 @@ __all__ = [
     "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceWriter", "TrainingMetrics",
     "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
-    "format_rows", "metrics_jsonl_path", "new_evaluation_dir", "read_metrics_jsonl", "remove_stale_temps",
+    "finite_json", "format_rows", "metrics_jsonl_path", "new_evaluation_dir", "read_metrics_jsonl",
+    "remove_stale_temps",
     "remove_training_simtrace_after", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
     "training_simtrace_path", "write_simtrace",
 ]

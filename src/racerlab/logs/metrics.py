@@ -130,7 +130,7 @@ class MetricsLog:
         self._file = None
 
     def append(self, entry: dict) -> None:
-        line = json.dumps(_finite(entry), allow_nan=False) + "\n"
+        line = json.dumps(finite_json(entry), allow_nan=False) + "\n"
         if self._file is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._repair_torn_tail()
@@ -189,13 +189,14 @@ def read_metrics_jsonl(path: str | os.PathLike) -> list[dict]:
     return out
 
 
-def _finite(obj):
+def finite_json(obj):
+    """NaN and inf become null (and numpy scalars Python numbers), so the JSON stays strict."""
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: finite_json(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
+        return [finite_json(v) for v in obj]
     if hasattr(obj, "item") and hasattr(obj, "dtype"):  # numpy scalar
-        return _finite(obj.item())
+        return finite_json(obj.item())
     return obj

@@ -9,7 +9,6 @@ then rename), so a kill at any moment leaves the previous complete state.
 from __future__ import annotations
 
 import json
-import math
 import re
 import shutil
 import time
@@ -18,7 +17,7 @@ from pathlib import Path
 
 from racerlab.errors import ConfigError, RacerlabError
 from racerlab.hyperparameters import Hyperparameters, load_hyperparameters
-from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_text
+from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_text, finite_json
 from racerlab.metadata import ModelMetadata, load_model_metadata
 from racerlab.train.config import TrainingConfig, load_training_config
 
@@ -156,10 +155,10 @@ class ModelFolder:
     def update_index(self, last: CheckpointInfo, last_metric: float, best: CheckpointInfo | None,
                      best_metric: float | None) -> None:
         now = time.time()
-        index = {"last_checkpoint": {"name": last.name, "avg_eval_metric": _json_number(last_metric),
+        index = {"last_checkpoint": {"name": last.name, "avg_eval_metric": finite_json(last_metric),
                                      "time_stamp": now}}
         if best is not None:
-            index["best_checkpoint"] = {"name": best.name, "avg_eval_metric": _json_number(best_metric),
+            index["best_checkpoint"] = {"name": best.name, "avg_eval_metric": finite_json(best_metric),
                                         "time_stamp": now}
         atomic_write_json(self.checkpoints_json, index, indent=2)
         # .coach_checkpoint, as AWS keeps it: the current checkpoint's name
@@ -179,10 +178,6 @@ class ModelFolder:
         for c in self.checkpoints():
             if c.iteration > iteration:
                 (self.checkpoints_dir / c.name).unlink(missing_ok=True)
-
-
-def _json_number(x):
-    return None if x is None or not math.isfinite(x) else x
 
 
 def check_compatible(parent: ModelMetadata, child: ModelMetadata, where: str) -> None:
