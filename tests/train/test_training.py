@@ -172,3 +172,18 @@ def test_multi_track_spreads_cars(model):
                 tracks=[str(aws_track_path("reInvent2019_track")), str(aws_track_path("reinvent_base"))])
     assert [w.sim.num_cars for w in t.worlds] == [3, 2]
     assert t.worlds[1].sim.track.name == "reinvent_base"
+
+
+@pytest.mark.parametrize("algorithm", ["clipped_ppo", "sac"])
+def test_truncated_episodes_and_sac(tmp_path, algorithm):
+    """Episodes cut by the step cap are kept apart from terminations; SAC trains from the same rollouts."""
+    track = str(aws_track_path("reInvent2019_track"))
+    folder = init_model(tmp_path / "m", track=track, algorithm=algorithm, action_space="continuous", num_cars=4)
+    text = folder.config_path.read_text().replace("max_episode_steps = 10000", "max_episode_steps = 20")
+    folder.config_path.write_text(text)
+    r = train(folder.path, iterations=2, progress=False)
+    assert r.iterations == 2
+    doc = json.loads((folder.path / "metrics" / "TrainingMetrics.json").read_text())
+    statuses = {m["episode_status"] for m in doc["metrics"] if m["phase"] == "training"}
+    assert "Time Up" in statuses  # the cap truncated episodes (AWS's label for a time limit)
+    assert ModelFolder(folder.path).resolve_checkpoint("last").iteration == 2

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from racerlab.sim import _kernels as K
+from racerlab.train.rollout import act
 
 UNFINISHED_LAP_MS = 999_999  # AWS counts an unfinished lap as this when ranking by lap time
 
@@ -38,7 +39,7 @@ def run_greedy_episodes(agent, world, starts) -> list[EvalEpisode]:
         idx = np.flatnonzero(active)
         obs = world.observe()
         obs = {k: v[idx] for k, v in obs.items()} if isinstance(obs, dict) else obs[idx]
-        actions, _, _ = agent.act(obs, greedy=True)
+        actions, _, _ = act(agent, obs, True)
         codes, r = world.step(actions, active)
         reward += r
         done = active & (sim.terminated_mask(codes) | sim.truncated)

@@ -185,6 +185,7 @@ class Trainer:
         return self.agent.update(batch)
 
     def _learn_sac(self, ro) -> dict:
+        """Replay the iteration's transitions into SAC's buffer, then one gradient step per env step (AWS)."""
         from racerlab.train.rollout import take
 
         n = ro.rewards.size
@@ -192,8 +193,16 @@ class Trainer:
             return {}
         nxt = np.minimum(np.arange(n) + 1, n - 1)
         ended = ro.terminated | ro.truncated
-        nxt[ended] = np.flatnonzero(ended)  # ignored for terminated; truncated: see below
-        self.agent.observe(ro.obs, ro.actions, ro.rewards, take(ro.obs, nxt), ro.terminated)
+        nxt[ended] = np.flatnonzero(ended)  # placeholder rows: ignored where terminated, replaced where truncated
+        next_obs = take(ro.obs, nxt)
+        rows = np.flatnonzero(ro.truncated)
+        if rows.size:
+            if isinstance(next_obs, dict):
+                for k in next_obs:
+                    next_obs[k][rows] = ro.final_obs[k]
+            else:
+                next_obs[rows] = ro.final_obs
+        self.agent.observe(ro.obs, ro.actions, ro.rewards, next_obs, ro.terminated)
         return self.agent.update(n)
 
     def _guard(self, metrics) -> bool:

@@ -66,6 +66,15 @@ class World:
         return codes, rewards
 
 
+def act(agent, obs, greedy: bool):
+    """(actions, log_probs, values) from PPO; SAC gives only actions (its log-probs and values are unused)."""
+    out = agent.act(obs, greedy=greedy)
+    if isinstance(out, tuple):
+        return out
+    zeros = np.zeros(len(out), dtype=np.float32)
+    return out, zeros, zeros
+
+
 def concat_obs(parts):
     if isinstance(parts[0], dict):
         return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
@@ -108,6 +117,7 @@ class Rollout:
     trace: dict  # simtrace columns of every step of the kept episodes (prepare steps included)
     env_steps: int  # all car-steps simulated, kept or not
     seconds: float
+    final_obs: object = None  # set after construction: the observation after each truncated episode
 
 
 class Collector:
@@ -141,15 +151,15 @@ class Collector:
     def _step(self, agent, state, greedy):
         idx = np.flatnonzero(state.active)
         obs = self._observe(state.active)
-        actions, logp, values = agent.act(obs, greedy=greedy)
+        actions, logp, values = act(agent, obs, greedy)
         full_actions = np.zeros((self.num_cars, *actions.shape[1:]), dtype=actions.dtype)
         full_actions[idx] = actions
         codes = np.empty(self.num_cars, dtype=np.int64)
         rewards = np.zeros(self.num_cars)
         for k, w in enumerate(self.worlds):
             lo, hi = self.offsets[k], self.offsets[k + 1]
-            act = state.active[lo:hi]
-            c, r = w.step(full_actions[lo:hi][act], act)
+            on = state.active[lo:hi]
+            c, r = w.step(full_actions[lo:hi][on], on)
             codes[lo:hi] = c
             rewards[lo:hi] = r
         state.record(idx, obs, actions, logp, values, codes, rewards)
@@ -306,15 +316,18 @@ class _IterationState:
         end_uids = uid[ended]
         end_values = np.zeros(end_uids.size, dtype=np.float32)
         tr = [n for n, u in enumerate(end_uids.tolist()) if u in self.final_obs]
-        if tr:
-            end_values[tr] = agent.value(concat_obs([_expand(self.final_obs[int(end_uids[n])]) for n in tr]))
+        final = concat_obs([_expand(self.final_obs[int(end_uids[n])]) for n in tr]) if tr else None
+        if tr and hasattr(agent, "value"):
+            end_values[tr] = agent.value(final)
         values = cols["values"][learn].astype(np.float32)
         from racerlab.agent.ppo import episode_next_values
 
         next_values = episode_next_values(values, ended, end_values)
-        return Rollout(take(cols["obs"], learn), cols["actions"][learn], cols["log_probs"][learn], values,
-                       cols["rewards"][learn].astype(np.float32), next_values, terminated, truncated, episodes,
-                       trace, self.env_steps, seconds)
+        ro = Rollout(take(cols["obs"], learn), cols["actions"][learn], cols["log_probs"][learn], values,
+                     cols["rewards"][learn].astype(np.float32), next_values, terminated, truncated, episodes,
+                     trace, self.env_steps, seconds)
+        ro.final_obs = final  # observations after each truncated episode's last step, in order
+        return ro
 
 
 def _expand(obs):
