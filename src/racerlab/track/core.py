@@ -296,6 +296,8 @@ def load_file(path, name: str | None = None) -> Track:
             arr = np.load(p, allow_pickle=False)
     except Exception as exc:  # noqa: BLE001 - any read failure is the user's file
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "pickle" in first:  # NumPy's wording for a file that is not a .npy array at all
+            first = "not a NumPy .npy array file"
         raise TrackError(f"{p}: cannot read the track file ({first}); expected a NumPy .npy of shape (N, 6)") from None
     return from_array(arr, name=nm, source=str(p))
 
