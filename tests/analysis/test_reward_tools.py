@@ -60,17 +60,17 @@ def test_sampled_states_cover_the_cases(track):
 
 
 def test_example_reward_sweeps_by_hand(track):
-    # example reward: 0.001 + centre * heading * (0.4 + speed / 4); on the centre line, heading along: 1 * 1
+    # example reward: 0.001 + centre * heading * (0.25 + 4 (speed / 4)^2); on the centre line, heading along: 1 * 1
     rep = check_reward(EXAMPLE_REWARD, track, per_segment=10)
     assert rep.ok
     speed = rep.sweeps["speed (m/s)"]["mean"]
-    assert speed[2.0] == pytest.approx(0.001 + 0.4 + 0.5, abs=1e-9)
-    assert speed[4.0] == pytest.approx(0.001 + 0.4 + 1.0, abs=1e-9)
+    assert speed[2.0] == pytest.approx(0.001 + 0.25 + 1.0, abs=1e-9)
+    assert speed[4.0] == pytest.approx(0.001 + 0.25 + 4.0, abs=1e-9)
     lateral = rep.sweeps["distance from centre (fraction of half width, + = left)"]["mean"]
-    assert lateral[0.5] == pytest.approx(0.001 + (1 - 0.25) * 0.9, abs=1e-3)  # centre term 1 - (d / half)^2
+    assert lateral[0.5] == pytest.approx(0.001 + (1 - 0.25) * 1.25, abs=1e-3)  # centre term 1 - (d / half)^2
     assert lateral[1.2] == pytest.approx(0.001)  # off the road: the floor
     heading = rep.sweeps["heading error (°, + = pointing left of the track)"]["mean"]
-    assert heading[20] == pytest.approx(0.001 + (1 - 20 / 45) * 0.9, abs=1e-3)
+    assert heading[20] == pytest.approx(0.001 + (1 - 20 / 45) * 1.25, abs=1e-3)
     assert rep.rewards.min() >= 0.001 and "share of states per reward band" in rep.format()
 
 
