@@ -37,8 +37,8 @@ def test_all_aws_tracks_load_with_manifest_length_and_direction():
 
 
 def test_repeated_waypoint_removed_like_simapp(aws_track):
-    raw = np.load(AWS_TRACKS / "reInvent2019_track.npy")
     t = aws_track("reInvent2019_track")
+    raw = np.load(AWS_TRACKS / "reInvent2019_track.npy")
     assert raw.shape[0] == 155
     assert np.array_equal(raw[38, :2], raw[39, :2])  # the documented repeat
     assert t.num_waypoints == 154
