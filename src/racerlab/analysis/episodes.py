@@ -36,8 +36,9 @@ def _episode_bounds(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(first), first
 
 
-def _wrap(a):
-    return (a + 180.0) % 360.0 - 180.0
+def wrap_degrees(a):
+    """Angles in degrees wrapped to [-180, 180)."""
+    return (np.asarray(a, dtype=np.float64) + 180.0) % 360.0 - 180.0
 
 
 def step_kinematics(df: pd.DataFrame) -> pd.DataFrame:
@@ -64,8 +65,8 @@ def step_kinematics(df: pd.DataFrame) -> pd.DataFrame:
     yaw = df["yaw"].to_numpy()
     # heading during the step: halfway between the headings logged at its two ends
     prev_yaw = np.roll(yaw, 1)
-    mid = prev_yaw + 0.5 * _wrap(yaw - prev_yaw)
-    slide = _wrap(mid - bearing)
+    mid = prev_yaw + 0.5 * wrap_degrees(yaw - prev_yaw)
+    slide = wrap_degrees(mid - bearing)
     return pd.DataFrame({"step_distance": dist, "step_time": dt, "true_speed": speed, "bearing": bearing,
                          "slide": slide}, index=df.index)
 
@@ -196,4 +197,4 @@ def _jsonl_columns(entries: list[dict]) -> pd.DataFrame:
     return pd.DataFrame.from_dict(rows, orient="index", columns=list(_JSONL_KEYS)).astype(float)
 
 
-__all__ = ["episode_summary", "iteration_summary", "run_metrics", "step_kinematics"]
+__all__ = ["episode_summary", "iteration_summary", "run_metrics", "step_kinematics", "wrap_degrees"]

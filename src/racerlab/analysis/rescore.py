@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
+from racerlab.analysis.episodes import wrap_degrees
 from racerlab.sim.reward import MAX_ABS_REWARD, error_location, return_location
 from racerlab.track import Track
 from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment
@@ -116,11 +117,6 @@ def infer_reversed(df: pd.DataFrame, track: Track, heading_error=None) -> np.nda
 def _heading_error(df: pd.DataFrame, track: Track) -> np.ndarray:
     cols = track_columns(track, df["x"].to_numpy(), df["y"].to_numpy(), _episode_starts(df))
     return wrap_degrees(df["yaw"].to_numpy() - np.degrees(cols["track_heading"]))
-
-
-def wrap_degrees(a):
-    """Angles in degrees wrapped to [-180, 180)."""
-    return (np.asarray(a, dtype=np.float64) + 180.0) % 360.0 - 180.0
 
 
 def _episode_starts(df: pd.DataFrame) -> np.ndarray:
