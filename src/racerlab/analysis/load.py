@@ -20,7 +20,6 @@ converted are listed in `df.attrs["converted_to_degrees"]`.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from pathlib import Path
@@ -30,7 +29,7 @@ import pandas as pd
 import pyarrow as pa
 
 from racerlab.logs.cache import SegmentCache, cache_folder, source_key
-from racerlab.logs.metrics import LogFileError
+from racerlab.logs.metrics import LogFileError, read_metrics_document
 from racerlab.logs.read import (
     RAW_COLUMNS,
     decompress,
@@ -177,7 +176,7 @@ def load_metrics(path: str | os.PathLike, kind: str = "training") -> pd.DataFram
         raise LogFileError(f"{path}: no {'TrainingMetrics*.json' if kind == TRAINING else 'EvalMetrics.json'} found")
     frames = []
     for f, label in files:
-        entries = _metrics_entries(f)
+        entries = read_metrics_document(f)["metrics"]
         df = pd.DataFrame(entries)
         if kind == TRAINING:
             df["worker"] = int(label)
@@ -207,16 +206,6 @@ def _metrics_label(f: Path, kind: str) -> str:
         return m.group(1) if m else "0"
     m = re.match(r"evaluation-(\d{14})$", f.parent.name)
     return m.group(1) if m else f.parent.name
-
-
-def _metrics_entries(f: Path) -> list[dict]:
-    try:
-        doc = json.loads(f.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise LogFileError(f"{f}: not readable metrics JSON ({e})") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), list):
-        raise LogFileError(f"{f}: expected an object with a 'metrics' list")
-    return doc["metrics"]
 
 
 # ---------------------------------------------------------------------------------------------------------

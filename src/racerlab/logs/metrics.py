@@ -36,12 +36,12 @@ class LogFileError(RacerlabError, ValueError):
     """A log or metrics file that cannot be read (the message names the file and, where known, the line)."""
 
 
-def _load_document(path: Path) -> dict | None:
-    if not path.is_file():
-        return None
+def read_metrics_document(path: str | os.PathLike) -> dict:
+    """An AWS metrics JSON file (`{"metrics": [...], ...}`); anything else is a one-line `LogFileError`."""
+    path = Path(path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise LogFileError(f"{path}: not valid JSON ({e}); delete or repair it to continue") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), list):
         raise LogFileError(f"{path}: expected an object with a 'metrics' list")
@@ -62,7 +62,7 @@ class _MetricsDocument:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        doc = _load_document(self.path)
+        doc = read_metrics_document(self.path) if self.path.is_file() else None
         self.metrics: list[dict] = list(doc["metrics"]) if doc else []
         self._doc_extra = {k: v for k, v in (doc or {}).items() if k != "metrics"}
 
