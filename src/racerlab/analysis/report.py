@@ -12,7 +12,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ import pandas as pd
 from racerlab.analysis import plots as P
 from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
 from racerlab.errors import RacerlabError
+from racerlab.logs.atomic import atomic_write_text
 from racerlab.track import Track
 
 PNG_DPI = 90
@@ -158,11 +158,7 @@ def write_report(path, out=None, track=None, *, kind: str = "auto") -> Path:
     trk, track_note = resolve_track(path, df, track)
     doc = _Doc(f"racerlab report: {path.name or path}")
     toc = _build(doc, path, df, trk, track_note)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(doc.render(toc), encoding="utf-8")
-    os.replace(tmp, out)
-    return out
+    return atomic_write_text(out, doc.render(toc))
 
 
 def _default_out(path: Path) -> Path:
