@@ -84,6 +84,16 @@ def _paint_texels(rec, normals, x0, y0, cell, tcell, paint, out):
             out[r, c, 2] = cen
 
 
+@njit(cache=True, inline="always")
+def _cell_window(ax, ay, dx, dy, reach, x0, y0, cell, h, w):
+    """Row and column ranges [r0, r1) x [c0, c1) of the grid cells within `reach` of a segment's box."""
+    c0 = max(int((min(ax, ax + dx) - reach - x0) / cell), 0)
+    c1 = min(int((max(ax, ax + dx) + reach - x0) / cell) + 1, w)
+    r0 = max(int((min(ay, ay + dy) - reach - y0) / cell), 0)
+    r1 = min(int((max(ay, ay + dy) + reach - y0) / cell) + 1, h)
+    return r0, r1, c0, c1
+
+
 @njit(cache=True)
 def _splat_center(center, cum_s, x0, y0, cell, reach, rec, best):
     """For every cell within `reach` of a centre segment keep the nearest segment's s, d and index."""
@@ -95,10 +105,7 @@ def _splat_center(center, cum_s, x0, y0, cell, reach, rec, best):
         if ll <= 0.0:
             continue
         seg_len = math.sqrt(ll)
-        c0 = max(int((min(ax, ax + dx) - reach - x0) / cell), 0)
-        c1 = min(int((max(ax, ax + dx) + reach - x0) / cell) + 1, w)
-        r0 = max(int((min(ay, ay + dy) - reach - y0) / cell), 0)
-        r1 = min(int((max(ay, ay + dy) + reach - y0) / cell) + 1, h)
+        r0, r1, c0, c1 = _cell_window(ax, ay, dx, dy, reach, x0, y0, cell, h, w)
         for r in range(r0, r1):
             py = y0 + (r + 0.5) * cell
             for c in range(c0, c1):
@@ -123,10 +130,7 @@ def _splat_edges(edges, x0, y0, cell, reach, best):
         ax, ay = edges[i, 0], edges[i, 1]
         dx, dy = edges[i, 2] - ax, edges[i, 3] - ay
         ll = max(dx * dx + dy * dy, 1e-18)
-        c0 = max(int((min(ax, ax + dx) - reach - x0) / cell), 0)
-        c1 = min(int((max(ax, ax + dx) + reach - x0) / cell) + 1, w)
-        r0 = max(int((min(ay, ay + dy) - reach - y0) / cell), 0)
-        r1 = min(int((max(ay, ay + dy) + reach - y0) / cell) + 1, h)
+        r0, r1, c0, c1 = _cell_window(ax, ay, dx, dy, reach, x0, y0, cell, h, w)
         for r in range(r0, r1):
             py = y0 + (r + 0.5) * cell
             for c in range(c0, c1):
