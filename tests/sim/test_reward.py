@@ -60,6 +60,29 @@ def test_raising_reward_names_file_line_and_params(tmp_path, aws_track):
     assert "params:" in msg and "progress=" in msg and "[154 waypoints]" in msg
 
 
+def test_misspelt_params_key_suggests_the_real_one(tmp_path):
+    p = write(tmp_path, """
+        def reward_function(params):
+            return params["distance_from_centre"]
+    """)
+    with pytest.raises(RewardFunctionError) as err:
+        run(load_reward_function(p), "lab_oval")
+    first = str(err.value).splitlines()[0]
+    assert f"{p}:3: reward_function raised KeyError: 'distance_from_centre'" in first
+    assert "did you mean 'distance_from_center'?" in first
+
+
+def test_key_error_on_the_racers_own_dict_gets_no_params_hint(tmp_path):
+    p = write(tmp_path, """
+        TABLE = {"a": 1.0}
+        def reward_function(params):
+            return TABLE["b"]
+    """)
+    with pytest.raises(RewardFunctionError) as err:
+        run(load_reward_function(p), "lab_oval")
+    assert "did you mean" not in str(err.value) and "KeyError: 'b'" in str(err.value)
+
+
 @pytest.mark.parametrize(("ret", "what"), [("float('nan')", "not finite"), ("float('inf')", "not finite"),
                                            ("2e5", "beyond"), ("'1.0'", "must return a number"),
                                            ("None", "must return a number"), ("True", "must return a number")])

@@ -33,7 +33,7 @@ import pandas as pd
 from numba import njit
 
 from racerlab.analysis.episodes import wrap_degrees
-from racerlab.sim.reward import MAX_ABS_REWARD, error_location, return_location
+from racerlab.sim.reward import MAX_ABS_REWARD, describe_exception, error_location, return_location
 from racerlab.track import Track
 from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment
 
@@ -293,7 +293,7 @@ class _Problems:
 
     def exception(self, exc: BaseException, row: int, params: dict) -> None:
         where = error_location(exc, self.source) or str(self.source or "reward_function")
-        self.add(f"{where}: reward_function raised {type(exc).__name__}: {exc}", row, params)
+        self.add(f"{where}: {describe_exception(exc, params)}", row, params)
 
     def value(self, fn, r, row: int, params: dict) -> float:
         """The reward as a float, or NaN after recording why it is not acceptable."""

@@ -10,6 +10,7 @@ file and line and shows the step's params.
 from __future__ import annotations
 
 import copy
+import difflib
 import importlib.util
 import math
 import numbers
@@ -56,6 +57,17 @@ def as_reward_function(value) -> Callable[[dict], float] | None:
     if value is None or callable(value):
         return value
     return load_reward_function(value)
+
+
+def describe_exception(exc: BaseException, params: dict) -> str:
+    """'reward_function raised KeyError: ...', with the likely fix when a params key is misspelt."""
+    text = f"reward_function raised {type(exc).__name__}: {exc}"
+    key = exc.args[0] if isinstance(exc, KeyError) and len(exc.args) == 1 else None
+    if isinstance(key, str) and key not in params:
+        close = difflib.get_close_matches(key, [k for k in params if isinstance(k, str)], n=1)
+        if close:
+            text += f" (params has no key {key!r}; did you mean {close[0]!r}?)"
+    return text
 
 
 def error_location(exc: BaseException, path: Path | None) -> str | None:
@@ -194,7 +206,7 @@ class RewardCaller:
                 car = j if cars is None else int(cars[j])
                 where = error_location(exc, self.source) or self.name
                 raise RewardFunctionError(
-                    f"{where}: reward_function raised {type(exc).__name__}: {exc} (car {car}, step "
+                    f"{where}: {describe_exception(exc, params)} (car {car}, step "
                     f"{params.get('steps')})\n  params: {describe_params(params)}") from exc
             if type(r) is not float:  # fast path for the common case
                 r = self._coerce(r, params, j if cars is None else int(cars[j]))
