@@ -11,9 +11,9 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from racerlab.errors import ConfigError
+from racerlab.logs.metrics import BEST_MODEL_METRICS
 from racerlab.sim.observations import OBSERVATIONS, split_observation_name
 
-BEST_MODEL_METRICS = ("progress", "reward", "laptime")
 REWARD_ORDERS = ("aws", "after_action")
 
 
