@@ -50,3 +50,21 @@ def test_quickstart_on_defaults(tmp_path, capsys):
     assert "result:" in out and (model / "quickstart" / "evaluation.png").is_file()
     assert (model / "quickstart" / "training.png").is_file()
     assert list(model.glob("evaluation-*/EvalMetrics.json"))
+    # the quickstart keeps the checkpoint with the fastest mean evaluation lap (newest on ties)
+    assert 'best_model_metric = "laptime"' in (model / "training.toml").read_text()
+    rows = [json.loads(line) for line in (model / "metrics" / "metrics.jsonl").read_text().splitlines()]
+    fastest = min(r["eval/metric"] for r in rows)
+    newest_fastest = max(r["iteration"] for r in rows if r["eval/metric"] == fastest)
+    best = json.loads((model / "checkpoints" / "deepracer_checkpoints.json").read_text())["best_checkpoint"]
+    assert best["name"].startswith(f"{newest_fastest}_Step-") and best["avg_eval_metric"] == fastest
+
+
+def test_init_best_model_metric_flag(tmp_path, capsys):
+    model = tmp_path / "m"
+    assert main(["init", str(model), "--best-model-metric", "reward"]) == 0
+    assert 'best_model_metric = "reward"' in (model / "training.toml").read_text()
+    assert main(["init", str(tmp_path / "d")]) == 0
+    assert 'best_model_metric = "progress"' in (tmp_path / "d" / "training.toml").read_text()  # AWS default
+    with pytest.raises(SystemExit):
+        main(["init", str(tmp_path / "x"), "--best-model-metric", "fastest"])
+    assert "invalid choice: 'fastest'" in capsys.readouterr().err

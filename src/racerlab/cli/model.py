@@ -6,6 +6,8 @@ from pathlib import Path
 
 
 def register(sub) -> None:
+    from racerlab.logs.metrics import BEST_MODEL_METRICS
+
     p = sub.add_parser("init", help="create a model folder with AWS-default files",
                        description="Write reward_function.py, model_metadata.json, hyperparameters.json and "
                                    "training.toml into a new model folder.")
@@ -16,6 +18,8 @@ def register(sub) -> None:
     p.add_argument("--algorithm", choices=["clipped_ppo", "sac"], default="clipped_ppo")
     p.add_argument("--max-speed", type=float, default=1.0, help="top action speed in m/s (console default 1)")
     p.add_argument("--cars", type=int, help="cars simulated in parallel")
+    p.add_argument("--best-model-metric", choices=BEST_MODEL_METRICS,
+                   help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -45,7 +49,8 @@ def run_init(args) -> int:
     from racerlab.train.init import init_model
 
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
-                        algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars, force=args.force)
+                        algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
+                        best_model_metric=args.best_model_metric, force=args.force)
     print(f"created {folder.path}: reward_function.py, model_metadata.json, hyperparameters.json, training.toml")
     print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
     return 0

@@ -1,8 +1,8 @@
 """`racerlab quickstart`: the main job on built-in defaults.
 
 Creates the default model folder if it is missing, trains it on the default track for a few
-minutes, evaluates the best checkpoint under race rules (3 laps) and draws the evaluation and the
-training curve, then says where everything is.
+minutes, evaluates the best checkpoint (the fastest evaluation laps) under race rules (3 laps) and
+draws the evaluation and the training curve, then says where everything is.
 """
 
 from __future__ import annotations
@@ -25,14 +25,16 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from racerlab.evaluate import evaluate
-    from racerlab.logs import metrics_jsonl_path, read_metrics_jsonl
     from racerlab.train import train
     from racerlab.train.folder import ModelFolder
     from racerlab.train.init import init_model
 
     folder = ModelFolder(args.model)
     if not folder.metadata_path.is_file():
-        init_model(folder.path, track=args.track, max_speed=args.max_speed)
+        # The quickstart shows the fastest laps training found: its best checkpoint is the one with the
+        # fastest greedy evaluation laps, not AWS's default (highest mean progress, newest on ties), which
+        # keeps a late, slower checkpoint once every evaluation episode completes its lap.
+        init_model(folder.path, track=args.track, max_speed=args.max_speed, best_model_metric="laptime")
         print(f"created model folder {folder.path}")
     train(folder.path, minutes=args.minutes, tracks=[args.track] if args.track else None)
     res = evaluate(folder.path, track=args.track)
@@ -41,7 +43,7 @@ def run(args) -> int:
     out.mkdir(exist_ok=True)
     lap_png, curve_png = out / "evaluation.png", out / "training.png"
     draw_lap(res, args.track or folder.config().track.names[0], lap_png)
-    draw_curve(read_metrics_jsonl(metrics_jsonl_path(folder.path)), curve_png)
+    draw_curve(folder.path, curve_png)
     print(f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}")
     return 0
 
@@ -72,22 +74,12 @@ def draw_lap(res, track, path: Path) -> None:
     fig.savefig(path, dpi=120, bbox_inches="tight")
 
 
-def draw_curve(history: list[dict], path: Path) -> None:
-    from matplotlib.figure import Figure
+def draw_curve(model: Path, path: Path) -> None:
+    """The report's training-progress figure (reward, completion, lap times, entropy per iteration)."""
+    from racerlab.analysis import load
+    from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
+    from racerlab.analysis.plots import save_png, training_progress
 
-    fig = Figure(figsize=(9, 4.5))
-    ax = fig.add_subplot()
-    if history:
-        it = [h["iteration"] for h in history]
-        ax.plot(it, [h["charts/completion"] for h in history], label="training completion (%)")
-        ax.plot(it, [h["eval/mean_progress"] or 0 for h in history], label="evaluation progress (%)")
-        ax2 = ax.twinx()
-        ax2.plot(it, [h["charts/mean_reward"] for h in history], color="tab:green", alpha=0.6, label="mean reward")
-        ax2.set_ylabel("mean episode reward")
-        ax2.legend(loc="lower right")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("%")
-    ax.set_ylim(0, 105)
-    ax.legend(loc="upper left")
-    ax.set_title("training progress")
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    df = load(model)
+    its = iteration_summary(episode_summary(df, step_kinematics(df)), *run_metrics(model))
+    save_png(training_progress(its, title=f"{model.name}: training progress"), path)

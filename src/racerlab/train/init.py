@@ -43,7 +43,7 @@ def make_metadata(sensor: str = "features", action_space: str = "discrete", algo
 
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
-               force: bool = False) -> ModelFolder:
+               best_model_metric: str | None = None, force: bool = False) -> ModelFolder:
     folder = ModelFolder(path)
     existing = [p for p in (folder.reward_path, folder.metadata_path, folder.hyperparameters_path,
                             folder.config_path) if p.exists()]
@@ -61,6 +61,8 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
         cfg = replace(cfg, track=TrackSettings(names=(track,)))
     if num_cars:
         cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars))
+    if best_model_metric:
+        cfg = replace(cfg, evaluation=replace(cfg.evaluation, best_model_metric=best_model_metric))
     if sensor != "features":
         # pixels cost more per step; fewer cars keep an iteration's memory and time moderate
         cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars or 16))
