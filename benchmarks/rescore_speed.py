@@ -25,13 +25,13 @@ from racerlab.analysis.plots import cell_statistic
 from racerlab.analysis.rescore import compare, log_params, rescore, score
 from racerlab.logs.layout import training_simtrace_path
 from racerlab.logs.simtrace import SimtraceWriter
-from racerlab.sim.reward import load_reward_function
-from racerlab.train.init import EXAMPLE_REWARD
+from racerlab.model import EXAMPLE_REWARD, load_reward_function
+from racerlab.spec import STEP_S
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_TRACK = REPO.parent / "shared" / "tracks" / "reInvent2019_track.npy"
 EPISODES_PER_ITERATION = 20
-DT = 1.0 / 15.0
+DT = STEP_S
 
 
 def emit(**fields) -> None:

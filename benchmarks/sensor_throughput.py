@@ -90,7 +90,7 @@ def _place_boxes(env, n: int) -> None:
     pts = t.point_at(s)
     yaw = t.heading_at(s)
     boxes = np.column_stack([pts, yaw, np.full(n, 0.2), np.full(n, 0.4)])
-    env._engine.observation.lidar.set_objects(boxes)
+    env.world.observation.lidar.set_objects(boxes)
 
 
 def carracing(seconds: float) -> tuple[float, float] | None:

@@ -90,12 +90,12 @@ def params_and_call_us(track, cars, seconds):
     env.reset(seed=0)
     env.step(np.zeros(cars, dtype=np.int64))  # the prepare step
     env.step(np.zeros(cars, dtype=np.int64))
-    eng = env.unwrapped._engine
+    world = env.unwrapped.world
     idx = np.arange(cars)
     calls = 0
     t0 = time.perf_counter()
     while time.perf_counter() - t0 < seconds:
-        eng.reward(eng.params_builder.each(idx), idx)
+        world.reward(world.builder.each(idx), idx)
         calls += cars
     return (time.perf_counter() - t0) / calls * 1e6
 

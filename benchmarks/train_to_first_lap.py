@@ -19,8 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from racerlab.model import init_model
 from racerlab.train import train
-from racerlab.train.init import init_model
 
 REPO = Path(__file__).resolve().parents[1]
 REINVENT = REPO.parent / "shared" / "tracks" / "reInvent2019_track.npy"

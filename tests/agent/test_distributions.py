@@ -13,7 +13,7 @@ from racerlab.agent.distributions import (
     epsilon_greedy,
     epsilon_schedule,
 )
-from racerlab.metadata import ContinuousActions
+from racerlab.model import ContinuousActions
 
 
 def test_categorical_probabilities_are_floored_at_1e8():

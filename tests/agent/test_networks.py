@@ -16,7 +16,7 @@ from racerlab.agent.networks import (
     parameter_summary,
 )
 from racerlab.errors import ConfigError
-from racerlab.metadata import DEFAULT_CONTINUOUS, ModelMetadata, default_discrete_actions
+from racerlab.model import DEFAULT_CONTINUOUS, ModelMetadata, default_discrete_actions
 
 DISCRETE = ModelMetadata(default_discrete_actions())  # 10 actions, SHALLOW, front camera
 

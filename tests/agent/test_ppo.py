@@ -18,8 +18,7 @@ from racerlab.agent.ppo import (
     ppo_losses,
 )
 from racerlab.errors import ConfigError
-from racerlab.hyperparameters import Hyperparameters
-from racerlab.metadata import ContinuousActions, DiscreteActions, ModelMetadata
+from racerlab.model import ContinuousActions, DiscreteActions, Hyperparameters, ModelMetadata
 
 THREE = DiscreteActions((-30.0, 0.0, 30.0), (1.0, 1.0, 1.0))
 MLP_DISCRETE = ModelMetadata(THREE, ("FEATURES",), "MLP")

@@ -7,8 +7,7 @@ import torch
 from racerlab.agent import make_agent
 from racerlab.agent.ppo import PPO
 from racerlab.agent.sac import SAC, ReplayBuffer, policy_loss, soft_q_target
-from racerlab.hyperparameters import Hyperparameters
-from racerlab.metadata import ContinuousActions, ModelMetadata
+from racerlab.model import ContinuousActions, Hyperparameters, ModelMetadata
 
 SAC_MLP = ModelMetadata(ContinuousActions(-30, 30, 1, 3), ("FEATURES",), "MLP", "sac")
 TARGET = np.array([0.5, -0.2], np.float32)

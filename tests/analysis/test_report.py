@@ -57,3 +57,26 @@ def test_given_track_and_a_single_csv(model, tmp_path):
     csv = next((model.path / "training-simtrace").glob("*.csv"))
     out = write_report(csv, tmp_path / "one.html", track=str(aws_track_path("reInvent2019_track")))
     assert "given with --track" in out.read_text(encoding="utf-8")
+
+
+def test_the_track_comes_from_the_model_folder_else_from_the_logged_length(tmp_path):
+    import pandas as pd
+
+    from racerlab import track as tracks
+    from racerlab.analysis.report import log_track
+    from racerlab.model import init_model
+
+    oval = tracks.load("lab_oval")
+    df = pd.DataFrame({"track_len": [round(oval.length, 2)] * 3})  # logged on lab_oval
+    folder = init_model(tmp_path / "m", track="lab_technical")
+    t, note = log_track(folder.path, df)
+    assert t.name == "lab_technical" and note == "from the model folder's training.toml"
+    assert log_track(folder.path, df, "lab_oval")[0].name == "lab_oval"  # --track wins
+    folder.config_path.write_text('[track]\nnames = ["no_such_track_anywhere"]\n')
+    t, note = log_track(folder.path, df)
+    assert t is None and "the model folder's track cannot be loaded" in note and "no_such_track_anywhere" in note
+    folder.config_path.write_text('[track]\nnames = ["lab_technical"]\n')
+    (tmp_path / "logs").mkdir()
+    for not_a_model in (folder.reward_path, tmp_path / "logs"):  # a file, a folder without training.toml
+        t, note = log_track(not_a_model, df)
+        assert t.name == "lab_oval" and "the only known track" in note

@@ -23,8 +23,8 @@ AHEAD = 0.14
 def train_tiny_model(folder, iterations: int = 3):
     """A real racerlab training, cut small (8 cars, 8 episodes per iteration, 1 epoch, 2 evaluation episodes):
     about 4 s."""
+    from racerlab.model import init_model
     from racerlab.train import train
-    from racerlab.train.init import init_model
 
     f = init_model(folder, track=str(aws_track_path("reInvent2019_track")), max_speed=2.0)
     hp = json.loads(f.hyperparameters_path.read_text())

@@ -8,7 +8,7 @@ import pytest
 
 from racerlab.analysis.reward_tools import check_reward, parse_heading, reward_map, sample_states
 from racerlab.cli import main
-from racerlab.train.init import EXAMPLE_REWARD
+from racerlab.model import EXAMPLE_REWARD
 from tests.conftest import aws_track_path
 
 PLANTED = """\
@@ -112,3 +112,18 @@ def test_heading_rules():
     assert parse_heading("aim:3") == ("aim", 3.0)
     with pytest.raises(ValueError, match="along, against"):
         parse_heading("sideways")
+
+
+def test_check_takes_the_track_of_the_model_folder_the_reward_is_in(tmp_path, capsys):
+    from racerlab.model import init_model
+
+    folder = init_model(tmp_path / "m", track="lab_oval")
+    assert main(["reward", "check", str(folder.reward_path), "--samples", "5"]) == 0
+    assert capsys.readouterr().out.startswith("reward check on lab_oval ")
+    folder.config_path.write_text('[track]\nnames = ["no_such_track_anywhere"]\n')  # gone: the default track
+    assert main(["reward", "check", str(folder.reward_path), "--samples", "5"]) == 0
+    assert capsys.readouterr().out.startswith("reward check on lab_technical ")
+    loose = tmp_path / "loose.py"  # not in a model folder: the default track
+    loose.write_text(folder.reward_path.read_text())
+    assert main(["reward", "check", str(loose), "--samples", "5"]) == 0
+    assert capsys.readouterr().out.startswith("reward check on lab_technical ")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from racerlab.train.folder import ModelFolder
+from racerlab.model import ModelFolder
 
 REWARD = "def reward_function(params):\n    return 1.0 if params['all_wheels_on_track'] else 1e-3\n"
 SENSORS = {"features": (["FEATURES"], "MLP"), "camera": (["FRONT_FACING_CAMERA"], "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),

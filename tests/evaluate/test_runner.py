@@ -7,18 +7,18 @@ import pytest
 
 from racerlab.evaluate.rules import RaceRules, pause_steps
 from racerlab.evaluate.runner import run_evaluation
-from racerlab.metadata import ContinuousActions, ModelMetadata
-from racerlab.sim.car import MODEL_POINT_AHEAD_M
-from racerlab.sim.core import StartRules
+from racerlab.model import ContinuousActions, ModelMetadata
+from racerlab.sim import StartRules, World
 from racerlab.sim.pursuit import PurePursuit
-from racerlab.train.rollout import World
+from racerlab.spec import MODEL_POINT_AHEAD_M
 
 META = ModelMetadata(ContinuousActions(-30.0, 30.0, 0.5, 4.0), ("FEATURES",), "MLP")
 DT = 1.0 / 15.0
 
 
 def world_on(track, reverse=False):
-    return World(track, 1, META, None, "features", StartRules(reverse=reverse), 100_000, "aws", 0)
+    return World(track, 1, META, None, "features", start=StartRules(reverse=reverse), max_episode_steps=100_000,
+                 seed=0)
 
 
 def pursuit(world, speed):

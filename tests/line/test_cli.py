@@ -12,7 +12,8 @@ import pytest
 from racerlab.cli import main
 from racerlab.line import racing_line
 from racerlab.line.export import action_space, grip_speed
-from racerlab.metadata import MAX_SPEED, MIN_SPEED, parse_model_metadata
+from racerlab.model import parse_model_metadata
+from racerlab.spec import MAX_SPEED, MIN_SPEED
 from tests.conftest import aws_track_path
 
 

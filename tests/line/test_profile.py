@@ -10,7 +10,7 @@ import pytest
 
 from racerlab.line import profile as P
 from racerlab.line.core import steering_for_curvature
-from racerlab.sim import STEP_S, CarParams
+from racerlab.spec import STEP_S, CarParams
 
 CAR = CarParams()
 

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from racerlab.sim import CarParams, Simulator, StartRules
-from racerlab.sim import _kernels as K
 from racerlab.sim.pursuit import PurePursuit, drive_lap
 
 
@@ -35,7 +34,7 @@ def test_driving_straight_ends_off_track(aws_track):
     sim = Simulator(aws_track("reInvent2019_track"), 1)
     assert run_until_done(sim, 0.0, 1.0) == "off_track"
     # off-track means no wheel centre on the road, judged on the pose before the last action
-    wheels = sim.params[0, K.MWHEELS]
+    wheels = sim.judged.wheels_on_track[0]
     assert wheels == 0
 
 
@@ -63,7 +62,7 @@ def test_lap_by_a_simple_controller_completes_at_100(aws_track):
     sim = Simulator(t, 1)
     status, steps, lap_time, traj = drive_lap(sim, PurePursuit.on_centre_line(t, 1.5))
     assert status == "lap_complete"
-    assert sim.params[0, K.MPROG] == 100.0
+    assert sim.judged.progress[0] == 100.0
     # roughly the length over the speed, plus the prepare step and the start from rest
     assert t.length / 1.5 < lap_time < t.length / 1.5 + 1.0
 
@@ -72,7 +71,7 @@ def test_open_track_lap(aws_track):
     t = aws_track("Straight_track")
     sim = Simulator(t, 1)
     status, steps, lap_time, _ = drive_lap(sim, PurePursuit.on_centre_line(t, 2.0))
-    assert status == "lap_complete" and sim.params[0, K.MPROG] == 100.0
+    assert status == "lap_complete" and sim.judged.progress[0] == 100.0
 
 
 def test_round_robin_starts_advance_five_percent(aws_track):
@@ -84,16 +83,16 @@ def test_round_robin_starts_advance_five_percent(aws_track):
         sim.reset()
     for k, p in enumerate(starts):
         assert np.allclose(p, t.point_at(0.05 * k * t.length), atol=1e-12)
-    assert sim.car[0, K.CSTART] == pytest.approx(0.20)
+    assert sim.state.start[0] == pytest.approx(0.20)
 
 
 def test_round_robin_wraps_and_alternates_direction(aws_track):
     t = aws_track("reinvent_base")
     sim = Simulator(t, 3, start=StartRules(advance=0.4, offset=0.1, alternate_direction=True))
-    assert sim.car[:, K.CSTART] == pytest.approx([0.1, 0.5, 0.9])
+    assert sim.state.start == pytest.approx([0.1, 0.5, 0.9])
     assert sim.reversed.tolist() == [False, True, False]
     sim.reset([True, False, False])
-    assert sim.car[0, K.CSTART] == pytest.approx(0.3)  # (0.1 + 3 * 0.4) mod 1
+    assert sim.state.start[0] == pytest.approx(0.3)  # (0.1 + 3 * 0.4) mod 1
     assert sim.reversed[0]
     # a reversed car starts on the reversed centre line, heading along it
     r = t.reverse()
@@ -128,9 +127,9 @@ def test_reward_order_switch(aws_track):
         sim.step(0, 2.0)
     # AWS judges the pose the observation was taken in (the start pose, held by the prepare step);
     # after_action judges the pose the action produced
-    assert aws.params[0, K.MX] == pytest.approx(aws.track.center[0, 0] + 0.14 * math.cos(aws.pose[0, 2]), abs=1e-9)
-    assert after.params[0, K.MX] == pytest.approx(after.meas[0, K.MX])
-    assert after.params[0, K.MPROG] > aws.params[0, K.MPROG]
+    assert aws.judged.model_x[0] == pytest.approx(aws.track.center[0, 0] + 0.14 * math.cos(aws.pose[0, 2]), abs=1e-9)
+    assert after.judged.model_x[0] == pytest.approx(after.state.model_x[0])
+    assert after.judged.progress[0] > aws.judged.progress[0]
 
 
 def test_grip_limit_makes_a_fast_corner_run_wide(aws_track):
@@ -138,8 +137,8 @@ def test_grip_limit_makes_a_fast_corner_run_wide(aws_track):
     t = aws_track("reInvent2019_track")
     sim = Simulator(t, 2, CarParams())
     sim.step(0, 1)  # the prepare step holds both cars; then give them speed and full lock
-    sim.car[:, K.CV] = [1.0, 4.0]
-    sim.car[:, K.CSTEER] = math.radians(30)
+    sim.state.speed[:] = [1.0, 4.0]
+    sim.state.steering[:] = math.radians(30)
     yaw0 = sim.pose[:, 2].copy()
     sim.step([30, 30], [1.0, 4.0])
     turned = sim.pose[:, 2] - yaw0

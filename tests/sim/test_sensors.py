@@ -262,12 +262,12 @@ def test_discretized_sector_lidar_from_model_metadata(straight):
             "DISCRETIZED_SECTOR_LIDAR"], "lidar_config": {"num_sectors": 4, "num_values_per_sector": 5,
                                                           "clipping_dist": 1.5}}
     env = DeepRacerEnv(straight, model_metadata=meta)
-    assert env._engine.observation.name == "camera+discretized_sector_lidar"
+    assert env.world.observation.name == "camera+discretized_sector_lidar"
     assert env.observation_space["discretized_sector_lidar"].shape == (20,)
     env.reset(seed=0)
     sim = env.sim
     sim.set_pose(0, 0.0, 0.0, 0.0)
-    lid = env._engine.observation.parts["discretized_sector_lidar"]
+    lid = env.world.observation.parts["discretized_sector_lidar"]
     lid.lidar.noise_sigma_m = 0.0
     # a box 1.2 m behind the lidar: beyond the plain lidar's 1.0 m, inside clipping_dist 1.5;
     # ray 31/32 are the middle rays of sector 1 (rays 16-31) and sector 2 (rays 32-47)
@@ -318,10 +318,10 @@ def test_shapes_and_dtypes_per_sensor_combination(aws_track, name):
 def test_observation_follows_the_aws_sensor_list(aws_track, sensor, name):
     meta = {"action_space": [{"steering_angle": 0, "speed": 1}], "sensor": sensor}
     env = DeepRacerEnv(aws_track("reInvent2019_track"), model_metadata=meta)
-    from racerlab.metadata import as_model_metadata
+    from racerlab.model import as_model_metadata
 
     assert observation_name_for(as_model_metadata(meta)) == name
-    assert env._engine.observation.name == name
+    assert env.world.observation.name == name
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")
@@ -399,8 +399,8 @@ def test_partial_update_renders_only_the_given_rows(aws_track):
 @pytest.mark.slow  # 1.5 to 2 minutes on 2 cores
 def test_a_camera_model_trains(tmp_path):
     """Two iterations of a camera model: rollouts of rendered frames, a CNN update, the next rollout, checkpoints."""
+    from racerlab.model import init_model
     from racerlab.train import train
-    from racerlab.train.init import init_model
 
     init_model(tmp_path / "cam", track=str(aws_track_path("reInvent2019_track")), sensor="camera", num_cars=4)
     result = train(tmp_path / "cam", iterations=2, progress=False)

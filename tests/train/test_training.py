@@ -14,10 +14,8 @@ import numpy as np
 import pytest
 
 from racerlab.errors import ConfigError, RewardFunctionError
+from racerlab.model import ModelFolder, clone_model, init_model
 from racerlab.train import TrainingDiverged, train
-from racerlab.train.clone import clone_model
-from racerlab.train.folder import ModelFolder
-from racerlab.train.init import init_model
 from tests.conftest import aws_track_path
 
 FAST = dict(progress=False, num_cars=16)

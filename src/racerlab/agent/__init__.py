@@ -10,6 +10,11 @@ to save.
     >>> ...                                                   # collect [T, B] or flat whole episodes
     >>> metrics = ppo.update(make_batch(obs, actions, log_probs, values, rewards, next_values,
     ...                                 terminated, truncated, gamma=hyperparameters.discount_factor))
+
+What the training loop and evaluation use, the same for PPO and SAC (`make_agent` picks one):
+`explore(obs) -> (actions, record)` for a training step (`record`: what `learn` needs kept per step),
+`learn(rollout) -> metrics` once per iteration (PPO's update; SAC's replay memory and gradient steps),
+and `policy(obs) -> actions`, the greedy actions evaluation drives.
 """
 
 from racerlab.agent.common import resolve_device

@@ -48,6 +48,13 @@ def batch_size_of(obs: Mapping[str, torch.Tensor]) -> int:
     return next(iter(obs.values())).shape[0]
 
 
+def take(obs: Obs, idx) -> Obs:
+    """Rows `idx` of an observation batch (an array or a dict of arrays)."""
+    if isinstance(obs, dict):
+        return {k: v[idx] for k, v in obs.items()}
+    return obs[idx]
+
+
 def generator_state(gen: torch.Generator) -> dict:
     return {"device": gen.device.type, "state": gen.get_state()}
 

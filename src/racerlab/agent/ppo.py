@@ -51,7 +51,7 @@ from racerlab.agent.common import (
 from racerlab.agent.distributions import epsilon_greedy, epsilon_schedule
 from racerlab.agent.networks import MLP_HIDDEN, build_ppo_networks
 from racerlab.errors import ConfigError
-from racerlab.hyperparameters import Hyperparameters
+from racerlab.model import Hyperparameters
 
 CLIP_EPSILON = 0.2
 GAE_LAMBDA = 0.95
@@ -263,7 +263,34 @@ class PPO:
         """V(s) [B], e.g. of the final observation of a truncated episode."""
         return self.value_net(to_tensors(obs, self.keys, self.device)).cpu().numpy()
 
+    @torch.inference_mode()
+    def policy(self, obs: Obs) -> np.ndarray:
+        """The greedy actions [B] (argmax or mean), as evaluation drives."""
+        return self.policy_net.distribution(to_tensors(obs, self.keys, self.device)).mode().cpu().numpy()
+
+    def explore(self, obs: Obs) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """A training rollout's actions and what `learn` needs back for each step (log-probs, values)."""
+        actions, log_probs, values = self.act(obs)
+        return actions, {"log_probs": log_probs, "values": values}
+
     # -- learning -------------------------------------------------------------------------------------
+
+    def learn(self, rollout) -> dict[str, float]:
+        """One iteration's update from a training rollout (`racerlab.train.rollout.Rollout`: whole episodes,
+        flat, with `explore`'s log-probs and values); a truncated episode bootstraps from V of its final
+        observation. Returns `update`'s metrics ({} for an empty rollout)."""
+        if rollout.rewards.size == 0:
+            return {}
+        values = np.asarray(rollout.record["values"], dtype=np.float32)
+        ended = rollout.terminated | rollout.truncated
+        end_values = np.zeros(int(ended.sum()), dtype=np.float32)
+        cut = rollout.truncated[ended]
+        if cut.any():
+            end_values[cut] = self.value(rollout.final_obs)
+        next_values = episode_next_values(values, ended, end_values)
+        batch = make_batch(rollout.obs, rollout.actions, rollout.record["log_probs"], values, rollout.rewards,
+                           next_values, rollout.terminated, rollout.truncated, self.hp.discount_factor)
+        return self.update(batch)
 
     def update(self, batch: PPOBatch) -> dict[str, float]:
         """num_epochs passes of minibatch Adam over one iteration's batch; returns mean metrics.

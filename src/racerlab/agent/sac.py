@@ -32,11 +32,12 @@ from racerlab.agent.common import (
     resolve_device,
     restore_generator,
     seeded,
+    take,
     to_tensors,
 )
 from racerlab.agent.networks import MLP_HIDDEN, build_sac_networks
 from racerlab.agent.ppo import ADAM_EPS, value_loss
-from racerlab.hyperparameters import Hyperparameters
+from racerlab.model import Hyperparameters
 
 TAU = 0.005
 BUFFER_SIZE = 100_000
@@ -174,11 +175,39 @@ class SAC:
         actions = dist.mode() if greedy else dist.rsample(self.generator)[0]
         return actions.cpu().numpy()
 
+    def policy(self, obs: Obs) -> np.ndarray:
+        """The greedy actions [B, 2] (tanh of the mean), as evaluation drives."""
+        return self.act(obs, greedy=True)
+
+    def explore(self, obs: Obs) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """A training rollout's sampled actions; SAC needs nothing else kept per step."""
+        return self.act(obs), {}
+
     def observe(self, obs: Obs, actions, rewards, next_obs: Obs, terminated) -> None:
         """Store B transitions; for a truncated episode `next_obs` is its final observation."""
         self.buffer.add(obs, actions, rewards, next_obs, terminated)
 
     # -- learning -------------------------------------------------------------------------------------
+
+    def learn(self, rollout) -> dict[str, float]:
+        """One iteration: the rollout's transitions go to the replay memory, then one gradient step per
+        environment step (AWS). A truncated episode's last transition leads to its final observation."""
+        n = rollout.rewards.size
+        if n == 0:
+            return {}
+        nxt = np.minimum(np.arange(n) + 1, n - 1)
+        ended = rollout.terminated | rollout.truncated
+        nxt[ended] = np.flatnonzero(ended)  # placeholder rows: ignored where terminated, replaced where truncated
+        next_obs = take(rollout.obs, nxt)
+        rows = np.flatnonzero(rollout.truncated)
+        if rows.size:
+            if isinstance(next_obs, dict):
+                for k in next_obs:
+                    next_obs[k][rows] = rollout.final_obs[k]
+            else:
+                next_obs[rows] = rollout.final_obs
+        self.observe(rollout.obs, rollout.actions, rollout.rewards, next_obs, rollout.terminated)
+        return self.update(n)
 
     def update(self, gradient_steps: int = 1) -> dict[str, float]:
         """Gradient steps on minibatches from the replay memory; mean metrics.

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-STEP_S = 1.0 / 15.0  # one simulator step (facts §2)
+from racerlab.spec import STEP_S
+
 MIN_MOVE_M = 1e-3  # below this a step's direction of travel is undefined (positions are logged to 0.1 mm)
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from racerlab.spec import STEP_S
 from racerlab.track import Track
 
 STATS = ("mean", "median", "min", "max", "sum", "std", "count")
@@ -528,7 +529,7 @@ def reward_vs_lap_time(cmp: pd.DataFrame, *, title: str | None = None):
     return fig
 
 
-def _step_bins(t: np.ndarray, step: float = 1.0 / 15.0, most: int = 40) -> np.ndarray:
+def _step_bins(t: np.ndarray, step: float = STEP_S, most: int = 40) -> np.ndarray:
     """Histogram edges a whole number of simulator steps wide (lap times are multiples of 1/15 s), at most
     `most` bins, so that no bin is empty only because of where its edges fall."""
     n = int(math.ceil((t.max() - t.min()) / step)) + 1

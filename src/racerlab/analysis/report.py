@@ -23,6 +23,7 @@ from racerlab.analysis import plots as P
 from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
 from racerlab.errors import RacerlabError
 from racerlab.logs.atomic import atomic_write_text
+from racerlab.model import ModelFolder, resolve_track
 from racerlab.track import Track
 
 PNG_DPI = 90
@@ -33,18 +34,22 @@ TABLE_ROWS = 10
 # finding the track
 
 
-def resolve_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
-    """The track to draw `df` on, and a sentence saying where it came from (or why there is none)."""
+def log_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
+    """The track to draw `df` (logged in `path`) on, and a sentence saying where it came from (or why there is
+    none)."""
     from racerlab import track as tracks
 
     if isinstance(track, Track):
         return track, "given"
     if track:
         return tracks.load(track), "given with --track"
-    name = _model_folder_track(Path(path))
-    if name:
+    try:
+        names = ModelFolder(path).tracks(default=False)
+    except RacerlabError:
+        names = ()
+    if names:
         try:
-            return tracks.load(name), "from the model folder's training.toml"
+            return resolve_track(path, default=False), "from the model folder's training.toml"
         except RacerlabError as exc:
             return None, f"the model folder's track cannot be loaded ({exc}); pass --track"
     found = _tracks_of_length(df)
@@ -54,18 +59,6 @@ def resolve_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str
         names = ", ".join(t.name for t in found)
         return None, f"several known tracks are {_track_len(df):.2f} m long ({names}); pass --track"
     return None, "the log does not name its track; pass --track NAME_OR_FILE for the track figures"
-
-
-def _model_folder_track(path: Path) -> str | None:
-    if not (path.is_dir() and (path / "training.toml").is_file()):
-        return None
-    from racerlab.train.folder import ModelFolder
-
-    try:
-        names = ModelFolder(path).config().track.names
-    except RacerlabError:
-        return None
-    return names[0] if names else None
 
 
 def _track_len(df: pd.DataFrame) -> float:
@@ -155,7 +148,7 @@ def write_report(path, out=None, track=None, *, kind: str = "auto") -> Path:
     if len(df) == 0:
         raise RacerlabError(f"{path}: the logs hold no steps to analyse")
     out = Path(out) if out else _default_out(path)
-    trk, track_note = resolve_track(path, df, track)
+    trk, track_note = log_track(path, df, track)
     doc = _Doc(f"racerlab report: {path.name or path}")
     toc = _build(doc, path, df, trk, track_note)
     return atomic_write_text(out, doc.render(toc))
@@ -288,4 +281,4 @@ def _chosen_episodes(eps: pd.DataFrame) -> list[tuple[list[int], str]]:
     return out
 
 
-__all__ = ["png_data_uri", "resolve_track", "rows_on_track", "write_report"]
+__all__ = ["log_track", "png_data_uri", "rows_on_track", "write_report"]

@@ -33,9 +33,11 @@ import pandas as pd
 from numba import njit
 
 from racerlab.analysis.episodes import wrap_degrees
-from racerlab.sim.reward import MAX_ABS_REWARD, describe_exception, error_location, return_location
+from racerlab.model.reward import error_location
+from racerlab.sim.reward import MAX_ABS_REWARD, describe_exception, return_location
+from racerlab.spec import MODEL_POINT_AHEAD_M, NO_OBJECTS, REWARD_PARAM_NAMES, CarParams, ParamsMaker
 from racerlab.track import Track
-from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment
+from racerlab.track.kernels import nearest_on_polyline_near, nearest_segment
 
 NOT_SCORED = ("prepare", "pause")
 CHUNK_ROWS = 1 << 16  # rows turned into Python lists at a time (keeps memory flat for 10 M-row logs)
@@ -192,8 +194,6 @@ def _geometry(forward: Track, backward: Track, x, y, rev, new_run) -> dict[str, 
 
 def wheels_on_track(track: Track, x, y, heading_deg) -> np.ndarray:
     """How many of the four wheel centres are on the road for model points (x, y) at `heading_deg`."""
-    from racerlab.sim.car import MODEL_POINT_AHEAD_M, CarParams
-
     yaw = np.radians(heading_deg)
     c, s = np.cos(yaw), np.sin(yaw)
     bx = np.asarray(x) - MODEL_POINT_AHEAD_M * c
@@ -224,26 +224,20 @@ def log_params(df: pd.DataFrame, track: Track, reverse: bool | None = None) -> P
 # calling the reward
 
 
+# every param but the track's length and the object params (no objects are logged) changes from row to row
+_MAKE_PARAMS = ParamsMaker(tuple(k for k in REWARD_PARAM_NAMES if k != "track_length" and k not in NO_OBJECTS),
+                           parts={"closest_waypoints": 2})
+_BUILT_HERE = ("waypoints", "closest_waypoints")  # not columns: made from the direction and the waypoint pair
+
+
 def _dicts(pc: ParamsColumns, idx: np.ndarray):
     """Yield the AWS params dict of each row in `idx` (a fresh dict and fresh lists per call)."""
     c = pc.cols
-    length = pc.forward.length
+    cols = {k: np.asarray(c[k][idx]).tolist() for k in _MAKE_PARAMS.per_row if k not in _BUILT_HERE}
     wps = (pc.forward.waypoints, pc.backward.waypoints)
-    names = ("all_wheels_on_track", "x", "y", "heading", "distance_from_center", "is_left_of_center",
-             "is_reversed", "progress", "steps", "speed", "steering_angle", "track_width", "prev_waypoint",
-             "next_waypoint", "projection_distance", "is_offtrack", "is_crashed", "sim_time")
-    lists = [np.asarray(c[k][idx]).tolist() for k in names]
-    for (wheels, x, y, head, dist, left, rev, prog, steps, speed, steer, width, wp, wn, arc, off, crash,
-         t) in zip(*lists, strict=True):
-        yield {
-            "all_wheels_on_track": wheels, "x": x, "y": y, "heading": head, "distance_from_center": dist,
-            "is_left_of_center": left, "is_reversed": rev, "progress": prog, "steps": steps, "speed": speed,
-            "steering_angle": steer, "track_width": width, "track_length": length, "waypoints": list(wps[rev]),
-            "closest_waypoints": [wp, wn], "projection_distance": arc, "is_offtrack": off, "is_crashed": crash,
-            "sim_time": t, "closest_objects": [0, 0], "objects_location": [], "objects_left_of_center": [],
-            "objects_distance": [], "objects_distance_from_center": [], "objects_heading": [],
-            "objects_speed": [], "object_in_camera": False,
-        }
+    cols["waypoints"] = [wps[r] for r in cols["is_reversed"]]
+    cols["closest_waypoints"] = (c["prev_waypoint"][idx].tolist(), c["next_waypoint"][idx].tolist())
+    return _MAKE_PARAMS(cols, {"track_length": pc.forward.length, **NO_OBJECTS})
 
 
 @dataclass

@@ -20,11 +20,9 @@ import numpy as np
 import pandas as pd
 
 from racerlab.analysis.rescore import RewardProblem, params_columns, score, wrap_degrees
+from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, STEP_S
 from racerlab.track import Track
 
-STEP_S = 1.0 / 15.0
-SPEED_RANGE = (0.1, 4.0)
-STEER_LIMIT = 30.0
 OFF_ROAD_MARGIN = 0.4  # sampled positions reach this fraction of the width beyond each border
 BAND_COUNT = 8
 
@@ -81,8 +79,8 @@ def sample_states(track: Track, per_segment: int = 100, seed: int = 0, *, revers
         head[sel] = np.degrees(t.heading_at(si))
     offset = np.where(rng.random(n) < 0.1, rng.uniform(-180, 180, n), rng.normal(0, 25, n))
     heading = wrap_degrees(head + offset)
-    speed = rng.uniform(*SPEED_RANGE, n)
-    steer = rng.uniform(-STEER_LIMIT, STEER_LIMIT, n)
+    speed = rng.uniform(MIN_SPEED, MAX_SPEED, n)
+    steer = rng.uniform(-MAX_STEERING_DEG, MAX_STEERING_DEG, n)
     start = rng.uniform(0, track.length, n)
     progress = np.where(lap, 100.0, np.mod(s - start, track.length) / track.length * 100.0)
     steps = _steps_for(progress, track.length, rng.uniform(0.5, 3.5, n))

@@ -46,7 +46,7 @@ def register(sub) -> None:
 
 
 def run_init(args) -> int:
-    from racerlab.train.init import init_model
+    from racerlab.model import init_model
 
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
@@ -67,7 +67,7 @@ def run_train(args) -> int:
 
 
 def run_clone(args) -> int:
-    from racerlab.train.clone import clone_model
+    from racerlab.model import clone_model
 
     folder = clone_model(args.src, args.dst, args.checkpoint, args.reward, args.model_metadata, args.hyperparameters,
                          args.track)

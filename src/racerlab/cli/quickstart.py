@@ -25,9 +25,8 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from racerlab.evaluate import evaluate
+    from racerlab.model import ModelFolder, init_model
     from racerlab.train import train
-    from racerlab.train.folder import ModelFolder
-    from racerlab.train.init import init_model
 
     folder = ModelFolder(args.model)
     if not folder.metadata_path.is_file():
@@ -55,7 +54,7 @@ def draw_lap(res, track, path: Path) -> None:
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
 
-    from racerlab.sim.car import STEP_S
+    from racerlab.spec import STEP_S
     from racerlab.track import load as load_track
     from racerlab.track.plot import draw_track
 

@@ -72,18 +72,16 @@ def _track_flag(p) -> None:
 def _track_for_reward(reward: Path, name: str | None):
     """The --track, else the track of the model folder holding the reward file, else the default track."""
     from racerlab import track as tracks
-    from racerlab.analysis.report import resolve_track
+    from racerlab.errors import RacerlabError
+    from racerlab.model import resolve_track
 
     if name:
         return tracks.load(name)
-    folder = reward.resolve().parent
-    if (folder / "training.toml").is_file():
-        import pandas as pd
-
-        t, _ = resolve_track(folder, pd.DataFrame({"track_len": []}), None)
-        if t is not None:
-            return t
-    return tracks.load(tracks.DEFAULT_TRACK)
+    try:
+        t = resolve_track(reward.resolve().parent, default=False)
+    except RacerlabError:  # a broken training.toml or a track that is gone: the default track will do
+        t = None
+    return t if t is not None else tracks.load(tracks.DEFAULT_TRACK)
 
 
 def run_check(args) -> int:
@@ -117,14 +115,14 @@ def run_map(args) -> int:
 def run_rescore(args) -> int:
     from racerlab.analysis.load import load
     from racerlab.analysis.plots import reward_vs_lap_time, save_png
-    from racerlab.analysis.report import resolve_track
+    from racerlab.analysis.report import log_track
     from racerlab.analysis.rescore import compare, correlations, rescore
     from racerlab.errors import RacerlabError
 
     df = load(args.log, args.kind)
     if len(df) == 0:
         raise RacerlabError(f"{args.log}: the logs hold no steps to re-score")
-    track, note = resolve_track(args.log, df, args.track)
+    track, note = log_track(args.log, df, args.track)
     if track is None:
         raise RacerlabError(f"{args.log}: no track to rebuild the params on: {note}")
     reverse = {"auto": None, "forward": False, "reverse": True}[args.direction]

@@ -24,6 +24,7 @@ from racerlab.errors import RacerlabError
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation
+from racerlab.model import ModelFolder, parse_model_metadata, resolve_track
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -81,7 +82,7 @@ class EvaluationResult:
 
 @dataclass
 class LoadedModel:
-    folder: object  # ModelFolder
+    folder: ModelFolder
     metadata: object  # ModelMetadata
     checkpoint: str
     state: dict
@@ -91,15 +92,13 @@ class LoadedModel:
 
 def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
     """The folder's files and the checkpoint's weights, refusing a checkpoint that does not fit."""
-    from racerlab.train.folder import ModelFolder
-
     folder = ModelFolder(model_dir)
     folder.require()
     meta = folder.metadata()
     cfg = folder.config()
     info = folder.resolve_checkpoint(checkpoint)
     ck = folder.load_checkpoint(info)
-    where = folder.checkpoints_dir / info.name
+    where = folder.checkpoint_path(info)
     if not isinstance(ck, dict) or "agent" not in ck:
         raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
     if ck.get("metadata") is not None:
@@ -108,8 +107,6 @@ def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
 
 
 def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
-    from racerlab.metadata import parse_model_metadata
-
     trained = parse_model_metadata(ck_meta, f"{where} (its model_metadata)")
     diffs = []
     if trained.action_space_type != meta.action_space_type:
@@ -140,29 +137,16 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
                             f"built from {model.folder.metadata_path} and the '{obs_name}' observation "
                             f"({first}); evaluate with the settings it was trained with or train again") from None
 
-    def policy(obs):
-        out = agent.act(obs, greedy=True)
-        return out[0] if isinstance(out, tuple) else out
-
-    return policy
+    return agent.policy
 
 
 def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0):
-    from racerlab.sim.core import StartRules
-    from racerlab.sim.reward import RewardCaller, load_reward_function
-    from racerlab.train.rollout import World
+    from racerlab.sim import StartRules, World
 
-    reward = RewardCaller(load_reward_function(model.reward_path))
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
-    return World(track, 1, model.metadata, reward, model.observation, start, rules.max_episode_steps, "aws", seed)
-
-
-def resolve_track(model: LoadedModel, track=None):
-    from racerlab.track import load as load_track
-
-    name = track if track is not None else model.folder.config().track.names[0]
-    return load_track(name)
+    return World(track, 1, model.metadata, model.reward_path, model.observation, start=start,
+                 max_episode_steps=rules.max_episode_steps, seed=seed)
 
 
 # ---- evaluate -------------------------------------------------------------------------------------
@@ -183,7 +167,7 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
-    track_obj = resolve_track(model, track)
+    track_obj = resolve_track(model.folder, track)
     world = make_world(model, track_obj, rules)
     policy = make_policy(model, world, device)
     image_of = None

@@ -13,10 +13,11 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.api import EvaluationResult, evaluate, load_model
+from racerlab.evaluate.api import EvaluationResult, evaluate
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
+from racerlab.model import resolve_track
 
 
 @dataclass
@@ -70,7 +71,7 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
         raise RacerlabError("race needs at least one model folder")
     rules = rules or RaceRules()
     if track is None:
-        track = load_model(model_dirs[0], checkpoint).folder.config().track.names[0]
+        track = resolve_track(model_dirs[0])
     results = []
     for m in model_dirs:
         res = evaluate(m, track=track, rules=rules, checkpoint=checkpoint, ranking_laps=ranking_laps, video=video,

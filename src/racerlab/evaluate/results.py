@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass, field
 
 from racerlab.evaluate.rules import INCIDENTS
-from racerlab.logs import EPISODE_STATUS_LABELS
+from racerlab.spec import STATUS_LABELS
 
 DEFAULT_RANKING_LAPS = 3
 
@@ -56,7 +56,7 @@ class Lap:
         return {"completion_percentage": int(min(self.progress, 100.0)),
                 "metric_time": int(round(self.end_time * 1000)), "start_time": int(round(self.start_time * 1000)),
                 "elapsed_time_in_milliseconds": self.time_ms,
-                "episode_status": EPISODE_STATUS_LABELS.get(self.status, self.status),
+                "episode_status": STATUS_LABELS.get(self.status, self.status),
                 "crash_count": self.counts["crashed"], "immobilized_count": self.counts["immobilized"],
                 "off_track_count": self.counts["off_track"], "reversed_count": self.counts["reversed"],
                 "reset_count": self.resets, "trial": self.trial}
@@ -159,7 +159,7 @@ def lap_table(laps: list[Lap]) -> str:
     head = f"{'lap':>4}  {'time (s)':>9}  {'status':<13}  {'progress':>9}  {'off-track':>9}  {'resets':>6}"
     lines = [head]
     for lap in laps:
-        label = EPISODE_STATUS_LABELS.get(lap.status, lap.status).lower()
+        label = STATUS_LABELS.get(lap.status, lap.status).lower()
         lines.append(f"{lap.trial:>4}  {lap.time:>9.3f}  {label:<13}  {lap.progress:>8.1f}%  "
                      f"{lap.counts['off_track']:>9}  {lap.resets:>6}")
     return "\n".join(lines)

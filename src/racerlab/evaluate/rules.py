@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from racerlab.errors import RacerlabError
-from racerlab.sim.car import STEP_S
+from racerlab.spec import STEP_S
 
 # AWS MAX_STEPS of DeepRacerRacetrackEnv (facts §2): the step cap of one evaluation episode
 AWS_MAX_EPISODE_STEPS = 100_000

@@ -1,6 +1,6 @@
 """Driving one car under race rules: laps, timing, penalties and resets as an AWS evaluation worker.
 
-`run_evaluation(world, policy, rules)` drives car 0 of a one-car `racerlab.train.rollout.World`
+`run_evaluation(world, policy, rules)` drives car 0 of a one-car `racerlab.sim.World`
 with `policy(obs) -> actions` (greedy for a model) and returns the laps and every step as simtrace
 columns. What happens, following simapp (facts §2, §8):
 
@@ -33,12 +33,11 @@ import numpy as np
 from racerlab.evaluate.results import Lap
 from racerlab.evaluate.rules import INCIDENTS, Lanes, RaceRules, pause_steps
 from racerlab.logs import SIMTRACE_COLUMNS
-from racerlab.metadata import DiscreteActions
-from racerlab.sim import _kernels as K
-from racerlab.sim.car import MODEL_POINT_AHEAD_M
+from racerlab.sim import STATUS_NAMES, Status
+from racerlab.spec import MODEL_POINT_AHEAD_M, STEP_S
 
 ACTIVE = np.ones(1, dtype=bool)
-IDLE = np.zeros(1, dtype=bool)
+CAR = np.zeros(1, dtype=np.int64)  # the one car, as an index array
 # per-row values kept beside the simtrace for videos and checks: the car's base pose and ground
 # speed after the step, and the running lap clock (s since the lap started)
 EXTRA_COLUMNS = ("base_x", "base_y", "base_yaw", "speed", "lap_clock")
@@ -53,7 +52,7 @@ class EvalRun:
     extra: dict[str, np.ndarray]  # EXTRA_COLUMNS
     frames: list | None = None  # the observation's camera image per row, when asked for
     wall_seconds: float = 0.0
-    dt: float = 1.0 / 15.0
+    dt: float = STEP_S
 
     @property
     def rows(self) -> int:
@@ -113,7 +112,7 @@ class _Driver:
         self.frames = [] if keep_frames else None
         self.image_of = image_of
         self.on_lap = on_lap
-        self.discrete = isinstance(world.metadata.actions, DiscreteActions)
+        self.discrete = world.discrete
         self.ep: _Episode | None = None
 
     # ---- episodes -----------------------------------------------------------------------------
@@ -138,11 +137,10 @@ class _Driver:
         actions = self.policy(obs)
         codes, rewards = self.world.step(actions, ACTIVE)
         code = int(codes[0])
-        status = K.STATUS_NAMES[code]
-        params = self.sim.params[0]
+        status = STATUS_NAMES[code]
         before = self.ep.prev
-        self._add_row(params, actions, float(rewards[0]), status, obs)
-        if code == K.LAP_COMPLETE:
+        self._add_row(self.sim.trace_columns(CAR), actions, float(rewards[0]), status, obs)
+        if code == Status.LAP_COMPLETE:
             return self._lap_complete()
         if status in INCIDENTS:
             return self._incident(status, before)
@@ -167,13 +165,8 @@ class _Driver:
     def _restart_progress(self) -> None:
         """Continuous laps: progress counts from the start line again (simapp sets prev_progress to 0
         after a 100 %), and the reset rules start afresh."""
-        sim = self.sim
-        m = sim.meas[0]
-        m[K.MPROG] = K.aws_progress(m[K.MS] / self.track.length, sim.car[0, K.CSTART], 0.0)
-        m[K.MPROG_PREV] = 0.0
-        sim.ctr[0, K.KIMMOB] = 0
-        sim.ctr[0, K.KREVCNT] = 0
-        self.ep.prev = (float(m[K.MPROG]), *self.ep.prev[1:])
+        self.sim.restart_lap(0)
+        self.ep.prev = (float(self.sim.state.progress[0]), *self.ep.prev[1:])
 
     def _close_lap(self, status: str) -> None:
         ep = self.ep
@@ -203,44 +196,44 @@ class _Driver:
         sim = self.sim
         progress, mx, my, heading = before
         length = self.track.length
-        s = (sim.car[0, K.CSTART] + progress / 100.0) * length
+        s = (sim.state.start[0] + progress / 100.0) * length
         s = s % length if self.track.closed else min(max(s, 0.0), length)
         yaw = math.radians(heading)
         base = (mx - MODEL_POINT_AHEAD_M * math.cos(yaw), my - MODEL_POINT_AHEAD_M * math.sin(yaw))
         x, y, new_yaw = self.lanes.reset_pose(s, base)
         # measure the new pose against the progress the car is put back at, not where it left the road
-        sim.meas[0, K.MPROG] = progress
-        sim.relocate(0, x, y, new_yaw)
+        sim.relocate(0, x, y, new_yaw, progress=progress)
 
     def _hold(self, penalty: float) -> None:
         """The pause rows: the car stands still for the penalty; the sim clock runs on."""
         sim = self.sim
         obs = self.world.observe()
         actions = self.policy(obs)  # held still, the car sees the same picture each step
-        held = sim.meas[0].copy()
         for k in range(1, pause_steps(penalty, sim.dt) + 1):
-            sim.step(0.0, 0.0, IDLE)
-            sim.ctr[0, K.KSTEPS] += 1  # simapp counts pause steps
-            self._add_row(held, actions, 0.0, "pause", obs, pause=max(penalty - k * sim.dt, 0.0))
+            sim.pause_step(CAR)  # simapp counts pause steps
+            # the held car's row shows where it was put back (its current pose), not the incident's
+            self._add_row(sim.trace_columns(CAR, judged=False), actions, 0.0, "pause", obs,
+                          pause=max(penalty - k * sim.dt, 0.0))
 
     # ---- rows ---------------------------------------------------------------------------------
-    def _add_row(self, p: np.ndarray, actions, reward: float, status: str, obs, pause: float = 0.0) -> None:
+    def _add_row(self, cols: dict, actions, reward: float, status: str, obs, pause: float = 0.0) -> None:
+        """One simtrace row from the simulator's `trace_columns` of the car and what the driver knows."""
         sim = self.sim
         steer, speed = self.world.commands(actions)
         if status == "prepare":
             steer, speed = np.zeros(1), np.zeros(1)
         action = int(actions[0]) if self.discrete else [float(steer[0]), float(speed[0])]
-        car = sim.car[0]
-        self.trace.add({
-            "episode": len(self.laps), "steps": int(sim.steps[0]), "X": float(p[K.MX]), "Y": float(p[K.MY]),
-            "yaw": float(p[K.MHEADING]), "steer": float(steer[0]), "throttle": float(speed[0]), "action": action,
-            "reward": reward, "done": False, "all_wheels_on_track": bool(p[K.MWHEELS] == 4),
-            "progress": float(p[K.MPROG]), "closest_waypoint": int(p[K.MCLOSEST]), "track_len": self.track.length,
-            "tstamp": sim.time, "episode_status": status, "pause_duration": pause, "obstacle_crash_counter": 0,
-            "wall_clock": time.time(), "base_x": float(car[K.CX]), "base_y": float(car[K.CY]),
-            "base_yaw": float(car[K.CYAW]), "speed": float(car[K.CV]), "lap_clock": sim.time - self.ep.lap_start,
+        car = sim.state
+        row = {c: v[0].item() for c, v in cols.items()}
+        row.update({
+            "episode": len(self.laps), "steer": float(steer[0]), "throttle": float(speed[0]), "action": action,
+            "reward": reward, "done": False, "track_len": self.track.length, "episode_status": status,
+            "pause_duration": pause, "obstacle_crash_counter": 0, "wall_clock": time.time(),
+            "base_x": float(car.x[0]), "base_y": float(car.y[0]), "base_yaw": float(car.yaw[0]),
+            "speed": float(car.speed[0]), "lap_clock": sim.time - self.ep.lap_start,
         })
-        self.ep.prev = (float(p[K.MPROG]), float(p[K.MX]), float(p[K.MY]), float(p[K.MHEADING]))
+        self.trace.add(row)
+        self.ep.prev = (row["progress"], row["X"], row["Y"], row["yaw"])
         if self.frames is not None:
             self.frames.append(self.image_of(obs) if self.image_of else None)
 

@@ -3,7 +3,7 @@
 The line is the path of the car's base point (midway between the axles, the point the simulator
 moves as a kinematic bicycle), kept `clearance_m` = half the wheel track + a wheel radius +
 `margin` from both borders, so the whole car stays on the road with `margin` to spare. Its speed
-is the fastest the simulator's car (`racerlab.sim.CarParams`) can drive it: grip in the corners,
+is the fastest the simulator's car (`racerlab.spec.CarParams`) can drive it: grip in the corners,
 acceleration and braking in between (see `racerlab.line.profile`).
 """
 
@@ -18,7 +18,7 @@ from racerlab.errors import TrackError
 from racerlab.line import geometry as G
 from racerlab.line import profile as P
 from racerlab.line.solve import METHODS, solve
-from racerlab.sim.car import MODEL_POINT_AHEAD_M, CarParams
+from racerlab.spec import MODEL_POINT_AHEAD_M, WHEELBASE_M, CarParams
 from racerlab.track import Track
 from racerlab.track import load as load_track
 
@@ -32,7 +32,7 @@ def car_clearance(car: CarParams | None = None, margin: float = DEFAULT_MARGIN_M
     return 0.5 * car.track_m + WHEEL_RADIUS_M + margin
 
 
-def steering_for_curvature(curvature, wheelbase_m: float = 0.164) -> np.ndarray:
+def steering_for_curvature(curvature, wheelbase_m: float = WHEELBASE_M) -> np.ndarray:
     """Steering angle (°, + = left) that makes the base point follow `curvature` (1/m).
 
     The inverse of the simulator's bicycle about the mid-wheelbase point: κ = cos β · tan δ / L

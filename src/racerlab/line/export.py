@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.line.core import RacingLine
-from racerlab.metadata import MAX_STEER_DEG, DiscreteActions, ModelMetadata
+from racerlab.model import DiscreteActions, ModelMetadata
+from racerlab.spec import MAX_STEERING_DEG
 from racerlab.track import Track
 
 DEFAULT_ACTIONS = 15  # including the two recovery actions
@@ -38,15 +39,15 @@ def action_space(line: RacingLine, n_actions: int = DEFAULT_ACTIONS, seed: int =
     """A discrete action space of `n_actions` (≥ 3) actions fitted to what the line asks of the car."""
     if n_actions < 3:
         raise ValueError(f"an action space from a line needs at least 3 actions, got {n_actions}")
-    steer = np.clip(line.steering_deg, -MAX_STEER_DEG, MAX_STEER_DEG)
+    steer = np.clip(line.steering_deg, -MAX_STEERING_DEG, MAX_STEERING_DEG)
     dt = np.diff(np.append(line.time, line.flying_lap_time))
-    feats = np.stack([steer / MAX_STEER_DEG, line.speed / line.car.max_speed_mps], axis=1)
+    feats = np.stack([steer / MAX_STEERING_DEG, line.speed / line.car.max_speed_mps], axis=1)
     centres = _kmeans(feats, dt, n_actions - 2, seed)
-    s_act = np.round(centres[:, 0] * MAX_STEER_DEG, 1)
+    s_act = np.round(centres[:, 0] * MAX_STEERING_DEG, 1)
     v_act = _floor_cm(np.minimum(centres[:, 1] * line.car.max_speed_mps, grip_speed(s_act, line)))
-    v_lock = float(_floor_cm(min(float(line.speed.min()), float(grip_speed(MAX_STEER_DEG, line)))))
+    v_lock = float(_floor_cm(min(float(line.speed.min()), float(grip_speed(MAX_STEERING_DEG, line)))))
     pairs = {(float(s), float(v)) for s, v in zip(s_act, v_act, strict=True)}
-    pairs |= {(-MAX_STEER_DEG, v_lock), (MAX_STEER_DEG, v_lock)}
+    pairs |= {(-MAX_STEERING_DEG, v_lock), (MAX_STEERING_DEG, v_lock)}
     ordered = sorted(pairs)
     return DiscreteActions(tuple(p[0] for p in ordered), tuple(p[1] for p in ordered))
 

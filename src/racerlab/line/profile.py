@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from racerlab.sim.car import STEP_S, CarParams
+from racerlab.spec import STEP_S, CarParams
 
 SUBSTEPS = 4  # integration steps per path segment in the passes
 

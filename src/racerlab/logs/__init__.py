@@ -49,7 +49,6 @@ from racerlab.logs.layout import (
     training_simtrace_path,
 )
 from racerlab.logs.metrics import (
-    EPISODE_STATUS_LABELS,
     EVAL_METRICS_KEYS,
     TRAINING_METRICS_KEYS,
     EvalMetrics,
@@ -62,7 +61,7 @@ from racerlab.logs.metrics import (
 from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
 
 __all__ = [
-    "EPISODE_STATUS_LABELS", "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
+    "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
     "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceWriter", "TrainingMetrics",
     "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",

@@ -26,10 +26,6 @@ EVAL_METRICS_KEYS = ("completion_percentage", "metric_time", "start_time", "elap
                      "episode_status", "crash_count", "immobilized_count", "off_track_count",
                      "reversed_count", "reset_count", "trial")
 BEST_MODEL_METRICS = ("progress", "reward", "laptime")
-# AWS episode_status labels in the metrics JSON (simapp `EpisodeStatus` labels), keyed by the simtrace value.
-EPISODE_STATUS_LABELS = {"prepare": "Prepare", "in_progress": "In progress", "off_track": "Off track",
-                         "crashed": "Crashed", "immobilized": "Immobilized", "reversed": "Reversed",
-                         "lap_complete": "Lap complete", "pause": "Pause", "park": "Park", "time_up": "Time Up"}
 
 
 class LogFileError(RacerlabError, ValueError):
@@ -88,7 +84,7 @@ class TrainingMetrics(_MetricsDocument):
     Entry keys (AWS): reward_score (int, rounded sum of rewards), metric_time and start_time (ms of sim
     time), elapsed_time_in_milliseconds, episode (1-based count of training episodes), trial (1-based index
     in the iteration), phase ("training" | "evaluation"), completion_percentage (int), episode_status (a
-    label of `EPISODE_STATUS_LABELS`, e.g. "Lap complete").
+    label of `racerlab.spec.STATUS_LABELS`, e.g. "Lap complete").
     """
 
     keys = TRAINING_METRICS_KEYS

@@ -1,7 +1,15 @@
-"""The batched DeepRacer simulator: car dynamics, AWS episode rules, reward params, observations."""
+"""The batched DeepRacer simulator: car dynamics, AWS episode rules, reward params, observations.
 
-from racerlab.sim._kernels import STATUS_NAMES
-from racerlab.sim.car import STEP_S, CarParams
+`Simulator` steps the cars; `World` adds the observation, the action mapping and the reward, and is
+what training, evaluation and the Gymnasium adapters drive. The car state is read by name through
+`Simulator.state` / `Simulator.judged` (`CarState`), episode statuses are `Status` codes (AWS names in
+`STATUS_NAMES`), and `Simulator.trace_columns` gives the simtrace columns (`TRACE_COLUMNS`).
+"""
+
 from racerlab.sim.core import Simulator, StartRules
+from racerlab.sim.state import TRACE_COLUMNS, CarState, Status
+from racerlab.sim.world import World
+from racerlab.spec import STATUS_NAMES, STEP_S, CarParams  # the simulator's constants and car, defined in spec
 
-__all__ = ["STATUS_NAMES", "STEP_S", "CarParams", "Simulator", "StartRules"]
+__all__ = ["STATUS_NAMES", "STEP_S", "TRACE_COLUMNS", "CarParams", "CarState", "Simulator", "StartRules", "Status",
+           "World"]

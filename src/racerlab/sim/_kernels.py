@@ -19,8 +19,9 @@ import math
 import numpy as np
 from numba import njit
 
-from racerlab.sim.car import MODEL_POINT_AHEAD_M, advance
-from racerlab.track._kernels import nearest_on_polyline_near, nearest_segment, point_in_road
+from racerlab.sim.car import advance
+from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES
+from racerlab.track.kernels import nearest_on_polyline_near, nearest_segment, point_in_road
 
 # ---- table layouts ----------------------------------------------------------------------------
 # car (float64)
@@ -36,10 +37,10 @@ N_MEAS = 16
 
 # phases
 PREPARE, RUN = 0, 1
-# episode statuses (AWS names in STATUS_NAMES)
-IN_PROGRESS, LAP_COMPLETE, CRASHED, OFF_TRACK, IMMOBILIZED, REVERSED, STATUS_PREPARE, PAUSE, TIME_UP = range(9)
-STATUS_NAMES = ("in_progress", "lap_complete", "crashed", "off_track", "immobilized", "reversed", "prepare",
-                "pause", "time_up")
+# episode status codes: the index of the AWS name in spec.STATUS_NAMES
+IN_PROGRESS, LAP_COMPLETE, CRASHED, OFF_TRACK, IMMOBILIZED, REVERSED, STATUS_PREPARE, PAUSE, TIME_UP = (
+    STATUS_NAMES.index(name) for name in ("in_progress", "lap_complete", "crashed", "off_track", "immobilized",
+                                          "reversed", "prepare", "pause", "time_up"))
 
 IMMOBILE_STEPS = 15  # NUM_STEPS_TO_CHECK_STUCK
 IMMOBILE_DIST_M = 0.0003

@@ -1,4 +1,4 @@
-"""The car: geometry as in the AWS URDF and racerlab's dynamics model with its defaults.
+"""The car's dynamics: racerlab's model of how the AWS car moves, and how its default limits were chosen.
 
 Geometry (facts §3): wheelbase 0.164 m, wheel track 0.16 m, both front wheels steered by the
 same angle clipped to ±30°, commanded speed clipped to [0.1, 4.0] m/s. The pose (x, y, yaw) is
@@ -28,62 +28,32 @@ brake 8 m/s²) gave 6.13 s, 15 % under the best lap anyone has driven there. `sp
 0.1 s barely matters (0.15 s adds a few hundredths of a second). `benchmarks/racing_line.py` re-measures the
 anchor; pure pursuit on the line drives it within a step or two of the prediction.
 
-Each step of 1/15 s is integrated in `substeps` sub-steps.
+Each step of 1/15 s is integrated in `substeps` sub-steps. The geometry constants and the `CarParams`
+dataclass with these defaults live in `racerlab.spec`; this module holds the compiled dynamics.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
-STEP_S = 1.0 / 15.0  # one environment step: one camera frame at 15 Hz of simulated time
-MODEL_POINT_AHEAD_M = 0.14  # AWS RELATIVE_POSITION_OF_FRONT_OF_CAR
+from racerlab.spec import CarParams
 
 
-@dataclass(frozen=True)
-class CarParams:
-    wheelbase_m: float = 0.164
-    track_m: float = 0.16
-    max_steer_deg: float = 30.0
-    min_speed_mps: float = 0.1
-    max_speed_mps: float = 4.0
-    speed_tau_s: float = 0.1
-    accel_mps2: float = 3.0
-    brake_mps2: float = 4.9
-    steer_tau_s: float = 0.03
-    grip_mps2: float = 4.9
-    substeps: int = 4
-
-    def __post_init__(self):
-        for name in ("wheelbase_m", "track_m", "max_steer_deg", "max_speed_mps", "accel_mps2", "brake_mps2",
-                     "grip_mps2"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"CarParams.{name} must be > 0")
-        if not 0 <= self.min_speed_mps <= self.max_speed_mps:
-            raise ValueError("CarParams needs 0 <= min_speed_mps <= max_speed_mps")
-        if self.substeps < 1:
-            raise ValueError("CarParams.substeps must be >= 1")
-
-    def as_array(self) -> np.ndarray:
-        """Packed for the compiled step: see `advance` for the order."""
-        return np.array([self.wheelbase_m, math.radians(self.max_steer_deg), self.min_speed_mps,
-                         self.max_speed_mps, self.speed_tau_s, self.accel_mps2, self.brake_mps2,
-                         self.steer_tau_s, self.grip_mps2, float(self.substeps)], dtype=np.float64)
-
-    def wheel_offsets(self) -> np.ndarray:
-        """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
-        hx, hy = self.wheelbase_m / 2, self.track_m / 2
-        return np.array([[-hx, hy], [hx, hy], [-hx, -hy], [hx, -hy]], dtype=np.float64)
+def pack(car: CarParams) -> np.ndarray:
+    """The car's limits packed for the compiled step (`advance` reads them by position)."""
+    return np.array([car.wheelbase_m, math.radians(car.max_steer_deg), car.min_speed_mps, car.max_speed_mps,
+                     car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
+                     float(car.substeps)], dtype=np.float64)
 
 
 @njit(cache=True)
 def advance(x, y, yaw, v, steer, steer_cmd_rad, speed_cmd, hold, car, dt):
     """Integrate one car over `dt`; returns the new (x, y, yaw, v, steer, slip β).
 
-    `car` is `CarParams.as_array()`. `hold` keeps the car still (prepare and pause steps).
+    `car` is `pack(CarParams)`. `hold` keeps the car still (prepare and pause steps).
     """
     if hold:
         return x, y, yaw, 0.0, steer, 0.0

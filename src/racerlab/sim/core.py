@@ -2,8 +2,10 @@
 
 State is struct-of-arrays with the car axis first (tables `car`, `ctr`, `meas` whose named
 columns are in `racerlab.sim._kernels`); one compiled function steps every car, so no Python
-runs per car in the step path. The reward function is not called here: `racerlab.sim.reward`
-turns the `params` table into the AWS params dicts when one is configured.
+runs per car in the step path. Outside `racerlab.sim` the state is read by name: `state` (the
+cars now), `judged` (what the last step judged) and `trace_columns` (simtrace rows). The reward
+function is not called here: `racerlab.sim.reward` turns the `params` table into the AWS params
+dicts when one is configured.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from racerlab.sim import _kernels as K
-from racerlab.sim.car import STEP_S, CarParams
+from racerlab.sim.car import pack as pack_car
+from racerlab.sim.state import CarState
+from racerlab.spec import STEP_S, CarParams
 from racerlab.track import Track
 from racerlab.track import load as load_track
 
@@ -71,12 +75,18 @@ class Simulator:
         self.episodes_started = 0
         self.time = 0.0
         self._all = np.ones(n, dtype=np.bool_)
+        self._none = np.zeros(n, dtype=np.bool_)
+        self._state = CarState(self.car, self.ctr, self.meas)
+        self._judged = CarState(self.car, self.ctr, self.params)
         self.reset()
 
     # ---- track arrays for the compiled step -----------------------------------------------------
     def _pack_track(self):
         def pack(t: Track):
-            return (t.center, t.segment_lengths, t.waypoint_s, t.inner, t.outer, t.waypoint_s / t.length)
+            # waypoint fractions over the same length the kernel divides arc lengths by: the reversed track's
+            # own length can differ in the last bit, and a model point projecting exactly onto a waypoint
+            # would then get the pair before it (AWS, and log re-scoring, give the pair after it)
+            return (t.center, t.segment_lengths, t.waypoint_s, t.inner, t.outer, t.waypoint_s / self.track.length)
 
         t = self.track
         self._trk_f = pack(t)
@@ -84,7 +94,7 @@ class Simulator:
         bs, be, y0, bh = t.road_index
         self._road = (t.road_edges, bs, be, float(y0), float(bh))
         self._wheels = self.car_params.wheel_offsets()
-        self._car_arr = self.car_params.as_array()
+        self._car_arr = pack_car(self.car_params)
         self._geom = (self._trk_f, self._trk_r, self._road, self._wheels, t.closed, t.length, t.is_ccw)
 
     # ---- episodes ------------------------------------------------------------------------------
@@ -136,10 +146,29 @@ class Simulator:
         self.car[i, K.CV] = speed
         self.episode_start_time[i] = self.time
 
-    def relocate(self, i: int, x: float, y: float, yaw_rad: float) -> None:
+    def relocate(self, i: int, x: float, y: float, yaw_rad: float, progress: float | None = None) -> None:
         """Move car i to a base pose inside its current episode (steps, start and progress continue),
-        stopped; used by evaluation to put a car back on the track after an off-track."""
+        stopped; used by evaluation to put a car back on the track after an off-track. With `progress`
+        the new pose is measured as continuing from that progress (%) rather than the car's last."""
+        if progress is not None:
+            self.meas[i, K.MPROG] = progress
         K.relocate(i, x, y, yaw_rad, self.car, self.ctr, self.meas, *self._geom)
+
+    def restart_lap(self, i: int) -> None:
+        """Car i's progress counts from the start line again and its reset rules start afresh, inside
+        the same episode (continuous evaluation after a completed lap, as simapp does)."""
+        m = self.meas[i]
+        length = (self.track_reversed if self.ctr[i, K.KREV] else self.track).length
+        m[K.MPROG] = K.aws_progress(m[K.MS] / length, self.car[i, K.CSTART], 0.0)
+        m[K.MPROG_PREV] = 0.0
+        self.ctr[i, K.KIMMOB] = 0
+        self.ctr[i, K.KREVCNT] = 0
+
+    def pause_step(self, cars) -> None:
+        """A step in which no car moves and the cars in `cars` are held (an evaluation penalty): the clock
+        runs on and their step counters count the step, as simapp counts pause steps."""
+        self.step(0.0, 0.0, self._none)
+        self.ctr[cars, K.KSTEPS] += 1
 
     # ---- stepping -----------------------------------------------------------------------------
     def step(self, steering_deg, speed, active=None) -> np.ndarray:
@@ -175,20 +204,33 @@ class Simulator:
 
     # ---- views -------------------------------------------------------------------------------
     @property
-    def status(self) -> np.ndarray:
-        return self.ctr[:, K.KSTATUS]
+    def state(self) -> CarState:
+        """The cars now, by name (`state.x`, `state.speed`, `state.progress`, ...); measured fields are
+        of the current pose, the one the next observation shows."""
+        return self._state
 
     @property
-    def steps(self) -> np.ndarray:
-        return self.ctr[:, K.KSTEPS]
+    def judged(self) -> CarState:
+        """Like `state`, but the measured fields are those the last step's rules and reward saw (the
+        pose the observation was taken in, or the new one with `after_action`): the simtrace row."""
+        return self._judged
 
-    @property
-    def reversed(self) -> np.ndarray:
-        return self.ctr[:, K.KREV].astype(bool)
+    def trace_columns(self, cars, judged: bool = True) -> dict[str, np.ndarray]:
+        """The simtrace columns the simulator knows (`TRACE_COLUMNS`) for `cars` (indices), from the
+        judged pose (a step's row) or, with `judged=False`, the current one (a held car's row)."""
+        cars = np.asarray(cars)
+        p = (self.params if judged else self.meas)[cars]
+        return {"steps": self.ctr[cars, K.KSTEPS], "X": p[:, K.MX], "Y": p[:, K.MY], "yaw": p[:, K.MHEADING],
+                "steer": self.car[cars, K.CCMD_STEER], "throttle": self.car[cars, K.CCMD_SPEED],
+                "all_wheels_on_track": p[:, K.MWHEELS] == 4, "progress": p[:, K.MPROG],
+                "closest_waypoint": p[:, K.MCLOSEST].astype(np.int64),
+                "track_len": np.full(cars.size, self.track.length), "tstamp": np.full(cars.size, self.time)}
 
-    @property
-    def progress(self) -> np.ndarray:
-        return self.meas[:, K.MPROG]
+    # shortcuts to the most used fields of `state`
+    status = property(lambda self: self._state.status, doc="`state.status`: each car's last status code")
+    steps = property(lambda self: self._state.steps, doc="`state.steps`")
+    reversed = property(lambda self: self._state.reversed, doc="`state.reversed`")
+    progress = property(lambda self: self._state.progress, doc="`state.progress`, of the current pose")
 
     def status_names(self, codes=None) -> list[str]:
         codes = self.status if codes is None else codes

@@ -30,79 +30,12 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from racerlab.metadata import DiscreteActions, as_model_metadata
-from racerlab.sim import _kernels as K
-from racerlab.sim.car import CarParams
-from racerlab.sim.core import Simulator, StartRules
-from racerlab.sim.observations import make_observation
-from racerlab.sim.reward import ParamsBuilder, RewardCaller, as_reward_function
+from racerlab.sim.world import World
+from racerlab.spec import STATUS_NAMES
 from racerlab.track import DEFAULT_TRACK
 
+_STATUS_OBJ = np.array(STATUS_NAMES, dtype=object)
 
-def _start_rules(start):
-    if start is None or isinstance(start, StartRules):
-        return start
-    return StartRules(**start)
-
-
-def _car_params(car):
-    if car is None or isinstance(car, CarParams):
-        return car
-    return CarParams(**car)
-
-
-class _Engine:
-    """What both adapters share: the simulator, action mapping, observation and reward calls."""
-
-    def __init__(self, num_cars, track, reward_function, model_metadata, observation, car, start,
-                 max_episode_steps, reward_order, seed, keep_params=True):
-        self.keep_params = keep_params
-        self.sim = Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
-                             max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed)
-        self.metadata = as_model_metadata(model_metadata)
-        if observation is None and model_metadata is None:
-            observation = "features"
-        self.observation = make_observation(observation, self.sim, self.metadata)
-        fn = as_reward_function(reward_function)
-        self.reward = RewardCaller(fn) if fn is not None else None
-        self.params_builder = ParamsBuilder(self.sim) if fn is not None else None
-        acts = self.metadata.actions
-        if isinstance(acts, DiscreteActions):
-            self.action_space = gym.spaces.Discrete(acts.n)
-        else:
-            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-
-    def observe(self, rows=None):
-        """The batch observation; observations that can update just `rows` after a partial reset do so."""
-        if rows is not None and getattr(self.observation, "partial_update", False):
-            return self.observation(rows)
-        return self.observation()
-
-    def commands(self, actions) -> tuple[np.ndarray, np.ndarray]:
-        acts = self.metadata.actions
-        if isinstance(acts, DiscreteActions):
-            return acts.lookup(np.asarray(actions).reshape(self.sim.num_cars))
-        return acts.rescale(np.asarray(actions, dtype=np.float64).reshape(self.sim.num_cars, 2))
-
-    def step(self, actions):
-        sim = self.sim
-        codes = sim.step(*self.commands(actions)).copy()
-        rewards = np.zeros(sim.num_cars)
-        params = None
-        if self.reward is not None:
-            run = np.flatnonzero(codes != K.STATUS_PREPARE)
-            kept = [] if self.keep_params else None
-            if run.size:
-                rewards[run] = self.reward(self.params_builder.each(run), run, kept)
-            if kept is not None:
-                params = [None] * sim.num_cars
-                for j, i in enumerate(run.tolist()):
-                    params[i] = kept[j]
-        terminated = sim.terminated_mask(codes)
-        return rewards, terminated, sim.truncated.copy(), codes, params
-
-
-_STATUS_OBJ = np.array(K.STATUS_NAMES, dtype=object)
 
 class DeepRacerEnv(gym.Env):
     """One DeepRacer car (see the module docstring)."""
@@ -111,15 +44,16 @@ class DeepRacerEnv(gym.Env):
 
     def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
                  car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None):
-        self._engine = _Engine(1, track, reward_function, model_metadata, observation, car, start,
-                               max_episode_steps, reward_order, seed)
-        self.sim = self._engine.sim
-        self.action_space = self._engine.action_space
-        self.observation_space = self._engine.observation.space
+        self.world = World(track, 1, model_metadata, reward_function, observation, car=car, start=start,
+                           max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
+                           keep_params=True)
+        self.sim = self.world.sim
+        self.action_space = self.world.action_space
+        self.observation_space = self.world.observation.space
         self.render_mode = render_mode
 
     def _obs(self):
-        o = self._engine.observation()
+        o = self.world.observation()
         return {k: v[0] for k, v in o.items()} if isinstance(o, dict) else o[0]
 
     def reset(self, *, seed=None, options=None):
@@ -132,14 +66,15 @@ class DeepRacerEnv(gym.Env):
         return self._obs(), self._info(None)
 
     def step(self, action):
-        rewards, term, trunc, codes, params = self._engine.step(np.asarray(action)[None])
-        return self._obs(), float(rewards[0]), bool(term[0]), bool(trunc[0]), self._info(params, codes)
+        codes, rewards = self.world.step(np.asarray(action)[None])
+        term, trunc = self.world.done(codes)
+        return self._obs(), float(rewards[0]), bool(term[0]), bool(trunc[0]), self._info(self.world.params, codes)
 
     def _info(self, params, codes=None):
         sim = self.sim
         code = int(sim.status[0] if codes is None else codes[0])
-        prog = sim.meas[0, K.MPROG] if codes is None else sim.params[0, K.MPROG]
-        info = {"episode_status": K.STATUS_NAMES[code], "progress": float(prog),
+        prog = sim.state.progress[0] if codes is None else sim.judged.progress[0]
+        info = {"episode_status": STATUS_NAMES[code], "progress": float(prog),
                 "steps": int(sim.steps[0])}
         if params is not None and params[0] is not None:
             info["params"] = params[0]
@@ -161,12 +96,13 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
     def __init__(self, num_envs: int = 1, track=DEFAULT_TRACK, reward_function=None, model_metadata=None,
                  observation=None, *, car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None,
                  info_params=False, render_mode=None):
-        self._engine = _Engine(num_envs, track, reward_function, model_metadata, observation, car, start,
-                               max_episode_steps, reward_order, seed, keep_params=info_params)
-        self.sim = self._engine.sim
+        self.world = World(track, num_envs, model_metadata, reward_function, observation, car=car, start=start,
+                           max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
+                           keep_params=info_params)
+        self.sim = self.world.sim
         self.num_envs = num_envs
-        self.single_action_space = self._engine.action_space
-        self.single_observation_space = self._engine.observation.space
+        self.single_action_space = self.world.action_space
+        self.single_observation_space = self.world.observation.space
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.render_mode = render_mode
@@ -179,12 +115,14 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
         options = options or {}
         self.sim.reset(options.get("reset_mask"), start_ndist=options.get("start_ndist"),
                        reverse=options.get("reverse"))
-        return self._engine.observation(), self._info(self.sim.status.copy(), None, self.sim.meas[:, K.MPROG])
+        return self.world.observation(), self._info(self.sim.status.copy(), None, self.sim.state.progress)
 
     def step(self, actions):
-        rewards, term, trunc, codes, params = self._engine.step(actions)
-        obs = self._engine.observation()
-        info = self._info(codes, params, self.sim.params[:, K.MPROG])
+        world = self.world
+        codes, rewards = world.step(actions)
+        term, trunc = world.done(codes)
+        obs = world.observation()
+        info = self._info(codes, world.params, self.sim.judged.progress)
         done = term | trunc
         if done.any():
             final_obs = np.empty(self.num_envs, dtype=object)
@@ -193,7 +131,7 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
                 final_obs[i] = {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
                 final_info[i] = {"episode_status": info["episode_status"][i], "progress": info["progress"][i]}
             reset_rows = self.sim.reset(done)
-            obs = self._engine.observe(reset_rows)
+            obs = world.observe(reset_rows)
             info["final_obs"], info["_final_obs"] = final_obs, done
             info["final_info"], info["_final_info"] = final_info, done
         return obs, rewards, term, trunc, info

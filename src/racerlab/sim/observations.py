@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from racerlab.errors import ConfigError
-from racerlab.metadata import ModelMetadata
+from racerlab.model.metadata import OBSERVATION_NAMES, ModelMetadata, split_observation_name
 
 FEATURE_LIMIT = 10.0
 
@@ -53,6 +53,8 @@ OBSERVATIONS: dict[str, Callable] = {"features": FeaturesObservation}
 
 def register_observation(name: str, factory: Callable) -> None:
     OBSERVATIONS[name] = factory
+    if name not in OBSERVATION_NAMES:
+        OBSERVATION_NAMES.append(name)  # so that training.toml's run.observation accepts it
 
 
 def _sensor_factory(name: str) -> Callable:
@@ -65,9 +67,7 @@ def _sensor_factory(name: str) -> Callable:
     return factory
 
 
-SENSOR_NAMES = ("camera", "stereo", "lidar", "sector_lidar", "discretized_sector_lidar", "camera+lidar",
-                "camera+sector_lidar", "camera+discretized_sector_lidar", "stereo+lidar", "stereo+sector_lidar",
-                "stereo+discretized_sector_lidar")
+SENSOR_NAMES = tuple(name for name in OBSERVATION_NAMES if name != "features")
 for _name in SENSOR_NAMES:
     register_observation(_name, _sensor_factory(_name))
 
@@ -89,12 +89,6 @@ def observation_name_for(metadata: ModelMetadata) -> str:
         lid = lidar.lower()  # lidar, sector_lidar, discretized_sector_lidar
         name = f"{name}+{lid}" if name else lid
     return name or "features"
-
-
-def split_observation_name(name: str) -> tuple[str, tuple[str, ...]]:
-    """"stereo+lidar:dr,walls" -> ("stereo+lidar", ("dr", "walls"))."""
-    base, _, opts = name.partition(":")
-    return base.strip(), tuple(o.strip() for o in opts.split(",") if o.strip())
 
 
 def make_observation(name: str | None, sim, metadata: ModelMetadata):

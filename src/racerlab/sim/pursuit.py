@@ -11,8 +11,8 @@ import math
 import numpy as np
 
 from racerlab.sim import _kernels as K
-from racerlab.sim.car import STEP_S, CarParams
-from racerlab.track import _kernels as TK
+from racerlab.spec import STEP_S, WHEELBASE_M, CarParams
+from racerlab.track import kernels as TK
 
 
 class PurePursuit:
@@ -29,7 +29,7 @@ class PurePursuit:
     """
 
     def __init__(self, path, speed=1.0, closed: bool = True, lookahead_m: float = 0.35,
-                 lookahead_gain_s: float = 0.12, wheelbase_m: float = 0.164, car: CarParams | None = None):
+                 lookahead_gain_s: float = 0.12, wheelbase_m: float = WHEELBASE_M, car: CarParams | None = None):
         p = np.asarray(path, dtype=np.float64)
         if closed and not np.array_equal(p[0], p[-1]):
             p = np.vstack([p, p[:1]])

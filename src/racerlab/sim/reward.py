@@ -1,8 +1,9 @@
-"""Reward functions: loading a racer's `reward_function.py`, building AWS params, checking results.
+"""Reward functions: building AWS params, calling the racer's function, checking results (the file is loaded by
+`racerlab.model.reward`).
 
 The params dict holds every key the AWS simulator passes (facts §1) with the code's semantics;
 `ParamsBuilder` makes one dict per car from the simulator's params table in bulk (columns are
-turned into Python lists once, then each dict is a literal), and `RewardCaller` calls the
+turned into Python lists once, then `racerlab.spec.ParamsMaker` makes the dicts), and `RewardCaller` calls the
 function, checks the value and turns any failure into a `RewardFunctionError` that names the
 file and line and shows the step's params.
 """
@@ -11,45 +12,20 @@ from __future__ import annotations
 
 import copy
 import difflib
-import importlib.util
 import math
 import numbers
 import sys
-import traceback
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from racerlab.errors import RewardFunctionError
+from racerlab.model.reward import error_location, load_reward_function
 from racerlab.sim import _kernels as K
+from racerlab.spec import NO_OBJECTS, ParamsMaker
 
 MAX_ABS_REWARD = 1e5
-
-
-def load_reward_function(path) -> Callable[[dict], float]:
-    """Import `reward_function` from a .py file; syntax errors and a missing function are one-line errors."""
-    p = Path(path)
-    if not p.is_file():
-        raise RewardFunctionError(f"{p}: reward function file not found")
-    name = f"racerlab_reward_{abs(hash(str(p.resolve())))}"
-    spec = importlib.util.spec_from_file_location(name, p)
-    module = importlib.util.module_from_spec(spec)
-    try:
-        spec.loader.exec_module(module)
-    except SyntaxError as exc:
-        raise RewardFunctionError(f"{p}:{exc.lineno}: syntax error: {exc.msg}") from None
-    except Exception as exc:  # noqa: BLE001 - the user's module failed to import
-        where = error_location(exc, p) or str(p)
-        raise RewardFunctionError(f"{where}: importing the reward function raised "
-                                  f"{type(exc).__name__}: {exc}") from None
-    fn = getattr(module, "reward_function", None)
-    if not callable(fn):
-        raise RewardFunctionError(f"{p}: defines no function `reward_function(params)`; "
-                                  "add `def reward_function(params): ... return float(reward)`")
-    fn.__racerlab_source__ = str(p)
-    sys.modules.pop(name, None)
-    return fn
 
 
 def as_reward_function(value) -> Callable[[dict], float] | None:
@@ -68,20 +44,6 @@ def describe_exception(exc: BaseException, params: dict) -> str:
         if close:
             text += f" (params has no key {key!r}; did you mean {close[0]!r}?)"
     return text
-
-
-def error_location(exc: BaseException, path: Path | None) -> str | None:
-    """'file:line' of the deepest traceback frame inside the reward file (or the deepest frame)."""
-    frames = traceback.extract_tb(exc.__traceback__)
-    if not frames:
-        return None
-    if path is not None:
-        target = str(Path(path).resolve())
-        mine = [f for f in frames if str(Path(f.filename).resolve()) == target]
-        if mine:
-            return f"{mine[-1].filename}:{mine[-1].lineno}"
-    f = frames[-1]
-    return f"{f.filename}:{f.lineno}"
 
 
 def return_location(fn, params: dict) -> str | None:
@@ -121,7 +83,12 @@ def describe_params(params: dict) -> str:
 
 
 class ParamsBuilder:
-    """Builds the AWS reward params dicts for a simulator's cars."""
+    """Builds the AWS reward params dicts for a simulator's cars (keys and order: `racerlab.spec.REWARD_PARAMS`)."""
+
+    _make = ParamsMaker(("all_wheels_on_track", "x", "y", "heading", "distance_from_center", "is_left_of_center",
+                         "is_reversed", "progress", "steps", "speed", "steering_angle", "waypoints",
+                         "closest_waypoints", "track_width", "projection_distance", "is_offtrack"),
+                        parts={"closest_waypoints": 2})
 
     def __init__(self, sim):
         self.sim = sim
@@ -136,51 +103,34 @@ class ParamsBuilder:
         """Yield the params dict of each car in `idx` in turn (streaming keeps memory warm for big batches)."""
         sim = self.sim
         idx = np.arange(sim.num_cars) if idx is None else np.asarray(idx)
-        p = sim.params[idx]
+        p = sim.params[idx]  # the judged pose's measurements, one column per K.M* name
         st = sim.status[idx] if status is None else np.asarray(status)[idx]
         steer = sim.car[idx, K.CCMD_STEER] if actions is None else actions[0][idx]
         speed = sim.car[idx, K.CCMD_SPEED] if actions is None else actions[1][idx]
-        cols = p.T.tolist()
-        x, y, arc, dist, left, width, wprev, wnext, _, wheels, prog, _, head = cols[:13]
-        steps = sim.ctr[idx, K.KSTEPS].astype(np.float64).tolist()
         rev = sim.ctr[idx, K.KREV].astype(bool).tolist()
-        offtrack = (st == K.OFF_TRACK).tolist()
+        wps = self._waypoints
+        cols = {
+            "all_wheels_on_track": (p[:, K.MWHEELS] == 4.0).tolist(),
+            "x": p[:, K.MX].tolist(),
+            "y": p[:, K.MY].tolist(),
+            "heading": p[:, K.MHEADING].tolist(),
+            "distance_from_center": p[:, K.MDIST].tolist(),
+            "is_left_of_center": (p[:, K.MLEFT] > 0.5).tolist(),
+            "is_reversed": rev,
+            "progress": p[:, K.MPROG].tolist(),
+            "steps": sim.ctr[idx, K.KSTEPS].astype(np.float64).tolist(),
+            "speed": np.asarray(speed, dtype=np.float64).tolist(),
+            "steering_angle": np.asarray(steer, dtype=np.float64).tolist(),
+            "track_width": p[:, K.MWIDTH].tolist(),
+            "waypoints": [wps[r] for r in rev],
+            "closest_waypoints": (p[:, K.MWP_PREV].astype(np.int64).tolist(),
+                                  p[:, K.MWP_NEXT].astype(np.int64).tolist()),
+            "projection_distance": p[:, K.MS].tolist(),
+            "is_offtrack": (st == K.OFF_TRACK).tolist(),
+        }
         # sim_time of the measured pose: the step's start (AWS order) or its end (after_action)
         t = sim.time if sim.after_action else sim.time - sim.dt
-        length = self._length
-        wps = self._waypoints
-        steer = np.asarray(steer, dtype=np.float64).tolist()
-        speed = np.asarray(speed, dtype=np.float64).tolist()
-        for j in range(len(x)):
-            yield {
-                "all_wheels_on_track": wheels[j] == 4.0,
-                "x": x[j],
-                "y": y[j],
-                "heading": head[j],
-                "distance_from_center": dist[j],
-                "is_left_of_center": left[j] > 0.5,
-                "is_reversed": rev[j],
-                "progress": prog[j],
-                "steps": steps[j],
-                "speed": speed[j],
-                "steering_angle": steer[j],
-                "track_width": width[j],
-                "track_length": length,
-                "waypoints": list(wps[rev[j]]),
-                "closest_waypoints": [int(wprev[j]), int(wnext[j])],
-                "projection_distance": arc[j],
-                "is_offtrack": offtrack[j],
-                "is_crashed": False,
-                "sim_time": t,
-                "closest_objects": [0, 0],
-                "objects_location": [],
-                "objects_left_of_center": [],
-                "objects_distance": [],
-                "objects_distance_from_center": [],
-                "objects_heading": [],
-                "objects_speed": [],
-                "object_in_camera": False,
-            }
+        return self._make(cols, {"track_length": self._length, "is_crashed": False, "sim_time": t, **NO_OBJECTS})
 
 
 class RewardCaller:

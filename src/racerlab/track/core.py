@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from racerlab.errors import TrackError
-from racerlab.track import _kernels as K
+from racerlab.track import kernels as K
 
 
 class Projection(NamedTuple):

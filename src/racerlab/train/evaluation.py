@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from racerlab.sim import _kernels as K
-from racerlab.train.rollout import act
+from racerlab.agent.common import take
+from racerlab.sim import STATUS_NAMES
 
 UNFINISHED_LAP_MS = 999_999  # AWS counts an unfinished lap as this when ranking by lap time
 
@@ -37,16 +37,13 @@ def run_greedy_episodes(agent, world, starts) -> list[EvalEpisode]:
     t0 = sim.time
     while active.any():
         idx = np.flatnonzero(active)
-        obs = world.observe()
-        obs = {k: v[idx] for k, v in obs.items()} if isinstance(obs, dict) else obs[idx]
-        actions, _, _ = act(agent, obs, True)
-        codes, r = world.step(actions, active)
+        codes, r = world.step(agent.policy(take(world.observe(), idx)), active)
         reward += r
         done = active & (sim.terminated_mask(codes) | sim.truncated)
         for i in np.flatnonzero(done).tolist():
-            status = K.STATUS_NAMES[int(codes[i])] if not sim.truncated[i] else "time_up"
+            status = STATUS_NAMES[int(codes[i])] if not sim.truncated[i] else "time_up"
             steps = int(sim.steps[i])
-            results[i] = EvalEpisode(float(starts[i]), status, steps, float(sim.params[i, K.MPROG]), float(reward[i]),
+            results[i] = EvalEpisode(float(starts[i]), status, steps, float(sim.judged.progress[i]), float(reward[i]),
                                      steps * sim.dt if status == "lap_complete" else math.nan, t0, sim.time)
         active &= ~done
     return results

@@ -2,10 +2,10 @@
 
 One iteration, as DeepRacer runs it (facts §6, §9): the cars drive whole training episodes with
 the current policy (`num_episodes_between_training`, or one per car when there are more cars);
-PPO updates on them (SAC learns from its replay buffer); a few greedy evaluation episodes pick the
-best checkpoint; the checkpoint, the AWS-format logs and racerlab's metrics are written
-atomically. A training stopped at any moment (Ctrl-C, kill -9, a reward function that raises)
-resumes from the last complete iteration.
+the agent learns from them (`agent.learn(rollout)`: PPO's update, SAC's replay memory); a few
+greedy evaluation episodes pick the best checkpoint; the checkpoint, the AWS-format logs and
+racerlab's metrics are written atomically. A training stopped at any moment (Ctrl-C, kill -9,
+a reward function that raises) resumes from the last complete iteration.
 """
 
 from __future__ import annotations
@@ -19,15 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import RacerlabError
-from racerlab.sim.core import StartRules
-from racerlab.sim.reward import RewardCaller, load_reward_function
+from racerlab.model import ModelFolder, TrainingConfig, check_compatible
+from racerlab.sim import StartRules, World
+from racerlab.sim.reward import RewardCaller
 from racerlab.track import load as load_track
-from racerlab.train.config import TrainingConfig
 from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episodes
-from racerlab.train.folder import ModelFolder, check_compatible
 from racerlab.train.progress import Progress
 from racerlab.train.records import TrainingLogs
-from racerlab.train.rollout import Collector, World
+from racerlab.train.rollout import Collector
 
 MAX_ROLLBACKS = 3
 STATE_FORMAT = "racerlab.checkpoint/1"
@@ -89,7 +88,7 @@ class Trainer:
         self.metadata = self.folder.metadata()
         self.hp = self.folder.hyperparameters()
         self.cfg = apply_overrides(self.folder.config(), **overrides)
-        self.reward = RewardCaller(load_reward_function(self.folder.reward_path))
+        self.reward = RewardCaller(self.folder.reward_function())
         self._set_threads()
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
@@ -98,7 +97,6 @@ class Trainer:
 
         self.agent = make_agent(self.worlds[0].observation.space, self.metadata, self.hp, device=self.cfg.run.device,
                                 seed=self.cfg.run.seed)
-        self.sac = self.metadata.training_algorithm == "sac"
         self.logs = TrainingLogs(self.folder.path, self.cfg)
         self.progress = Progress(enabled=progress)
         self.state = _State()
@@ -115,8 +113,9 @@ class Trainer:
         r = self.cfg.track
         start = StartRules(change_start=r.change_start, advance=r.round_robin_advance, offset=r.start_offset,
                            reverse=r.reverse, alternate_direction=r.alternate_direction)
-        return World(load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation, start,
-                     self.cfg.run.max_episode_steps, self.cfg.run.reward_order, seed)
+        return World(load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation, start=start,
+                     max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
+                     seed=seed)
 
     def _make_worlds(self):
         names = self.cfg.track.names
@@ -143,7 +142,7 @@ class Trainer:
             self.last_good = self.agent.state_dict()
             return False
         info, ck = self._newest_readable(cps)
-        from racerlab.metadata import parse_model_metadata
+        from racerlab.model import parse_model_metadata
 
         check_compatible(parse_model_metadata(ck["metadata"], f"{info.name} (checkpoint)"), self.metadata,
                          str(self.folder.metadata_path))
@@ -173,38 +172,6 @@ class Trainer:
                             "checkpoints/ to start over")
 
     # ---- one iteration -----------------------------------------------------------------------
-    def _learn(self, ro) -> dict:
-        if self.sac:
-            return self._learn_sac(ro)
-        from racerlab.agent.ppo import make_batch
-
-        if ro.rewards.size == 0:
-            return {}
-        batch = make_batch(ro.obs, ro.actions, ro.log_probs, ro.values, ro.rewards, ro.next_values, ro.terminated,
-                           ro.truncated, self.hp.discount_factor)
-        return self.agent.update(batch)
-
-    def _learn_sac(self, ro) -> dict:
-        """Replay the iteration's transitions into SAC's buffer, then one gradient step per env step (AWS)."""
-        from racerlab.train.rollout import take
-
-        n = ro.rewards.size
-        if n == 0:
-            return {}
-        nxt = np.minimum(np.arange(n) + 1, n - 1)
-        ended = ro.terminated | ro.truncated
-        nxt[ended] = np.flatnonzero(ended)  # placeholder rows: ignored where terminated, replaced where truncated
-        next_obs = take(ro.obs, nxt)
-        rows = np.flatnonzero(ro.truncated)
-        if rows.size:
-            if isinstance(next_obs, dict):
-                for k in next_obs:
-                    next_obs[k][rows] = ro.final_obs[k]
-            else:
-                next_obs[rows] = ro.final_obs
-        self.agent.observe(ro.obs, ro.actions, ro.rewards, next_obs, ro.terminated)
-        return self.agent.update(n)
-
     def _guard(self, metrics) -> bool:
         """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
         bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
@@ -251,7 +218,7 @@ class Trainer:
         ro = self.collector.collect(self.agent, target, self.cfg.run.max_steps_per_iteration,
                                     first_episode_number=s.episodes)
         t_learn = time.perf_counter()
-        metrics = self._learn(ro)
+        metrics = self.agent.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
@@ -260,7 +227,7 @@ class Trainer:
         s.episodes += len(ro.episodes)
         s.train_steps += int(ro.rewards.size)
         evals = self._evaluate()
-        from racerlab.train.folder import CheckpointInfo
+        from racerlab.model import CheckpointInfo
 
         info = CheckpointInfo(f"{s.iteration}_Step-{s.train_steps}.pt", s.iteration, s.train_steps)
         value = self._record_best(evals, info, t_start)

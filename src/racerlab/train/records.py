@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from racerlab import logs
-from racerlab.sim import _kernels as K
-from racerlab.train.rollout import STATUS_LABELS
+from racerlab.sim import STATUS_NAMES
+from racerlab.spec import STATUS_LABELS
 
-_STATUS = np.array(K.STATUS_NAMES, dtype=object)
+_STATUS = np.array(STATUS_NAMES, dtype=object)
 
 
 class TrainingLogs:

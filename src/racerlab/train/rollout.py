@@ -1,7 +1,7 @@
 """Collecting whole episodes from many cars at once, on one or several tracks.
 
-A `World` is one track's simulator with its observation and reward; the `Collector` spreads the
-cars over the worlds, asks the agent for all cars' actions in one batch per step, and records
+A `racerlab.sim.World` is one track's simulator with its observation and reward; the `Collector` spreads
+the cars over the worlds, asks the agent for all cars' actions in one batch per step, and records
 every step as columns (no per-car Python in the step loop apart from the user's reward
 function). An iteration ends when its episodes are done; like AWS's trainer it keeps whole
 episodes only, in order of completion, while their steps fit under `max_steps` (facts §2).
@@ -14,77 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from racerlab.metadata import DiscreteActions, ModelMetadata
-from racerlab.sim import _kernels as K
-from racerlab.sim.core import Simulator, StartRules
-from racerlab.sim.observations import make_observation
-from racerlab.sim.reward import ParamsBuilder, RewardCaller
-
-STATUS_LABELS = {"lap_complete": "Lap complete", "off_track": "Off track", "crashed": "Crashed",
-                 "immobilized": "Immobilized", "reversed": "Reversed", "in_progress": "In progress",
-                 "pause": "Pause", "time_up": "Time Up", "prepare": "Prepare"}
-
-
-class World:
-    """One track: a simulator of `num_cars` cars, its observation and the reward calls."""
-
-    def __init__(self, track, num_cars: int, metadata: ModelMetadata, reward: RewardCaller, observation: str,
-                 start: StartRules, max_episode_steps: int, reward_order: str, seed: int):
-        self.sim = Simulator(track, num_cars, start=start, max_episode_steps=max_episode_steps,
-                             reward_order=reward_order, seed=seed)
-        self.observation = make_observation(observation or None, self.sim, metadata)
-        self.builder = ParamsBuilder(self.sim)
-        self.reward = reward
-        self.metadata = metadata
-
-    def observe(self, rows=None):
-        """The batch observation; sensors that can render just `rows` (the cars whose observation is
-        needed) skip the others, whose rows then hold stale values."""
-        if rows is not None and getattr(self.observation, "partial_update", False):
-            return self.observation(np.asarray(rows, dtype=np.int64))
-        return self.observation()
-
-    def commands(self, actions):
-        acts = self.metadata.actions
-        if isinstance(acts, DiscreteActions):
-            return acts.lookup(actions)
-        return acts.rescale(actions)
-
-    def step(self, actions, active):
-        """Step the active cars; returns (codes, rewards) for all cars (zeros where inactive or prepare)."""
-        n = self.sim.num_cars
-        steer = np.zeros(n)
-        speed = np.zeros(n)
-        idx = np.flatnonzero(active)
-        s, v = self.commands(actions)
-        steer[idx], speed[idx] = s, v
-        codes = self.sim.step(steer, speed, active).copy()
-        rewards = np.zeros(n)
-        run = np.flatnonzero(active & (codes != K.STATUS_PREPARE))
-        if run.size and self.reward is not None:
-            rewards[run] = self.reward(self.builder.each(run), run)
-        return codes, rewards
-
-
-def act(agent, obs, greedy: bool):
-    """(actions, log_probs, values) from PPO; SAC gives only actions (its log-probs and values are unused)."""
-    out = agent.act(obs, greedy=greedy)
-    if isinstance(out, tuple):
-        return out
-    zeros = np.zeros(len(out), dtype=np.float32)
-    return out, zeros, zeros
+from racerlab.agent.common import take
+from racerlab.sim import STATUS_NAMES, TRACE_COLUMNS, Status, World
 
 
 def concat_obs(parts):
     if isinstance(parts[0], dict):
         return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return np.concatenate(parts)
-
-
-def take(obs, idx):
-    if isinstance(obs, dict):
-        return {k: v[idx] for k, v in obs.items()}
-    return obs[idx]
 
 
 @dataclass
@@ -107,10 +44,8 @@ class Rollout:
 
     obs: object  # [N, ...] or dict; learning steps only (prepare steps excluded)
     actions: np.ndarray
-    log_probs: np.ndarray
-    values: np.ndarray
+    record: dict  # what the agent's `explore` asked to keep per step (PPO: log_probs, values), [N] each
     rewards: np.ndarray
-    next_values: np.ndarray
     terminated: np.ndarray
     truncated: np.ndarray
     episodes: list[Episode]
@@ -129,16 +64,17 @@ class Collector:
         self.num_cars = int(self.offsets[-1])
         self.next_uid = 0
 
-    def collect(self, agent, target_episodes: int, max_steps: int, greedy: bool = False,
-                first_episode_number: int = 0) -> Rollout:
+    def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0) -> Rollout:
+        """Whole episodes driven with `agent.explore(obs) -> (actions, record)` until `target_episodes` have
+        ended or their kept steps reach `max_steps`."""
         t0 = time.perf_counter()
         state = _IterationState(self, target_episodes, max_steps)
         for w in self.worlds:
             w.sim.reset()
         state.start_all()
         while state.active.any():
-            self._step(agent, state, greedy)
-        return state.finish(agent, first_episode_number, time.perf_counter() - t0)
+            self._step(agent, state)
+        return state.finish(first_episode_number, time.perf_counter() - t0)
 
     def _observe(self, mask):
         """Observations of the cars in `mask` (global car indices), rendered only for them."""
@@ -148,10 +84,10 @@ class Collector:
             parts.append(w.observe(np.flatnonzero(mask[lo:hi])))
         return take(concat_obs(parts), np.flatnonzero(mask))
 
-    def _step(self, agent, state, greedy):
+    def _step(self, agent, state):
         idx = np.flatnonzero(state.active)
         obs = self._observe(state.active)
-        actions, logp, values = act(agent, obs, greedy)
+        actions, record = agent.explore(obs)
         full_actions = np.zeros((self.num_cars, *actions.shape[1:]), dtype=actions.dtype)
         full_actions[idx] = actions
         codes = np.empty(self.num_cars, dtype=np.int64)
@@ -162,7 +98,7 @@ class Collector:
             c, r = w.step(full_actions[lo:hi][on], on)
             codes[lo:hi] = c
             rewards[lo:hi] = r
-        state.record(idx, obs, actions, logp, values, codes, rewards)
+        state.record(idx, obs, actions, record, codes, rewards)
         done = np.zeros(self.num_cars, dtype=bool)
         trunc = np.zeros(self.num_cars, dtype=bool)
         for k, w in enumerate(self.worlds):
@@ -212,34 +148,20 @@ class _IterationState:
             self.episodes[uid] = Episode(uid, k, i, start_time=sim.time)
             self.started += 1
 
-    def record(self, idx, obs, actions, logp, values, codes, rewards):
+    def record(self, idx, obs, actions, record, codes, rewards):
         self.env_steps += idx.size
-        block = {"car": idx, "uid": self.uid[idx], "obs": obs, "actions": actions, "log_probs": logp,
-                 "values": values, "rewards": rewards[idx], "codes": codes[idx]}
-        block.update(self._trace_columns(idx, codes, rewards, actions))
+        block = {"car": idx, "uid": self.uid[idx], "obs": obs, "actions": actions, "record": record,
+                 "rewards": rewards[idx], "codes": codes[idx]}
+        block.update(self._trace_columns(idx))
         self.blocks.append(block)
 
-    def _trace_columns(self, idx, codes, rewards, actions):
+    def _trace_columns(self, idx):
         col = self.col
-        cols = {k: [] for k in ("steps", "X", "Y", "yaw", "steer", "throttle", "all_wheels_on_track", "progress",
-                                "closest_waypoint", "track_len", "tstamp")}
+        parts = []
         for k, w in enumerate(col.worlds):
             lo, hi = col.offsets[k], col.offsets[k + 1]
-            sel = idx[(idx >= lo) & (idx < hi)] - lo
-            sim = w.sim
-            p = sim.params[sel]
-            cols["steps"].append(sim.steps[sel])
-            cols["X"].append(p[:, K.MX])
-            cols["Y"].append(p[:, K.MY])
-            cols["yaw"].append(p[:, K.MHEADING])
-            cols["steer"].append(sim.car[sel, K.CCMD_STEER])
-            cols["throttle"].append(sim.car[sel, K.CCMD_SPEED])
-            cols["all_wheels_on_track"].append(p[:, K.MWHEELS] == 4)
-            cols["progress"].append(p[:, K.MPROG])
-            cols["closest_waypoint"].append(p[:, K.MCLOSEST].astype(np.int64))
-            cols["track_len"].append(np.full(sel.size, sim.track.length))
-            cols["tstamp"].append(np.full(sel.size, sim.time))
-        out = {k: np.concatenate(v) for k, v in cols.items()}
+            parts.append(w.sim.trace_columns(idx[(idx >= lo) & (idx < hi)] - lo))
+        out = {c: np.concatenate([p[c] for p in parts]) for c in TRACE_COLUMNS}
         out["wall_clock"] = np.full(idx.size, time.time())
         return out
 
@@ -252,8 +174,8 @@ class _IterationState:
             k, i = self.world_of(car)
             sim = self.col.worlds[k].sim
             ep.steps = int(sim.steps[i])
-            ep.status = K.STATUS_NAMES[int(codes[car])] if not trunc[car] else "time_up"
-            ep.progress = float(sim.params[i, K.MPROG])
+            ep.status = STATUS_NAMES[int(codes[car])] if not trunc[car] else "time_up"
+            ep.progress = float(sim.judged.progress[i])
             ep.end_time = sim.time
             if ep.status == "lap_complete":
                 ep.lap_time = ep.steps * sim.dt
@@ -284,7 +206,7 @@ class _IterationState:
                     w.sim.reset(mask)
             self._start(cars_arr)
 
-    def finish(self, agent, first_episode_number: int, seconds: float) -> Rollout:
+    def finish(self, first_episode_number: int, seconds: float) -> Rollout:
         cols = _concat_blocks(self.blocks)
         kept = np.array(self.completed, dtype=np.int64)
         order_of = {uid: n for n, uid in enumerate(self.completed)}
@@ -293,39 +215,32 @@ class _IterationState:
         steps = cols["steps"] if cols else np.zeros(0, int)
         order = np.flatnonzero(keep)[np.lexsort((steps[keep], rank[keep]))] if cols else np.zeros(0, int)
         episodes = [self.episodes[int(u)] for u in kept]
-        trace = {k: cols[k][order] for k in ("steps", "X", "Y", "yaw", "steer", "throttle", "all_wheels_on_track",
-                                              "progress", "closest_waypoint", "track_len", "tstamp", "rewards",
-                                              "codes", "actions", "wall_clock")} if cols else {}
+        trace = {k: cols[k][order] for k in (*TRACE_COLUMNS, "rewards", "codes", "actions", "wall_clock")} \
+            if cols else {}
         if cols:
             trace["episode"] = first_episode_number + rank[order]
             for n, ep in enumerate(episodes):
                 ep.reward = float(trace["rewards"][trace["episode"] == first_episode_number + n].sum())
-        learn = order[cols["codes"][order] != K.STATUS_PREPARE] if cols else order
-        return self._learning_arrays(agent, cols, learn, episodes, trace, seconds)
+        learn = order[cols["codes"][order] != Status.PREPARE] if cols else order
+        return self._learning_arrays(cols, learn, episodes, trace, seconds)
 
-    def _learning_arrays(self, agent, cols, learn, episodes, trace, seconds) -> Rollout:
+    def _learning_arrays(self, cols, learn, episodes, trace, seconds) -> Rollout:
         if not cols or learn.size == 0:
             z = np.zeros(0, np.float32)
-            return Rollout(None, np.zeros(0), z, z, z, z, np.zeros(0, bool), np.zeros(0, bool), episodes, trace,
+            return Rollout(None, np.zeros(0), {}, z, np.zeros(0, bool), np.zeros(0, bool), episodes, trace,
                            self.env_steps, seconds)
         uid = cols["uid"][learn]
         ended = np.append(uid[1:] != uid[:-1], True)
         status = {ep.uid: ep.status for ep in episodes}
         truncated = ended & np.array([status[int(u)] == "time_up" for u in uid.tolist()])
         terminated = ended & ~truncated
-        end_uids = uid[ended]
-        end_values = np.zeros(end_uids.size, dtype=np.float32)
-        tr = [n for n, u in enumerate(end_uids.tolist()) if u in self.final_obs]
-        final = concat_obs([_expand(self.final_obs[int(end_uids[n])]) for n in tr]) if tr else None
-        if tr and hasattr(agent, "value"):
-            end_values[tr] = agent.value(final)
-        values = cols["values"][learn].astype(np.float32)
-        from racerlab.agent.ppo import episode_next_values
-
-        next_values = episode_next_values(values, ended, end_values)
-        ro = Rollout(take(cols["obs"], learn), cols["actions"][learn], cols["log_probs"][learn], values,
-                     cols["rewards"][learn].astype(np.float32), next_values, terminated, truncated, episodes,
-                     trace, self.env_steps, seconds)
+        end_uids = uid[ended].tolist()
+        cut = [u for u in end_uids if u in self.final_obs]
+        final = concat_obs([_expand(self.final_obs[u]) for u in cut]) if cut else None
+        record = {k: v[learn] for k, v in cols["record"].items()}
+        ro = Rollout(take(cols["obs"], learn), cols["actions"][learn], record,
+                     cols["rewards"][learn].astype(np.float32), terminated, truncated, episodes, trace,
+                     self.env_steps, seconds)
         ro.final_obs = final  # observations after each truncated episode's last step, in order
         return ro
 

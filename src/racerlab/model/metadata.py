@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import ConfigError
+from racerlab.spec import MAX_STEERING_DEG
 
 CAMERAS = ("FRONT_FACING_CAMERA", "LEFT_CAMERA", "STEREO_CAMERAS", "observation")
 LIDARS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
@@ -23,8 +24,17 @@ ALGORITHMS = ("clipped_ppo", "sac")
 KNOWN_KEYS = {"action_space", "action_space_type", "sensor", "neural_network", "training_algorithm", "version",
               "lidar_config", "preprocess_type", "racerlab"}
 
-MIN_SPEED, MAX_SPEED = 0.1, 4.0  # what the simulator actuates (facts §3)
-MAX_STEER_DEG = 30.0
+# What a model may observe (training.toml's run.observation): racerlab's `features` vector and the sensor
+# combinations. `racerlab.sim.observations` builds each and its `register_observation` appends new names.
+OBSERVATION_NAMES = ["features", "camera", "stereo", "lidar", "sector_lidar", "discretized_sector_lidar",
+                     "camera+lidar", "camera+sector_lidar", "camera+discretized_sector_lidar", "stereo+lidar",
+                     "stereo+sector_lidar", "stereo+discretized_sector_lidar"]
+
+
+def split_observation_name(name: str) -> tuple[str, tuple[str, ...]]:
+    """"stereo+lidar:dr,walls" -> ("stereo+lidar", ("dr", "walls"))."""
+    base, _, opts = name.partition(":")
+    return base.strip(), tuple(o.strip() for o in opts.split(",") if o.strip())
 
 
 @dataclass(frozen=True)
@@ -104,7 +114,7 @@ def _fmt_version(v: float) -> str:
     return str(int(v)) if float(v).is_integer() else str(v)
 
 
-def default_discrete_actions(max_steer: float = 30.0, steer_levels: int = 5, max_speed: float = 1.0,
+def default_discrete_actions(max_steer: float = MAX_STEERING_DEG, steer_levels: int = 5, max_speed: float = 1.0,
                              speed_levels: int = 2) -> DiscreteActions:
     """The console default: steering evenly over [-max, max] (outer loop) × speeds max·i/n (DRoA, facts §5)."""
     steers = np.linspace(-max_steer, max_steer, steer_levels)
@@ -113,7 +123,7 @@ def default_discrete_actions(max_steer: float = 30.0, steer_levels: int = 5, max
     return DiscreteActions(tuple(p[0] for p in pairs), tuple(p[1] for p in pairs))
 
 
-DEFAULT_CONTINUOUS = ContinuousActions(-30.0, 30.0, 1.0, 2.0)
+DEFAULT_CONTINUOUS = ContinuousActions(-MAX_STEERING_DEG, MAX_STEERING_DEG, 1.0, 2.0)
 
 
 def parse_number(src: str, key: str, value) -> float:

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from racerlab.errors import ConfigError
-from racerlab.hyperparameters import Hyperparameters, load_hyperparameters, parse_hyperparameters
+from racerlab.model import Hyperparameters, load_hyperparameters, parse_hyperparameters
 
 DRFC_FILE = {  # DRfC defaults/hyperparameters.json as racers have it
     "batch_size": 64, "beta_entropy": 0.01, "discount_factor": 0.99, "e_greedy_value": 0.05,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from racerlab.errors import ConfigError
 from racerlab.logs.metrics import BEST_MODEL_METRICS
-from racerlab.sim.observations import OBSERVATIONS, split_observation_name
+from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
 
 REWARD_ORDERS = ("aws", "after_action")
 
@@ -153,9 +153,9 @@ def _validate(c: TrainingConfig) -> None:
     _check(c.run.num_cars >= len(c.track.names), s, "run.num_cars must be at least the number of tracks")
     _check(c.run.threads >= 0, s, "run.threads must be >= 0")
     base = split_observation_name(c.run.observation)[0]
-    _check(base in ("", *OBSERVATIONS), s, f"run.observation must be empty (follow model_metadata.json) or one of "
-                                         f"{', '.join(OBSERVATIONS)}, optionally with options after a colon "
-                                         "(camera:dr, lidar:walls)")
+    _check(base in ("", *OBSERVATION_NAMES), s,
+           f"run.observation must be empty (follow model_metadata.json) or one of {', '.join(OBSERVATION_NAMES)}, "
+           "optionally with options after a colon (camera:dr, lidar:walls)")
     _check(c.run.reward_order in REWARD_ORDERS, s, f"run.reward_order must be one of {REWARD_ORDERS}")
     _check(c.run.max_steps_per_iteration >= 100, s, "run.max_steps_per_iteration must be >= 100")
     _check(c.run.max_episode_steps >= 10, s, "run.max_episode_steps must be >= 10")

@@ -22,7 +22,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from racerlab.errors import ConfigError
-from racerlab.metadata import parse_number, read_json_file
+from racerlab.model.metadata import parse_number, read_json_file
 
 EXPLORATION_TYPES = ("categorical", "e-greedy", "additive_noise")
 LOSS_TYPES = ("huber", "mean squared error")

@@ -7,10 +7,7 @@ import json
 import pytest
 
 from racerlab.errors import ConfigError, RacerlabError
-from racerlab.hyperparameters import load_hyperparameters
-from racerlab.metadata import load_model_metadata
-from racerlab.train.config import TrainingConfig, load_training_config
-from racerlab.train.init import init_model
+from racerlab.model import TrainingConfig, init_model, load_hyperparameters, load_model_metadata, load_training_config
 
 
 def test_defaults_round_trip(tmp_path):
@@ -61,7 +58,7 @@ def test_init_camera_and_continuous(tmp_path):
 
 
 def test_observation_with_sensor_options(tmp_path):
-    from racerlab.train.config import parse_training_config
+    from racerlab.model import parse_training_config
 
     assert parse_training_config({"run": {"observation": "camera:dr"}}).run.observation == "camera:dr"
     with pytest.raises(ConfigError, match="run.observation must be empty .* or one of features, camera"):

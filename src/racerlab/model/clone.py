@@ -13,10 +13,10 @@ import shutil
 import time
 from pathlib import Path
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ConfigError, RacerlabError
 from racerlab.logs import atomic_write_json
-from racerlab.metadata import load_model_metadata, parse_model_metadata
-from racerlab.train.folder import ModelFolder, check_compatible, copy_model_files
+from racerlab.model.folder import ModelFolder
+from racerlab.model.metadata import ModelMetadata, load_model_metadata, parse_model_metadata
 
 
 def clone_model(src, dst, checkpoint: str = "best", reward=None, model_metadata=None, hyperparameters=None,
@@ -27,7 +27,7 @@ def clone_model(src, dst, checkpoint: str = "best", reward=None, model_metadata=
         raise RacerlabError(f"{target.path}: already exists and is not empty; clone into a new folder")
     info = source.resolve_checkpoint(checkpoint)
     state = source.load_checkpoint(info)
-    parent_meta = parse_model_metadata(state["metadata"], f"{source.path / 'checkpoints' / info.name}")
+    parent_meta = parse_model_metadata(state["metadata"], str(source.checkpoint_path(info)))
     new_meta = load_model_metadata(model_metadata) if model_metadata else source.metadata()
     check_compatible(parent_meta, new_meta, str(model_metadata or source.metadata_path))
     if track:
@@ -35,11 +35,11 @@ def clone_model(src, dst, checkpoint: str = "best", reward=None, model_metadata=
 
         tracks.load(track)
     if hyperparameters:
-        from racerlab.hyperparameters import load_hyperparameters
+        from racerlab.model.hyperparameters import load_hyperparameters
 
         load_hyperparameters(hyperparameters)  # validate before writing anything
     if reward:
-        from racerlab.sim.reward import load_reward_function
+        from racerlab.model.reward import load_reward_function
 
         load_reward_function(reward)
     copy_model_files(source, target)
@@ -72,8 +72,33 @@ def _read(path: Path):
 def _set_track(folder: ModelFolder, track: str) -> None:
     from dataclasses import replace
 
-    from racerlab.train.config import TrainingConfig
+    from racerlab.model.config import TrainingConfig
 
     cfg: TrainingConfig = folder.config()
     cfg = replace(cfg, track=replace(cfg.track, names=(track,)))
     folder.config_path.write_text(cfg.to_toml())
+
+
+def check_compatible(parent: ModelMetadata, child: ModelMetadata, where: str) -> None:
+    """Refuse weights whose shapes cannot carry over (facts §9): action count, sensors, network, algorithm."""
+    problems = []
+    if parent.action_space_type != child.action_space_type:
+        problems.append(f"action space type {parent.action_space_type} → {child.action_space_type}")
+    elif parent.action_space_type == "discrete" and parent.actions.n != child.actions.n:
+        problems.append(f"number of actions {parent.actions.n} → {child.actions.n}")
+    if tuple(parent.sensor) != tuple(child.sensor):
+        problems.append(f"sensors {list(parent.sensor)} → {list(child.sensor)}")
+    if parent.neural_network != child.neural_network:
+        problems.append(f"neural_network {parent.neural_network} → {child.neural_network}")
+    if parent.training_algorithm != child.training_algorithm:
+        problems.append(f"training_algorithm {parent.training_algorithm} → {child.training_algorithm}")
+    if problems:
+        raise ConfigError(f"{where}: cannot reuse the parent's weights: {'; '.join(problems)}. Action values, the "
+                          "reward, hyperparameters and track may change; these may not")
+
+
+def copy_model_files(src: ModelFolder, dst: ModelFolder) -> None:
+    dst.path.mkdir(parents=True, exist_ok=True)
+    for p in src.model_files:
+        if p.is_file():
+            shutil.copy2(p, dst.path / p.name)

@@ -8,10 +8,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from racerlab.errors import RacerlabError
-from racerlab.hyperparameters import Hyperparameters
-from racerlab.metadata import ContinuousActions, ModelMetadata, default_discrete_actions
-from racerlab.train.config import TrackSettings, TrainingConfig
-from racerlab.train.folder import ModelFolder
+from racerlab.model.config import TrackSettings, TrainingConfig
+from racerlab.model.folder import ModelFolder
+from racerlab.model.hyperparameters import Hyperparameters
+from racerlab.model.metadata import ContinuousActions, ModelMetadata, default_discrete_actions
+from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED
 
 EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
 SENSORS = {
@@ -27,15 +28,15 @@ def make_metadata(sensor: str = "features", action_space: str = "discrete", algo
     """AWS console defaults (facts §5) for the chosen sensor; `max_speed` scales the speeds."""
     if sensor not in SENSORS:
         raise RacerlabError(f"unknown sensor {sensor!r}; choose one of {', '.join(SENSORS)}")
-    if not 0.1 <= max_speed <= 4.0:
-        raise RacerlabError(f"max speed must be within [0.1, 4.0] m/s, got {max_speed}")
+    if not MIN_SPEED <= max_speed <= MAX_SPEED:
+        raise RacerlabError(f"max speed must be within [{MIN_SPEED}, {MAX_SPEED}] m/s, got {max_speed}")
     if algorithm == "sac" and action_space != "continuous":
         raise RacerlabError("SAC needs a continuous action space: add --action-space continuous")
     sensors, network = SENSORS[sensor]
     if action_space == "discrete":
         actions = default_discrete_actions(max_speed=max_speed)
     elif action_space == "continuous":
-        actions = ContinuousActions(-30.0, 30.0, min(1.0, max_speed / 2), max(max_speed, 0.2))
+        actions = ContinuousActions(-MAX_STEERING_DEG, MAX_STEERING_DEG, min(1.0, max_speed / 2), max(max_speed, 0.2))
     else:
         raise RacerlabError(f"action space must be discrete or continuous, got {action_space!r}")
     return ModelMetadata(actions, sensors, network, algorithm, 5.0)
@@ -45,8 +46,7 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
                best_model_metric: str | None = None, force: bool = False) -> ModelFolder:
     folder = ModelFolder(path)
-    existing = [p for p in (folder.reward_path, folder.metadata_path, folder.hyperparameters_path,
-                            folder.config_path) if p.exists()]
+    existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
         raise RacerlabError(f"{folder.path}: already holds {existing[0].name}; use another folder or --force")
     meta = make_metadata(sensor, action_space, algorithm, max_speed)

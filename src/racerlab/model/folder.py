@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from racerlab.errors import ConfigError, RacerlabError
-from racerlab.hyperparameters import Hyperparameters, load_hyperparameters
+from racerlab.errors import RacerlabError
 from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_text, finite_json
-from racerlab.metadata import ModelMetadata, load_model_metadata
-from racerlab.train.config import TrainingConfig, load_training_config
+from racerlab.model.config import TrainingConfig, load_training_config
+from racerlab.model.hyperparameters import Hyperparameters, load_hyperparameters
+from racerlab.model.metadata import ModelMetadata, load_model_metadata
+from racerlab.model.reward import load_reward_function
 
 KEEP_LAST = 4
 CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
@@ -73,8 +73,12 @@ class ModelFolder:
         return self.path / "lineage.json"
 
     @property
-    def evaluations_dir(self) -> Path:
-        return self.path / "evaluations"
+    def model_files(self) -> tuple[Path, ...]:
+        """The four files that define the model: reward, metadata, hyperparameters, training.toml."""
+        return self.reward_path, self.metadata_path, self.hyperparameters_path, self.config_path
+
+    def checkpoint_path(self, info: CheckpointInfo) -> Path:
+        return self.checkpoints_dir / info.name
 
     # ---- loading -----------------------------------------------------------------------------
     def require(self) -> None:
@@ -84,6 +88,9 @@ class ModelFolder:
             if not p.is_file():
                 raise RacerlabError(f"{p}: missing; a model folder needs reward_function.py and "
                                     "model_metadata.json (hyperparameters.json and training.toml are optional)")
+
+    def reward_function(self):
+        return load_reward_function(self.reward_path)
 
     def metadata(self) -> ModelMetadata:
         return load_model_metadata(self.metadata_path)
@@ -95,6 +102,13 @@ class ModelFolder:
 
     def config(self) -> TrainingConfig:
         return load_training_config(self.config_path)
+
+    def tracks(self, default: bool = True) -> tuple[str, ...]:
+        """Names (or paths) of the tracks the model trains on, from training.toml. Without that file the model
+        trains on the default track, which `default=False` leaves out: then the folder names no track."""
+        if not default and not self.config_path.is_file():
+            return ()
+        return self.config().track.names
 
     # ---- checkpoints -------------------------------------------------------------------------
     def checkpoints(self) -> list[CheckpointInfo]:
@@ -135,7 +149,7 @@ class ModelFolder:
     def load_checkpoint(self, info: CheckpointInfo) -> dict:
         import torch
 
-        path = self.checkpoints_dir / info.name
+        path = self.checkpoint_path(info)
         try:
             return torch.load(path, map_location="cpu", weights_only=False)
         except Exception as exc:  # noqa: BLE001 - a damaged file is reported, not a traceback
@@ -149,7 +163,7 @@ class ModelFolder:
         info = CheckpointInfo(f"{iteration}_Step-{steps}.pt", iteration, steps)
         buf = io.BytesIO()
         torch.save(state, buf)
-        atomic_write_bytes(self.checkpoints_dir / info.name, buf.getvalue())
+        atomic_write_bytes(self.checkpoint_path(info), buf.getvalue())
         return info
 
     def update_index(self, last: CheckpointInfo, last_metric: float, best: CheckpointInfo | None,
@@ -171,35 +185,22 @@ class ModelFolder:
             keep.add(best.name)
         for c in cps:
             if c.name not in keep:
-                (self.checkpoints_dir / c.name).unlink(missing_ok=True)
+                self.checkpoint_path(c).unlink(missing_ok=True)
 
     def drop_after(self, iteration: int) -> None:
         """Remove checkpoints newer than `iteration` (after resuming from an older one)."""
         for c in self.checkpoints():
             if c.iteration > iteration:
-                (self.checkpoints_dir / c.name).unlink(missing_ok=True)
+                self.checkpoint_path(c).unlink(missing_ok=True)
 
 
-def check_compatible(parent: ModelMetadata, child: ModelMetadata, where: str) -> None:
-    """Refuse weights whose shapes cannot carry over (facts §9): action count, sensors, network, algorithm."""
-    problems = []
-    if parent.action_space_type != child.action_space_type:
-        problems.append(f"action space type {parent.action_space_type} → {child.action_space_type}")
-    elif parent.action_space_type == "discrete" and parent.actions.n != child.actions.n:
-        problems.append(f"number of actions {parent.actions.n} → {child.actions.n}")
-    if tuple(parent.sensor) != tuple(child.sensor):
-        problems.append(f"sensors {list(parent.sensor)} → {list(child.sensor)}")
-    if parent.neural_network != child.neural_network:
-        problems.append(f"neural_network {parent.neural_network} → {child.neural_network}")
-    if parent.training_algorithm != child.training_algorithm:
-        problems.append(f"training_algorithm {parent.training_algorithm} → {child.training_algorithm}")
-    if problems:
-        raise ConfigError(f"{where}: cannot reuse the parent's weights: {'; '.join(problems)}. Action values, the "
-                          "reward, hyperparameters and track may change; these may not")
+def resolve_track(folder, track=None, *, default: bool = True):
+    """The `Track` a model drives: `track` (a Track, name or file) when given, else the first of the model's
+    training tracks (`ModelFolder.tracks`); None when `default` is False and the folder names no track."""
+    from racerlab import track as tracks
 
-
-def copy_model_files(src: ModelFolder, dst: ModelFolder) -> None:
-    dst.path.mkdir(parents=True, exist_ok=True)
-    for p in (src.reward_path, src.metadata_path, src.hyperparameters_path, src.config_path):
-        if p.is_file():
-            shutil.copy2(p, dst.path / p.name)
+    if track is not None:
+        return tracks.load(track)
+    folder = folder if isinstance(folder, ModelFolder) else ModelFolder(folder)
+    names = folder.tracks(default)
+    return tracks.load(names[0]) if names else None

@@ -1,0 +1,135 @@
+"""`World`: one track's batched simulator with what every driver of it needs, in one place.
+
+A world is a `Simulator` plus the observation, the model's action mapping (the discrete lookup or the
+continuous rescale of `model_metadata`), the AWS params builder and the reward calls. The Gymnasium
+adapters (`racerlab.sim.env`), training rollouts (`racerlab.train.rollout`) and evaluation
+(`racerlab.evaluate.runner`, `racerlab.train.evaluation`) all drive one:
+
+    >>> world = World("reInvent2019_track", 64, metadata, reward_function, "features", seed=0)
+    >>> obs = world.observe()
+    >>> codes, rewards = world.step(actions)          # actions of every car (or of `active` ones)
+    >>> world.sim.judged.progress, world.sim.state.speed
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+from racerlab.model.metadata import DiscreteActions, as_model_metadata
+from racerlab.sim import _kernels as K
+from racerlab.sim.core import Simulator, StartRules
+from racerlab.sim.observations import make_observation
+from racerlab.sim.reward import ParamsBuilder, RewardCaller, as_reward_function
+from racerlab.spec import CarParams
+
+
+def _start_rules(start):
+    if start is None or isinstance(start, StartRules):
+        return start
+    return StartRules(**start)
+
+
+def _car_params(car):
+    if car is None or isinstance(car, CarParams):
+        return car
+    return CarParams(**car)
+
+
+def as_reward_caller(reward) -> RewardCaller | None:
+    """A `RewardCaller`, a callable, a path to a reward_function.py, or None (no reward, no params)."""
+    if reward is None or isinstance(reward, RewardCaller):
+        return reward
+    return RewardCaller(as_reward_function(reward))
+
+
+class World:
+    """`num_cars` cars on `track` with an observation, the action mapping and the reward.
+
+    `metadata` is a `ModelMetadata`, its dict or path, or None (the console's default discrete space);
+    `reward` a `RewardCaller`, a callable, a path, or None (reward 0 and no params built: the fastest
+    path). `observation` names it ("features", "camera", ...); None follows the model's sensors, or
+    is "features" when no metadata is given either. `car` and `start` take `CarParams` / `StartRules`
+    or their keyword dicts. With `keep_params`, `params` holds each car's params dict of the last step
+    (None where no reward was called).
+    """
+
+    def __init__(self, track, num_cars: int = 1, metadata=None, reward=None, observation: str | None = None, *,
+                 car=None, start=None, max_episode_steps: int = 10_000, reward_order: str = "aws",
+                 seed: int | None = None, keep_params: bool = False):
+        self.sim = Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
+                             max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed)
+        self.metadata = as_model_metadata(metadata)
+        if observation is None and metadata is None:
+            observation = "features"
+        self.observation = make_observation(observation, self.sim, self.metadata)
+        self.reward = as_reward_caller(reward)
+        self.builder = ParamsBuilder(self.sim) if self.reward is not None else None
+        self.keep_params = keep_params
+        self.params: list[dict | None] | None = None
+        self.discrete = isinstance(self.metadata.actions, DiscreteActions)
+
+    @property
+    def num_cars(self) -> int:
+        return self.sim.num_cars
+
+    @property
+    def state(self):
+        """The cars now, by name (`Simulator.state`)."""
+        return self.sim.state
+
+    @property
+    def action_space(self) -> gym.Space:
+        """`Discrete(n)` for a discrete action list, else `Box(-1, 1, (2,))` ([steering, speed])."""
+        acts = self.metadata.actions
+        if self.discrete:
+            return gym.spaces.Discrete(acts.n)
+        return gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+
+    def observe(self, rows=None):
+        """The batch observation; observations that can update just `rows` (the cars whose observation
+        is needed, e.g. after a partial reset) skip the others, whose rows then hold stale values."""
+        if rows is not None and getattr(self.observation, "partial_update", False):
+            return self.observation(np.asarray(rows, dtype=np.int64))
+        return self.observation()
+
+    def commands(self, actions) -> tuple[np.ndarray, np.ndarray]:
+        """Commanded (steering °, speed m/s) for a batch of actions: indices into the discrete action list,
+        or [steering, speed] in [-1, 1] rescaled to the continuous ranges."""
+        acts = self.metadata.actions
+        if self.discrete:
+            return acts.lookup(np.asarray(actions).reshape(-1))
+        return acts.rescale(np.asarray(actions, dtype=np.float64).reshape(-1, 2))
+
+    def step(self, actions, active=None) -> tuple[np.ndarray, np.ndarray]:
+        """One step of every car, or of the cars in the mask `active` (whose actions alone are given).
+
+        Returns (status codes, rewards) for all cars; the reward is 0 where a car was not stepped or took
+        its prepare step. The step-cap flags are in `sim.truncated`, the judged pose in `sim.judged`.
+        """
+        sim = self.sim
+        steer, speed = self.commands(actions)
+        if active is not None:
+            idx = np.flatnonzero(active)
+            steer_all = np.zeros(sim.num_cars)
+            speed_all = np.zeros(sim.num_cars)
+            steer_all[idx], speed_all[idx] = steer, speed
+            steer, speed = steer_all, speed_all
+        codes = sim.step(steer, speed, active).copy()
+        rewards = np.zeros(sim.num_cars)
+        self.params = None
+        if self.reward is not None:
+            stepped = codes != K.STATUS_PREPARE
+            run = np.flatnonzero(stepped if active is None else stepped & active)
+            kept = [] if self.keep_params else None
+            if run.size:
+                rewards[run] = self.reward(self.builder.each(run), run, kept)
+            if kept is not None:
+                self.params = [None] * sim.num_cars
+                for j, i in enumerate(run.tolist()):
+                    self.params[i] = kept[j]
+        return codes, rewards
+
+    def done(self, codes) -> tuple[np.ndarray, np.ndarray]:
+        """(terminated, truncated) masks after a step that returned `codes`."""
+        return self.sim.terminated_mask(codes), self.sim.truncated.copy()

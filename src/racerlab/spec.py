@@ -1,0 +1,199 @@
+"""What racerlab takes from AWS DeepRacer, defined once: step time, the car, episode statuses, reward params.
+
+Every other part reads these names from here (a leaf module: it imports nothing from racerlab but
+`errors`), so the simulator, the racing line, training, evaluation and log analysis cannot drift apart.
+
+- Time: one environment step is one camera frame at 15 Hz of simulated time (facts §2).
+- The car (facts §3): wheelbase, wheel track, the steering clip and the commanded-speed clip that the
+  simulator applies, and the point 0.14 m ahead of the base where AWS measures positions; `CarParams`
+  adds racerlab's dynamic limits (grip, acceleration, braking, lags), calibrated in `racerlab.sim.car`.
+- Episode statuses: the simtrace's `episode_status` strings (in the simulator's code order) and the labels
+  of the metrics JSON (facts §7).
+- Reward params: `REWARD_PARAMS`, the 27 keys of the AWS params dict in AWS order with type, unit and
+  meaning (facts §1), and `ParamsMaker`, the one place that turns columns of values into those dicts.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+# ---- time -------------------------------------------------------------------------------------------------
+STEPS_PER_SECOND = 15
+STEP_S = 1.0 / STEPS_PER_SECOND  # one environment step: one camera frame at 15 Hz of simulated time
+
+# ---- the car ----------------------------------------------------------------------------------------------
+MIN_SPEED = 0.1  # m/s: commanded speeds are clipped to [MIN_SPEED, MAX_SPEED] when the car is driven
+MAX_SPEED = 4.0
+MAX_STEERING_DEG = 30.0  # both front wheels are steered by the commanded angle clipped to ±30°
+WHEELBASE_M = 0.164
+WHEEL_TRACK_M = 0.16
+MODEL_POINT_AHEAD_M = 0.14  # AWS RELATIVE_POSITION_OF_FRONT_OF_CAR: x, y, progress, ... are measured here
+
+
+@dataclass(frozen=True)
+class CarParams:
+    """The car's geometry and dynamic limits; the defaults are the AWS car (see `racerlab.sim.car` for the
+    dynamics model and how its limits were calibrated)."""
+
+    wheelbase_m: float = WHEELBASE_M
+    track_m: float = WHEEL_TRACK_M
+    max_steer_deg: float = MAX_STEERING_DEG
+    min_speed_mps: float = MIN_SPEED
+    max_speed_mps: float = MAX_SPEED
+    speed_tau_s: float = 0.1
+    accel_mps2: float = 3.0
+    brake_mps2: float = 4.9
+    steer_tau_s: float = 0.03
+    grip_mps2: float = 4.9
+    substeps: int = 4
+
+    def __post_init__(self):
+        for name in ("wheelbase_m", "track_m", "max_steer_deg", "max_speed_mps", "accel_mps2", "brake_mps2",
+                     "grip_mps2"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"CarParams.{name} must be > 0")
+        if not 0 <= self.min_speed_mps <= self.max_speed_mps:
+            raise ValueError("CarParams needs 0 <= min_speed_mps <= max_speed_mps")
+        if self.substeps < 1:
+            raise ValueError("CarParams.substeps must be >= 1")
+
+    def wheel_offsets(self) -> np.ndarray:
+        """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
+        hx, hy = self.wheelbase_m / 2, self.track_m / 2
+        return np.array([[-hx, hy], [hx, hy], [-hx, -hy], [hx, -hy]], dtype=np.float64)
+
+
+# ---- episode statuses -------------------------------------------------------------------------------------
+# The simtrace's episode_status values the simulator produces, indexed by its status code.
+STATUS_NAMES = ("in_progress", "lap_complete", "crashed", "off_track", "immobilized", "reversed", "prepare",
+                "pause", "time_up")
+# Every AWS status (simapp `EpisodeStatus`) with its label in the metrics JSON; "park" (a car parked after
+# its race in multi-car events) is one racerlab does not produce yet but reads in AWS logs.
+STATUS_LABELS = {"prepare": "Prepare", "in_progress": "In progress", "off_track": "Off track",
+                 "crashed": "Crashed", "immobilized": "Immobilized", "reversed": "Reversed",
+                 "lap_complete": "Lap complete", "pause": "Pause", "park": "Park", "time_up": "Time Up"}
+
+
+# ---- reward params ----------------------------------------------------------------------------------------
+class RewardParam(NamedTuple):
+    name: str
+    type: type  # the Python type of the value in the params dict
+    unit: str
+    meaning: str
+
+
+REWARD_PARAMS = (
+    RewardParam("all_wheels_on_track", bool, "", "all four wheel centres are inside the road"),
+    RewardParam("x", float, "m", "model point (0.14 m ahead of the car's base) in the world frame"),
+    RewardParam("y", float, "m", "model point in the world frame"),
+    RewardParam("heading", float, "deg", "car yaw, counter-clockwise from +x, in (-180, 180]"),
+    RewardParam("distance_from_center", float, "m", "model point to its projection on the centre line"),
+    RewardParam("is_left_of_center", bool, "", "model point is left of the centre line in the driving direction"),
+    RewardParam("is_reversed", bool, "", "the episode drives the track in reverse"),
+    RewardParam("progress", float, "%", "share of the lap driven since the episode's start point"),
+    RewardParam("steps", float, "", "steps of the episode so far, the prepare step included (2.0 at the first "
+                "call)"),
+    RewardParam("speed", float, "m/s", "commanded speed of the action (not measured, not clipped)"),
+    RewardParam("steering_angle", float, "deg", "commanded steering of the action, + left (not clipped)"),
+    RewardParam("track_width", float, "m", "distance between the border points nearest the centre projection"),
+    RewardParam("track_length", float, "m", "length of the centre line"),
+    RewardParam("waypoints", list, "m", "centre-line points (x, y) in the driving direction, first == last"),
+    RewardParam("closest_waypoints", list, "index", "[previous, next] waypoint by arc length"),
+    RewardParam("projection_distance", float, "m", "arc length of the model point's projection from waypoint 0"),
+    RewardParam("is_offtrack", bool, "", "no wheel centre is on the road (the off-track rule fired this step)"),
+    RewardParam("is_crashed", bool, "", "the car hit an object this step"),
+    RewardParam("sim_time", float, "s", "simulation clock"),
+    RewardParam("closest_objects", list, "index", "[previous, next] object along the centre line"),
+    RewardParam("objects_location", list, "m", "(x, y) of every object"),
+    RewardParam("objects_left_of_center", list, "", "per object: left of the centre line"),
+    RewardParam("objects_distance", list, "m", "per object: arc length of its projection from waypoint 0"),
+    RewardParam("objects_distance_from_center", list, "m", "per object: distance to the centre line"),
+    RewardParam("objects_heading", list, "rad", "per object: yaw of a bot car, 0 for an obstacle"),
+    RewardParam("objects_speed", list, "m/s", "per object: speed of a bot car, 0 for an obstacle"),
+    RewardParam("object_in_camera", bool, "", "the next object is inside the camera's view"),
+)
+REWARD_PARAM_NAMES = tuple(p.name for p in REWARD_PARAMS)
+# The object params' values on a track without objects (AWS's defaults); lists are given as tuples and
+# become a fresh list in every dict.
+NO_OBJECTS = {"closest_objects": (0, 0), "objects_location": (), "objects_left_of_center": (),
+              "objects_distance": (), "objects_distance_from_center": (), "objects_heading": (),
+              "objects_speed": (), "object_in_camera": False}
+
+
+class ParamsMaker:
+    """Turns columns of values into AWS params dicts, keys in `REWARD_PARAMS` order.
+
+    `per_row` names the keys that change from row to row; the others are the same for every row of a
+    call. `maker(columns, constants)` yields one fresh dict per row; list-typed params are copied into
+    a new list for every dict (AWS hands each call a deep copy), so a value may be given as a tuple.
+    A list param named in `parts` (name -> length) is given as that many columns, one per element: the
+    list is then made in the loop (`[prev, next]`) instead of from a column of Python sequences, which
+    would cost a container object per row before the first dict is made.
+
+        >>> make = ParamsMaker(("x", "y", "closest_waypoints", ...), parts={"closest_waypoints": 2})
+        >>> for params in make({"x": xs, "y": ys, "closest_waypoints": (prev, next), ...},
+        ...                    {"track_length": 23.1, ...}): ...
+    """
+
+    def __init__(self, per_row: Sequence[str], parts: Mapping[str, int] | None = None):
+        parts = dict(parts or {})
+        unknown = [k for k in (*per_row, *parts) if k not in REWARD_PARAM_NAMES]
+        if unknown or any(k not in per_row or _TYPES[k] is not list for k in parts):
+            raise ValueError(f"ParamsMaker: {unknown or list(parts)} are not (per-row list) AWS reward params")
+        self.per_row = tuple(k for k in REWARD_PARAM_NAMES if k in per_row)
+        self.constant = tuple(k for k in REWARD_PARAM_NAMES if k not in per_row)
+        self.parts = parts
+        self._rows = _row_function(self.per_row, tuple(sorted(parts.items())))
+
+    def __call__(self, columns: Mapping[str, Sequence], constants: Mapping[str, object]) -> Iterator[dict]:
+        if columns.keys() != set(self.per_row) or constants.keys() != set(self.constant):
+            missing = set(REWARD_PARAM_NAMES) - columns.keys() - constants.keys()
+            extra = (columns.keys() | constants.keys()) - set(REWARD_PARAM_NAMES)
+            raise ValueError(f"ParamsMaker: columns must be {self.per_row} and constants {self.constant} "
+                             f"(missing {sorted(missing)}, unknown {sorted(extra)})")
+        flat = []
+        for k in self.per_row:
+            if k in self.parts:
+                flat += columns[k]
+            else:
+                flat.append(columns[k])
+        return self._rows(*flat, *(constants[k] for k in self.constant))
+
+
+_TYPES = {p.name: p.type for p in REWARD_PARAMS}
+
+
+@functools.cache
+def _row_function(per_row: tuple[str, ...], parts: tuple[tuple[str, int], ...]) -> Callable[..., Iterator[dict]]:
+    """A generator function `rows(*columns, *constants)` whose loop body is one dict display.
+
+    Written out from the table once per set of per-row keys because a dict display is the fastest way
+    CPython builds a dict (this runs once per car and step, next to the user's reward function);
+    `[*v]` is the cheapest fresh list of v.
+    """
+    split = dict(parts)
+    row_vars: list[str] = []
+    const_vars: list[str] = []
+    items = []
+    for p in REWARD_PARAMS:
+        if p.name in split:
+            names = [f"r{len(row_vars) + j}" for j in range(split[p.name])]
+            row_vars += names
+            value = f"[{', '.join(names)}]"
+        else:
+            names = row_vars if p.name in per_row else const_vars
+            names.append(f"{'r' if names is row_vars else 'k'}{len(names)}")
+            value = f"[*{names[-1]}]" if p.type is list else names[-1]
+        items.append(f"{p.name!r}: {value}")
+    columns = [f"c{i}" for i in range(len(row_vars))]
+    source = (f"def rows({', '.join([*columns, *const_vars])}):\n"
+              f"    for ({', '.join(row_vars)},) in zip({', '.join(columns)}, strict=True):\n"
+              f"        yield {{{', '.join(items)}}}\n")
+    namespace: dict = {}
+    exec(compile(source, f"<racerlab.spec params rows {len(per_row)}>", "exec"), namespace)  # noqa: S102
+    return namespace["rows"]
