@@ -47,9 +47,10 @@ def resolve_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str
             return tracks.load(name), "from the model folder's training.toml"
         except RacerlabError as exc:
             return None, f"the model folder's track cannot be loaded ({exc}); pass --track"
-    found = _tracks_of_length(df)
+    found, same = _tracks_of_length(df)
     if len(found) == 1:
-        return found[0], f"the only known track {_track_len(df):.2f} m long (the log's track_len)"
+        alias = f"; {', '.join(same)} {'is' if len(same) == 1 else 'are'} the same geometry" if same else ""
+        return found[0], f"the only known track {_track_len(df):.2f} m long (the log's track_len{alias})"
     if found:
         names = ", ".join(t.name for t in found)
         return None, f"several known tracks are {_track_len(df):.2f} m long ({names}); pass --track"
@@ -72,20 +73,28 @@ def _track_len(df: pd.DataFrame) -> float:
     return float(df["track_len"].median()) if len(df) else float("nan")
 
 
-def _tracks_of_length(df: pd.DataFrame) -> list[Track]:
+def _tracks_of_length(df: pd.DataFrame) -> tuple[list[Track], list[str]]:
+    """Known tracks as long as the log's track_len, one per distinct geometry (AWS ships some route files
+    under several names, e.g. reinvent_base = reinvent_carpet = reinvent_concrete = reinvent_wood: the
+    first name in sorted order stands for them), and the names of the identical files left out."""
     from racerlab import track as tracks
     from racerlab.track.registry import catalogue
 
     target = _track_len(df)
-    out = []
-    for name in catalogue():
+    out: dict[bytes, Track] = {}
+    same = []
+    for name in sorted(catalogue()):
         try:
             t = tracks.load(name)
         except RacerlabError:
             continue
         if abs(round(t.length, 2) - target) <= 0.011:
-            out.append(t)
-    return out
+            key = t.as_array().tobytes()
+            if key in out:
+                same.append(name)
+            else:
+                out[key] = t
+    return list(out.values()), same
 
 
 def rows_on_track(df: pd.DataFrame, track: Track) -> pd.DataFrame:
