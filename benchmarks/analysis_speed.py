@@ -38,16 +38,15 @@ SIDE_BY_SIDE_FILES = 500
 COLD_RACERLAB = """
 import sys, time
 from racerlab.analysis import load
-t = time.perf_counter(); df = load(sys.argv[1], cache=False); dt = time.perf_counter() - t
-print(len(df), dt)
+c, t = time.process_time(), time.perf_counter(); df = load(sys.argv[1], cache=False)
+print(len(df), time.perf_counter() - t, time.process_time() - c)
 """
 COLD_DEEPRACER_UTILS = """
 import logging, sys, time
 from deepracer.logs import DeepRacerLog
 logging.getLogger("deepracer.logs.log").setLevel(logging.ERROR)
-t = time.perf_counter(); log = DeepRacerLog(sys.argv[1]); log.load(); df = log.dataframe()
-dt = time.perf_counter() - t
-print(len(df), dt)
+c, t = time.process_time(), time.perf_counter(); log = DeepRacerLog(sys.argv[1]); log.load(); df = log.dataframe()
+print(len(df), time.perf_counter() - t, time.process_time() - c)
 """
 
 
@@ -140,10 +139,11 @@ def main() -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _fresh_load(script: str, folder: Path) -> tuple[int, float]:
+def _fresh_load(script: str, folder: Path) -> tuple[int, float, float]:
+    """Rows, wall seconds and CPU seconds (all threads) of one load in a fresh interpreter."""
     out = subprocess.run([sys.executable, "-c", script, str(folder)], capture_output=True, text=True, check=True)
-    rows, seconds = out.stdout.split()[-2:]
-    return int(rows), float(seconds)
+    rows, wall, cpu = out.stdout.split()[-3:]
+    return int(rows), float(wall), float(cpu)
 
 
 def bench_side_by_side(folder: Path, rows: int, rounds: int) -> None:
@@ -157,14 +157,15 @@ def bench_side_by_side(folder: Path, rows: int, rounds: int) -> None:
         return
     ours, theirs = [], []
     for _ in range(rounds):
-        n_ours, t = _fresh_load(COLD_RACERLAB, folder)
+        n_ours, *t = _fresh_load(COLD_RACERLAB, folder)
         ours.append(t)
-        n_theirs, t = _fresh_load(COLD_DEEPRACER_UTILS, folder)
+        n_theirs, *t = _fresh_load(COLD_DEEPRACER_UTILS, folder)
         theirs.append(t)
-    a, b = float(np.median(ours)), float(np.median(theirs))
+    (a, a_cpu), (b, b_cpu) = np.median(ours, axis=0), np.median(theirs, axis=0)
     emit(bench="cold_side_by_side", files=SIDE_BY_SIDE_FILES, rows=written, same_rows=n_ours == n_theirs == written,
          racerlab_s=round(a, 3), deepracer_utils_s=round(b, 3), ratio=round(b / a, 2), target_ratio=4.0,
-         racerlab_runs=[round(t, 3) for t in ours], deepracer_utils_runs=[round(t, 3) for t in theirs])
+         racerlab_cpu_s=round(a_cpu, 3), deepracer_utils_cpu_s=round(b_cpu, 3), cpu_ratio=round(b_cpu / a_cpu, 2),
+         racerlab_runs=[round(t[0], 3) for t in ours], deepracer_utils_runs=[round(t[0], 3) for t in theirs])
 
 
 def bench_deepracer_utils(folder: Path, racerlab_cold: float, rows: int) -> None:

@@ -110,7 +110,7 @@ def run_map(args) -> int:
     out = save_png(reward_map_figure(rm), args.out or Path(f"{args.reward.stem}-map.png"))
     for p in rm.problems:
         print("warning: " + p.describe(), file=sys.stderr)
-    print(out)
+    print(f"picture: {out.resolve()}")
     return 0
 
 

@@ -101,7 +101,7 @@ def run_show(args) -> int:
         raise RacerlabError(f"--out {out}: the picture is a PNG; give a file name ending in .png")
     save_track_png(t, out)
     print(describe(t))
-    print(f"picture: {out}")
+    print(f"picture: {out.resolve()}")
     return 0
 
 

@@ -78,7 +78,7 @@ class TrackCanvas:
         dpi = 100
         fig = Figure(figsize=(self.width / dpi, self.height / dpi), dpi=dpi)
         ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-        draw_track(track, ax, waypoint_numbers=False, title=False)
+        draw_track(track, ax, waypoint_numbers=False, title=False, legend=False)
         ax.set_aspect("auto")
         ax.set_xlim(self.x0, self.x1)
         ax.set_ylim(self.y0, self.y1)
