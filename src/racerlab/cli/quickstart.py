@@ -36,7 +36,10 @@ def run(args) -> int:
         # fastest greedy evaluation laps, not AWS's default (highest mean progress, newest on ties), which
         # keeps a late, slower checkpoint once every evaluation episode completes its lap.
         init_model(folder.path, track=args.track, max_speed=args.max_speed, best_model_metric="laptime")
+        from racerlab.cli.model import FEATURES_NOTE
+
         print(f"created model folder {folder.path}")
+        print(FEATURES_NOTE)
     train(folder.path, minutes=args.minutes, tracks=[args.track] if args.track else None)
     res = evaluate(folder.path, track=args.track)
     print(res.report())
