@@ -188,6 +188,16 @@ def write_report(path, out=None, track=None, *, kind: str = "auto") -> Path:
     return atomic_write_text(out, doc.render(toc))
 
 
+def count_iterations_from_one(eps: pd.DataFrame | None = None, its: pd.DataFrame | None = None) -> None:
+    """Renumber (in place) the 0-based iterations of the simtrace files as the training console and the
+    checkpoint names count them: iteration 1 is the one that wrote 0-iteration.csv. Every table and
+    figure shown to a user uses this numbering."""
+    if eps is not None:
+        eps["iteration"] += 1
+    if its is not None:
+        its.index = its.index + 1
+
+
 def _default_out(path: Path) -> Path:
     if path.is_dir():
         return path / "report.html"
@@ -206,9 +216,7 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
     training = df.attrs.get("kind", "training") == "training"
     tm, jsonl = run_metrics(path) if training else (None, [])
     its = iteration_summary(eps, tm, jsonl)
-    # one numbering everywhere: the console's and the checkpoint names' (iteration 1 wrote 0-iteration.csv)
-    eps["iteration"] += 1
-    its.index = its.index + 1
+    count_iterations_from_one(eps, its)
     toc = [("summary", "Summary")]
     _summary(doc, path, df, eps, trk, track_note)
     if training:
@@ -380,4 +388,4 @@ def _chosen_episodes(eps: pd.DataFrame) -> list[tuple[list[int], str]]:
     return out
 
 
-__all__ = ["png_data_uri", "resolve_track", "rows_on_track", "write_report"]
+__all__ = ["count_iterations_from_one", "png_data_uri", "resolve_track", "rows_on_track", "write_report"]

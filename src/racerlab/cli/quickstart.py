@@ -124,7 +124,9 @@ def draw_curve(model: Path, path: Path) -> None:
     from racerlab.analysis import load
     from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
     from racerlab.analysis.plots import save_png, training_progress
+    from racerlab.analysis.report import count_iterations_from_one
 
     df = load(model)
     its = iteration_summary(episode_summary(df, step_kinematics(df)), *run_metrics(model))
+    count_iterations_from_one(its=its)  # as the console printed them
     save_png(training_progress(its, title=f"{model.name}: training progress"), path)
