@@ -216,13 +216,10 @@ def read_simtrace_files(paths: list[str], names_for_messages: list[str], threads
     view = memoryview(buf)
     header, at, counts = None, 0, np.zeros(len(paths), np.int64)
     for i, (path, size) in enumerate(zip(paths, sizes, strict=True)):
-        with open(path, "rb", buffering=0) as f:
-            head = f.readline()
-            if header is None:
-                header = head
-            elif head.strip() != header.strip():
-                return None
-            n = f.readinto(view[at:at + size - len(head)])
+        head, n = _read_body_into(path, view[at:at + size])
+        if head is None or (header is not None and head.strip() != header.strip()):
+            return None
+        header = header or head
         if n and buf[at + n - 1] != 0x0A:
             buf[at + n] = 0x0A
             n += 1
@@ -236,6 +233,22 @@ def read_simtrace_files(paths: list[str], names_for_messages: list[str], threads
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
         return None
     return (table, counts) if table.num_rows == counts.sum() else None
+
+
+def _read_body_into(path: str, dest: memoryview) -> tuple[bytes | None, int]:
+    """Read the file at `path` into `dest` without its header line: (the header, bytes of body read), or
+    (None, 0) when the first 64 kB hold no line end."""
+    with open(path, "rb", buffering=0) as f:
+        first = f.read(1 << 16)
+        end = first.find(b"\n")
+        if end < 0:
+            return (None, 0) if len(first) == 1 << 16 or not first else (first, 0)
+        rest = first[end + 1:]
+        dest[:len(rest)] = rest
+        n = len(rest)
+        while n < len(dest) and (got := f.readinto(dest[n:])):
+            n += got
+    return first[:end + 1], n
 
 
 def _decompress_all(blobs: list[tuple[str, bytes]], threads: bool) -> list[bytes]:
