@@ -237,18 +237,19 @@ def read_simtrace_files(paths: list[str], names_for_messages: list[str], threads
 
 def _read_body_into(path: str, dest: memoryview) -> tuple[bytes | None, int]:
     """Read the file at `path` into `dest` without its header line: (the header, bytes of body read), or
-    (None, 0) when the first 64 kB hold no line end."""
+    (None, 0) when the first 64 kB hold no line end. The file is read straight into `dest`; only the first
+    block moves down over the header."""
     with open(path, "rb", buffering=0) as f:
-        first = f.read(1 << 16)
-        end = first.find(b"\n")
+        n = f.readinto(dest[:1 << 16])
+        end = bytes(dest[:n]).find(b"\n")
         if end < 0:
-            return (None, 0) if len(first) == 1 << 16 or not first else (first, 0)
-        rest = first[end + 1:]
-        dest[:len(rest)] = rest
-        n = len(rest)
+            return (None, 0) if n == 1 << 16 or not n else (bytes(dest[:n]), 0)
+        head = bytes(dest[:end + 1])
+        dest[:n - end - 1] = dest[end + 1:n]  # memoryview copies overlapping ranges safely (memmove)
+        n -= end + 1
         while n < len(dest) and (got := f.readinto(dest[n:])):
             n += got
-    return first[:end + 1], n
+    return head, n
 
 
 def _decompress_all(blobs: list[tuple[str, bytes]], threads: bool) -> list[bytes]:
