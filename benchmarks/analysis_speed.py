@@ -1,9 +1,14 @@
 """Loading a 1 M-row simtrace: racerlab.analysis.load (cold, cold on one thread, cached, after a new
 iteration) against deepracer-utils on the same DRfC multi-worker folder. One JSON line per measurement.
 
-Budget (DESIGN.md): cold load of 1 M rows <= 1.5 s; deepracer-utils: 6.1 s on this machine's reference run.
+`cold_side_by_side` is the comparison to quote: a 500-file, 1 M-row single-worker DRfC folder loaded by
+each tool in a fresh Python process (the tool imported first, then the load timed: lazy imports, parsing
+and building the DataFrame; files in the OS cache for both), racerlab and deepracer-utils alternating,
+`--rounds` times each; the figures are the medians and the ratio of the medians.
 
-    python benchmarks/analysis_speed.py [--rows 1000000] [--workers 3] [--keep DIR]
+Budget (DESIGN.md): cold load of 1 M rows <= 1.5 s; at least 4x faster than deepracer-utils side by side.
+
+    python benchmarks/analysis_speed.py [--rows 1000000] [--workers 3] [--rounds 3] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -12,6 +17,8 @@ import argparse
 import json
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +32,22 @@ from racerlab.logs.synthetic import episode_columns, write_training_folder
 
 ITERATIONS = 400
 MEAN_STEPS = 120
+SIDE_BY_SIDE_FILES = 500
+
+# each runs in a fresh interpreter: import the tool, then time one load of the folder in argv[1]
+COLD_RACERLAB = """
+import sys, time
+from racerlab.analysis import load
+c, t = time.process_time(), time.perf_counter(); df = load(sys.argv[1], cache=False)
+print(len(df), time.perf_counter() - t, time.process_time() - c)
+"""
+COLD_DEEPRACER_UTILS = """
+import logging, sys, time
+from deepracer.logs import DeepRacerLog
+logging.getLogger("deepracer.logs.log").setLevel(logging.ERROR)
+c, t = time.process_time(), time.perf_counter(); log = DeepRacerLog(sys.argv[1]); log.load(); df = log.dataframe()
+print(len(df), time.perf_counter() - t, time.process_time() - c)
+"""
 
 
 def emit(**fields) -> None:
@@ -63,6 +86,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=1_000_000)
     ap.add_argument("--workers", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=3, help="fresh-process loads per tool in the side-by-side run")
     ap.add_argument("--keep", help="generate into this folder and keep it")
     args = ap.parse_args()
 
@@ -72,6 +96,7 @@ def main() -> None:
     cache = tmp / "cache"
     per_worker = max(1, round(args.rows / (args.workers * ITERATIONS * MEAN_STEPS)))
     try:
+        bench_side_by_side(tmp / "drfc-500", args.rows, args.rounds)
         dt, rows = timed(lambda: write_training_folder(folder, ITERATIONS, per_worker, args.workers, MEAN_STEPS))
         size = sum(p.stat().st_size for p in folder.rglob("*.csv"))
         emit(bench="write_drfc_folder", rows=rows, files=ITERATIONS * args.workers, mb=round(size / 1e6, 1),
@@ -112,6 +137,35 @@ def main() -> None:
              mb=round(sum(p.stat().st_size for p in gz.rglob("*.gz")) / 1e6, 1))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _fresh_load(script: str, folder: Path) -> tuple[int, float, float]:
+    """Rows, wall seconds and CPU seconds (all threads) of one load in a fresh interpreter."""
+    out = subprocess.run([sys.executable, "-c", script, str(folder)], capture_output=True, text=True, check=True)
+    rows, wall, cpu = out.stdout.split()[-3:]
+    return int(rows), float(wall), float(cpu)
+
+
+def bench_side_by_side(folder: Path, rows: int, rounds: int) -> None:
+    """racerlab and deepracer-utils loading the same 500-file folder, alternating, each in a fresh process."""
+    per_file = max(1, round(rows / (SIDE_BY_SIDE_FILES * MEAN_STEPS)))
+    written = write_training_folder(folder, SIDE_BY_SIDE_FILES, per_file, 1, MEAN_STEPS, seed=3)
+    try:
+        import deepracer.logs  # noqa: F401
+    except ImportError:
+        emit(bench="cold_side_by_side", skipped="deepracer-utils is not installed (pip install deepracer-utils)")
+        return
+    ours, theirs = [], []
+    for _ in range(rounds):
+        n_ours, *t = _fresh_load(COLD_RACERLAB, folder)
+        ours.append(t)
+        n_theirs, *t = _fresh_load(COLD_DEEPRACER_UTILS, folder)
+        theirs.append(t)
+    (a, a_cpu), (b, b_cpu) = np.median(ours, axis=0), np.median(theirs, axis=0)
+    emit(bench="cold_side_by_side", files=SIDE_BY_SIDE_FILES, rows=written, same_rows=n_ours == n_theirs == written,
+         racerlab_s=round(a, 3), deepracer_utils_s=round(b, 3), ratio=round(b / a, 2), target_ratio=4.0,
+         racerlab_cpu_s=round(a_cpu, 3), deepracer_utils_cpu_s=round(b_cpu, 3), cpu_ratio=round(b_cpu / a_cpu, 2),
+         racerlab_runs=[round(t[0], 3) for t in ours], deepracer_utils_runs=[round(t[0], 3) for t in theirs])
 
 
 def bench_deepracer_utils(folder: Path, racerlab_cold: float, rows: int) -> None:

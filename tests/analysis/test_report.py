@@ -80,3 +80,29 @@ def test_the_track_comes_from_the_model_folder_else_from_the_logged_length(tmp_p
     for not_a_model in (folder.reward_path, tmp_path / "logs"):  # a file, a folder without training.toml
         t, note = log_track(not_a_model, df)
         assert t.name == "lab_oval" and "the only known track" in note
+
+
+def test_report_has_every_evaluation_and_one_iteration_numbering(model, tmp_path):
+    from racerlab.evaluate import evaluate
+
+    first = evaluate(model.path, trials=2)
+    second = evaluate(model.path, trials=1, video=True)
+    out = tmp_path / "r.html"
+    text = write_report(model.path, out).read_text(encoding="utf-8")
+    section = text[text.index('id="evaluations"'):text.index('id="laps"')]
+    for res in (first, second):
+        head = f"{res.out_dir.name}: checkpoint {res.checkpoint} on {res.track}, {res.rules.trials} trials"
+        assert head in section
+    assert section.index(first.out_dir.name) < section.index(second.out_dir.name)  # oldest first
+    # each lap with its time, and the best lap, as the evaluation's summary has them
+    for lap in first.laps:
+        assert f"<th>{lap.trial}</th>" in section and f"<td>{lap.time:.4g}</td>" in section
+    best = "-" if first.result.best_lap is None else f"{first.result.best_lap:.3f} s"
+    assert f"best lap {best}" in section
+    link = re.search(r'<a href="([^"]+)">video', section).group(1)
+    assert (out.parent / link).resolve() == (second.out_dir / "evaluation.mp4").resolve()
+    # iterations count from 1, as the console and the checkpoint names do (0-iteration.csv is iteration 1)
+    table = text[text.index("<h3>Per iteration</h3>"):]
+    assert re.search(r"<tbody>\s*<tr>\s*<th>(\d+)</th>", table).group(1) == "1"
+    its = sorted(int(p.name.split("-")[0]) for p in (model.path / "training-simtrace").glob("*-iteration.csv*"))
+    assert re.findall(r"<th>(\d+)</th>", table[:table.index("</table>")])[-1] == str(its[-1] + 1)

@@ -48,6 +48,16 @@ def test_quickstart_on_defaults(tmp_path, capsys):
     assert main(["quickstart", "--model", str(model), "--minutes", "0.1"]) == 0
     out = capsys.readouterr().out
     assert "result:" in out and (model / "quickstart" / "evaluation.png").is_file()
+    # which checkpoint drove the laps, then what to run next, each next command naming the model
+    summary = json.loads(next(model.glob("evaluation-*/summary.json")).read_text())
+    assert f"laps 1-3 above: driven by checkpoint {summary['checkpoint']} (iteration " in out
+    assert "the fastest evaluation laps during training" in out
+    block = out[out.index("next:\n"):].splitlines()[1:]
+    commands = [line.split("#")[0].strip() for line in block]
+    assert commands[0] == f"racerlab report {model}" and commands[1] == f"racerlab evaluate {model} --video"
+    assert any(c.startswith("racerlab reward check my_reward.py") for c in commands)
+    assert any(c.startswith(f"racerlab clone {model} my-model --reward my_reward.py") for c in commands)
+    assert "sensor FEATURES" in out and "racerlab's own" in out
     assert (model / "quickstart" / "training.png").is_file()
     assert list(model.glob("evaluation-*/EvalMetrics.json"))
     # the quickstart keeps the checkpoint with the fastest mean evaluation lap (newest on ties)
@@ -57,6 +67,16 @@ def test_quickstart_on_defaults(tmp_path, capsys):
     newest_fastest = max(r["iteration"] for r in rows if r["eval/metric"] == fastest)
     best = json.loads((model / "checkpoints" / "deepracer_checkpoints.json").read_text())["best_checkpoint"]
     assert best["name"].startswith(f"{newest_fastest}_Step-") and best["avg_eval_metric"] == fastest
+
+
+def test_init_says_a_features_model_is_racerlab_only(tmp_path, capsys):
+    assert main(["init", str(tmp_path / "f")]) == 0
+    out = capsys.readouterr().out
+    assert "FEATURES" in out and "AWS console and DRfC accept only cameras and LIDAR" in out
+    assert json.loads((tmp_path / "f" / "model_metadata.json").read_text())["sensor"] == ["FEATURES"]
+    assert main(["init", str(tmp_path / "c"), "--sensor", "camera"]) == 0
+    assert "racerlab's own" not in capsys.readouterr().out
+    assert json.loads((tmp_path / "c" / "model_metadata.json").read_text())["sensor"] == ["FRONT_FACING_CAMERA"]
 
 
 def test_init_best_model_metric_flag(tmp_path, capsys):

@@ -7,7 +7,7 @@ import pytest
 
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import run_evaluation
-from racerlab.evaluate.video import TrackCanvas, camera_image, car_polygon, render_video
+from racerlab.evaluate.video import TrackCanvas, _Hud, _Side, camera_image, car_polygon, lap_ends, render_video
 from tests.evaluate.test_runner import pursuit, world_on
 
 
@@ -46,3 +46,28 @@ def test_video_with_a_camera_inset(tmp_path, aws_track):
     top_right = np.asarray(frames[5])[20:200, -300:-30]
     assert (top_right > 240).all(axis=-1).mean() > 0.8  # the white camera picture, twice its size
     assert not list(tmp_path.glob(".*partial*"))
+    # the text and pictures sit in a panel right of the track: the track's corners are as drawn
+    canvas = TrackCanvas(track, 640)
+    frame = np.asarray(frames[-1]).astype(int)
+    assert frame.shape[1] > canvas.width
+    corner = np.abs(frame[:28, :80] - canvas.background[:28, :80].astype(int)).max(axis=-1)
+    assert (corner > 80).mean() < 0.002  # the margin beyond the track: H.264 noise only, no dark text
+
+
+def test_lap_list_fits_the_panel_whatever_the_laps():
+    canvas = type("C", (), {"width": 640, "height": 400})()
+    heights = []
+    for laps in (1, 3, 40):
+        hud = _Hud("model", laps, 4.0, 1)
+        side = _Side(canvas, hud, None, 1)
+        # title, clock, speed, state and every lap's line, then the colour scale, all inside the frame
+        assert side.height >= hud.text_height() + 50 and side.height % 16 == 0 and side.x0 == 640
+        heights.append(side.height)
+    assert heights[0] == heights[1] == 400 and heights[2] > 400  # 40 laps need a taller frame
+
+
+def test_laps_end_at_progress_100_whatever_the_status():
+    trace = {"episode_status": np.array(["prepare", "in_progress", "in_progress", "in_progress", "pause",
+                                         "lap_complete"]),
+             "progress": np.array([0.0, 50.0, 100.0, 3.0, 100.0, 100.0])}
+    assert lap_ends(trace).tolist() == [False, False, True, False, False, True]

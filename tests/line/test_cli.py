@@ -25,6 +25,7 @@ def test_cli_prints_the_lap_and_writes_every_file(tmp_path, capsys):
     line = racing_line(str(track))
     assert f"theoretical best lap {line.lap_time:.3f} s" in text
     stem = out / "reInvent2019_track_mincurv"
+    assert f"wrote into {out}:" in text and f"py              {stem}.py" in text
     png = stem.with_suffix(".png").read_bytes()
     assert png.startswith(b"\x89PNG") and len(png) > 20_000
     xy = np.load(stem.with_suffix(".npy"))

@@ -33,8 +33,11 @@ def test_sim_trace_log_field_counts(tmp_path, cache, fields):
     assert df["action"].tolist() == [3] * 6
     if fields >= 16:
         assert df["episode_status"].tolist()[:3] == ["prepare", "in_progress", "off_track"]
-    else:
-        assert df["episode_status"].isna().all()
+        assert df.attrs["derived_status_rows"] == 0
+    else:  # no status column: filled as the 2019 environment ended episodes (done off the road, done on it)
+        assert df["episode_status"].tolist() == ["in_progress", "in_progress", "off_track",
+                                                 "in_progress", "in_progress", "immobilized"]
+        assert df.attrs["derived_status_rows"] == 6
     assert np.isnan(df["pause_duration"]).all() == (fields < 17)
     if fields == 19:
         assert df["wall_clock"].iloc[0] == pytest.approx(1700000000.1)
@@ -196,3 +199,22 @@ def test_nothing_to_load_is_a_clear_error(tmp_path, cache):
 def test_log_without_trace_lines_gives_an_empty_table():
     table, info = read_sim_trace_log(b"hello\nworld\n", "x.log")
     assert table.num_rows == 0 and info["hyperparameters"] is None
+
+
+def test_files_read_into_one_buffer_equal_the_general_reader(tmp_path):
+    from racerlab.logs.read import read_simtrace_csvs, read_simtrace_files
+
+    texts = [csv_text([0, 1]), csv_text([2]).rstrip("\n"), csv_text([3, 4], HEADER_17, 17),
+             csv_text([5], fields=19, action="[0.5 1.2]")]
+    paths = [write(tmp_path / f"{i}-iteration.csv", t) for i, t in enumerate(texts)]
+    # one header, discrete actions, one file without a final newline: one buffer, rows per file
+    table, counts = read_simtrace_files([str(p) for p in paths[:2]], [str(p) for p in paths[:2]])
+    general, general_counts = read_simtrace_csvs([(str(p), p.read_bytes()) for p in paths[:2]])
+    assert counts.tolist() == general_counts.tolist() == [6, 3] and table.equals(general)
+    assert table.column("action").to_pylist() == [3] * 9 and table.column("episode").type == "int64"
+    # two headers, or a continuous action: the general reader's job (None), which handles both
+    assert read_simtrace_files([str(p) for p in paths[1:3]], [str(p) for p in paths[1:3]]) is None
+    mixed, mixed_counts = read_simtrace_csvs([(str(p), p.read_bytes()) for p in paths])
+    assert mixed_counts.tolist() == [6, 3, 6, 3] and mixed.column("action").to_pylist()[-3:] == [-1] * 3
+    table, counts = read_simtrace_files([str(paths[3])], [str(paths[3])])
+    assert counts.tolist() == [3] and table.column("action").to_pylist() == [-1] * 3

@@ -33,7 +33,8 @@ def test_show_reverse_and_a_path(home, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["tracks", "show", "lab_oval", "--reverse"]) == 0
     assert (tmp_path / "lab_oval_reversed.png").is_file()
-    assert "direction: clockwise" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "direction: clockwise" in text and f"picture: {tmp_path / 'lab_oval_reversed.png'}" in text
     path = aws_track_path("reInvent2019_track")
     assert main(["tracks", "show", str(path), "--out", str(tmp_path / "r.png")]) == 0
     assert "length: 23.1" in capsys.readouterr().out

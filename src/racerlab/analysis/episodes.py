@@ -11,8 +11,14 @@
 Everything is vectorised over rows (groupby / reduceat on the episode-sorted frame), no Python loop
 over episodes.
 
+A lap is complete when its episode ends with `lap_complete` or at progress 100, as AWS's EvalMetrics and
+deepracer-utils count it: in a continuous (multi-lap) evaluation every lap but the trial's last ends at
+progress 100 with status `in_progress` (done False), and the `episode` column counts the laps, so each lap
+is an episode of its own.
+
 Time of an episode: last `tstamp` minus first plus one step (1/15 s), because the first row is logged
-after the prepare step. This equals TrainingMetrics' `elapsed_time_in_milliseconds` and racerlab's lap time;
+after the prepare step (for the later laps of a continuous evaluation: after the previous lap's last
+step). This equals TrainingMetrics' `elapsed_time_in_milliseconds` and racerlab's lap time;
 deepracer-utils' `time` is one step shorter.
 """
 
@@ -81,7 +87,8 @@ def _step_time(df: pd.DataFrame) -> float:
 def episode_summary(df: pd.DataFrame, kinematics: pd.DataFrame | None = None) -> pd.DataFrame:
     """One row per episode, indexed by `unique_episode`.
 
-    Columns: iteration, worker, episode (stream for evaluations), outcome (last episode_status), complete,
+    Columns: iteration, worker, episode (stream for evaluations), outcome (last episode_status; lap_complete for
+    a lap that ended at progress 100 inside a continuous evaluation), complete,
     start_waypoint (closest waypoint of the first row), start_progress, steps (last step number), time (s),
     progress (last, as AWS's completion), max_progress, reward (sum), lap_time (time of complete laps),
     time_if_complete (time * 100 / progress), reward_if_complete, distance (m), true_speed (distance / time),
@@ -95,8 +102,8 @@ def episode_summary(df: pd.DataFrame, kinematics: pd.DataFrame | None = None) ->
     col = {c: df[c].to_numpy() for c in ("steps", "progress", "reward", "tstamp", "speed", "closest_waypoint")}
     status = df["episode_status"].astype(str).to_numpy() if "episode_status" in df else np.full(len(df), "")
     out = {k: df[k].to_numpy()[starts] for k in ("iteration", "worker", "stream", "episode") if k in df}
-    out["outcome"] = status[ends]
-    out["complete"] = out["outcome"] == "lap_complete"
+    out["complete"] = (status[ends] == "lap_complete") | (col["progress"][ends] >= 100.0)
+    out["outcome"] = np.where(out["complete"], "lap_complete", status[ends])
     out["start_waypoint"] = col["closest_waypoint"][starts]
     out["start_progress"] = col["progress"][starts]
     out["steps"] = col["steps"][ends]

@@ -15,7 +15,9 @@ steps. `unique_episode` numbers the episodes 0, 1, ... in (iteration, worker, ep
 unique when logs were sampled.
 
 Logs from 2019 that carried radians are detected (per file) and converted to degrees; the files
-converted are listed in `df.attrs["converted_to_degrees"]`.
+converted are listed in `df.attrs["converted_to_degrees"]`. Their 15-field lines have no episode_status;
+it is filled in the way the 2019 environment ended episodes (`derive_status`), and
+`df.attrs["derived_status_rows"]` counts the rows filled.
 """
 
 from __future__ import annotations
@@ -36,9 +38,21 @@ from racerlab.logs.read import (
     looks_like_radians,
     read_sim_trace_log,
     read_simtrace_csvs,
+    read_simtrace_files,
     to_degrees,
 )
-from racerlab.logs.sources import CSV, EVALUATION, LEADERBOARD, LOG, TRAINING, Source, Store, classify, open_store
+from racerlab.logs.sources import (
+    CSV,
+    EVALUATION,
+    LEADERBOARD,
+    LOG,
+    TRAINING,
+    DirStore,
+    Source,
+    Store,
+    classify,
+    open_store,
+)
 
 KINDS = (TRAINING, EVALUATION, LEADERBOARD)
 FRAME_COLUMNS = (*RAW_COLUMNS, "iteration", "worker", "unique_episode")
@@ -103,8 +117,7 @@ def _parse_sources(store: Store, sources: list[Source], threads: bool) -> tuple[
     logs = [s for s in sources if s.fmt == LOG]
     parts = []
     if csvs:
-        blobs = _read_many(store, [s.parts[0] for s in csvs])
-        table, counts = read_simtrace_csvs([(store.describe(s.parts[0]), blobs[s.parts[0]]) for s in csvs], threads)
+        table, counts = _read_csvs(store, csvs, threads)
         parts.append(_with_meta(table, csvs, counts))
     converted = []
     for s in logs:
@@ -113,6 +126,17 @@ def _parse_sources(store: Store, sources: list[Source], threads: bool) -> tuple[
         if radians:
             converted.append(store.describe(s.name))
     return pa.concat_tables(parts), {"converted_to_degrees": converted}
+
+
+def _read_csvs(store: Store, csvs: list[Source], threads: bool) -> tuple[pa.Table, np.ndarray]:
+    rels = [s.parts[0] for s in csvs]
+    described = [store.describe(r) for r in rels]
+    if isinstance(store, DirStore) and not any(r.endswith(".gz") for r in rels):
+        fast = read_simtrace_files([str(store.root / r) for r in rels], described, threads)
+        if fast is not None:
+            return fast
+    blobs = _read_many(store, rels)
+    return read_simtrace_csvs([(d, blobs[r]) for d, r in zip(described, rels, strict=True)], threads)
 
 
 def _read_many(store: Store, rels: list[str]) -> dict[str, bytes]:
@@ -226,6 +250,7 @@ def _frame(tables: list[pa.Table], kind: str, info: dict) -> pd.DataFrame:
         df = df.take(order).reset_index(drop=True)
         keys = [k[order] for k in keys]
     df["unique_episode"] = _dense_rank(keys[:-1])
+    info["derived_status_rows"] = _fill_status(df)
     if kind == TRAINING:
         df = df.drop(columns=["stream"])
     for col in ("episode_status", "stream"):
@@ -278,9 +303,32 @@ def _dense_rank(sorted_keys: list[np.ndarray]) -> np.ndarray:
     return np.cumsum(change).astype(np.int64)
 
 
+def derive_status(steps, done, on_track, progress) -> np.ndarray:
+    """Episode status of rows logged without one (2019 robomaker logs), as the 2019 environment behaved:
+    its reset row (steps 0: car held at the start, action 0, a reward no agent received) is `prepare`; a
+    done row at progress 100 is `lap_complete`; done with wheels off the road `off_track`; done on the
+    road `immobilized` (its stuck rule); anything else `in_progress`."""
+    done = np.asarray(done, bool)
+    status = np.where(done & ~np.asarray(on_track, bool), "off_track", np.where(done, "immobilized", "in_progress"))
+    status = np.where(done & (np.asarray(progress) >= 100.0), "lap_complete", status)
+    return np.where(np.asarray(steps) == 0, "prepare", status)
+
+
+def _fill_status(df: pd.DataFrame) -> int:
+    missing = df["episode_status"].isna().to_numpy()
+    if not missing.any():
+        return 0
+    rows = np.flatnonzero(missing)
+    derived = derive_status(*(df[c].to_numpy()[rows] for c in ("steps", "done", "on_track", "progress")))
+    status = np.array(df["episode_status"].astype(object), dtype=object)
+    status[rows] = derived
+    df["episode_status"] = status
+    return int(rows.size)
+
+
 def _columns_in_order(df: pd.DataFrame) -> pd.DataFrame:
     cols = [c for c in FRAME_COLUMNS if c in df.columns] + [c for c in df.columns if c not in FRAME_COLUMNS]
     return df[cols]
 
 
-__all__ = ["FRAME_COLUMNS", "load", "load_metrics"]
+__all__ = ["FRAME_COLUMNS", "derive_status", "load", "load_metrics"]

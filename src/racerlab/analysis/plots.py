@@ -46,8 +46,13 @@ def save_png(fig, path, dpi: int = 110) -> Path:
 
 
 def _integer_x(ax) -> None:
+    """Whole-number ticks (iterations), also when there is only one."""
     from matplotlib.ticker import MaxNLocator
 
+    lo, hi = ax.get_xlim()
+    if hi - lo < 2:
+        mid = round(0.5 * (lo + hi))
+        ax.set_xlim(mid - 1, mid + 1)
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
 
@@ -96,10 +101,13 @@ def training_progress(it: pd.DataFrame, title: str = "Training progress"):
     ax = axs[1, 2]
     ax.plot(x, it["time_mean"], marker=".")
     ax.set_title("Mean episode time (s)")
+    lo, hi = (float(x.min()), float(x.max())) if x.size else (0.0, 1.0)
+    pad = max(0.5, 0.03 * (hi - lo))
     for a in axs.flat:
         a.set_xlabel("iteration", fontsize=8)
         a.tick_params(labelsize=8)
         a.grid(alpha=0.3)
+        a.set_xlim(lo - pad, hi + pad)  # the same iterations on every panel, also one without data
         _integer_x(a)
     fig.suptitle(title)
     return fig
@@ -199,7 +207,7 @@ def _track_figsize(track: Track, width: float = 10.0, extra_w: float = 1.2):
 
 
 def _track_ax(track: Track, title: str, extra_w: float = 1.2, waypoint_numbers: bool = False):
-    from racerlab.track.plot import draw_track
+    from racerlab.track.plot import draw_track  # with its legend below the axes
 
     fig = _figure(*_track_figsize(track, extra_w=extra_w))
     ax = fig.add_subplot()
@@ -208,9 +216,10 @@ def _track_ax(track: Track, title: str, extra_w: float = 1.2, waypoint_numbers: 
 
 
 def track_heatmap(df: pd.DataFrame, track: Track, column: str = "reward", stat: str = "mean", cell: float = 0.1,
-                  *, cmap: str = "viridis", min_count: int = 1, title: str | None = None):
+                  *, cmap: str = "viridis", min_count: int = 1, title: str | None = None, rows: str = "steps"):
     """`column` (any frame column, or a `step_kinematics` one: true_speed, slide) aggregated per `cell`-metre
-    cell with `stat` over all rows of `df`; cells with fewer than `min_count` steps stay empty."""
+    cell with `stat` over all rows of `df`; cells with fewer than `min_count` steps stay empty. `rows` says
+    what a row of `df` is in the labels ("steps", or e.g. "episode ends" for one row per episode)."""
     values = _column(df, column)
     ext = _track_extent(track)
     grid, xe, ye = cell_statistic(df["x"].to_numpy(), df["y"].to_numpy(), values, stat, cell, ext)
@@ -219,8 +228,8 @@ def track_heatmap(df: pd.DataFrame, track: Track, column: str = "reward", stat: 
         grid = np.where(counts >= min_count, grid, np.nan)
     if stat == "count":
         grid = np.where(grid > 0, grid, np.nan)
-    label = f"{stat} of {column}" if stat != "count" else "steps per cell"
-    fig, ax = _track_ax(track, title or f"{label}, {cell * 100:.0f} cm cells, {len(df):,} steps")
+    label = f"{stat} of {column}" if stat != "count" else f"{rows} per cell"
+    fig, ax = _track_ax(track, title or f"{label}, {cell * 100:.0f} cm cells, {len(df):,} {rows}")
     mesh = ax.pcolormesh(xe, ye, np.ma.masked_invalid(grid), cmap=cmap, zorder=1.5, shading="flat")
     _borders_on_top(ax, track)
     fig.colorbar(mesh, ax=ax, shrink=0.8, label=label)
@@ -247,6 +256,8 @@ def episode_paths(df: pd.DataFrame, track: Track, episodes, color_by: str = "spe
     discrete action), or any numeric column ("speed" = commanded, "true_speed", "reward", "steering_angle"...)."""
     from matplotlib.collections import LineCollection
 
+    from racerlab.track.plot import track_legend
+
     ids = list(np.atleast_1d(np.asarray(episodes)))
     sel = df[df["unique_episode"].isin(ids)]
     if "episode_status" in sel:  # the prepare row repeats the first position with a zero action
@@ -258,7 +269,8 @@ def episode_paths(df: pd.DataFrame, track: Track, episodes, color_by: str = "spe
     discrete = color_by == "action" and (sel["action"] >= 0).all()
     values = sel["action"].to_numpy(np.float64) if color_by == "action" and discrete else \
         _column(sel, "steering_angle" if color_by == "action" else color_by)
-    label = "steering (°), continuous actions" if color_by == "action" and not discrete else color_by
+    label = "steering (°), continuous actions" if color_by == "action" and not discrete else \
+        _COLOUR_LABELS.get(color_by, color_by)
     norm, cmap = _color_scale(values, discrete)
     ep = sel["unique_episode"].to_numpy()
     xy = sel[["x", "y"]].to_numpy()
@@ -268,12 +280,17 @@ def episode_paths(df: pd.DataFrame, track: Track, episodes, color_by: str = "spe
     lc.set_array(values[1:][same])
     ax.add_collection(lc)
     ax.scatter(xy[:, 0], xy[:, 1], c=values, cmap=cmap, norm=norm, s=5, zorder=3)
-    _mark_ends(ax, sel)
-    if discrete:
-        _action_legend(ax, sel, cmap, norm)
+    ends = _mark_ends(ax, sel)
+    if discrete:  # one legend right of the track: its parts, the markers, then each action's colour
+        track_legend(ax, ends + _action_handles(sel, cmap, norm), center_line=False, side=True)
     else:
         fig.colorbar(lc, ax=ax, shrink=0.8, label=label)
+        track_legend(ax, ends, center_line=False)
     return fig
+
+
+_COLOUR_LABELS = {"speed": "commanded speed (m/s)", "true_speed": "true speed (m/s, from positions)",
+                  "steering_angle": "steering (°, + = left)", "slide": "slide (°)"}
 
 
 def _ids_text(ids: list) -> str:
@@ -293,21 +310,22 @@ def _color_scale(values: np.ndarray, discrete: bool):
     return Normalize(lo, hi if hi > lo else lo + 1e-9), colormaps["plasma"]
 
 
-def _mark_ends(ax, sel: pd.DataFrame) -> None:
+def _mark_ends(ax, sel: pd.DataFrame) -> list:
+    """Where each episode started and ended; returns the two markers for the legend."""
     g = sel.groupby("unique_episode", sort=False)
     first, last = g.head(1), g.tail(1)
-    ax.scatter(first["x"], first["y"], marker="o", s=60, facecolor="white", edgecolor="black", zorder=4,
-               label="start")
-    ax.scatter(last["x"], last["y"], marker="X", s=70, color="black", zorder=4, label="end")
+    return [ax.scatter(first["x"], first["y"], marker="o", s=60, facecolor="white", edgecolor="black", zorder=4,
+                       label="episode start"),
+            ax.scatter(last["x"], last["y"], marker="X", s=70, color="black", zorder=4, label="episode end")]
 
 
-def _action_legend(ax, sel, cmap, norm) -> None:
+def _action_handles(sel, cmap, norm) -> list:
+    """Legend entries: the colour of each action used."""
     from matplotlib.lines import Line2D
 
     acts = _action_table(sel)
-    handles = [Line2D([], [], color=cmap(norm(a)), lw=3, label=f"{a}: {r.steering_angle:+.0f}°, {r.speed:.2f} m/s")
-               for a, r in acts.iterrows()]
-    ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="action")
+    return [Line2D([], [], color=cmap(norm(a)), lw=3, label=f"action {a}: {r.steering_angle:+.0f}°, {r.speed:.2f} m/s")
+            for a, r in acts.iterrows()]
 
 
 def _action_table(df: pd.DataFrame) -> pd.DataFrame:
@@ -352,10 +370,10 @@ def _discrete_usage(axs, run: pd.DataFrame) -> None:
         axs[1].annotate(str(a), (r.steering_angle, r.speed), ha="center", va="center", fontsize=7)
     axs[1].set_xlabel("steering (°, + = left)")
     axs[1].set_ylabel("speed (m/s)")
-    axs[1].set_title("Action map (area ∝ use)", fontsize=10)
+    axs[1].set_title("Action map (area and colour: % of steps)", fontsize=10)
     axs[1].invert_xaxis()  # left turns on the left
     axs[1].margins(0.15)
-    axs[1].figure.colorbar(sc, ax=axs[1], label="% of steps")
+    axs[1].figure.colorbar(sc, ax=axs[1])  # the title says what the colour is
     _usage_by_iteration(axs[2], run, acts.index.to_numpy())
 
 

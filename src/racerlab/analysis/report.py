@@ -1,6 +1,10 @@
 """`write_report(path)`: one self-contained HTML file (figures embedded as base64 PNG, no external files or
 scripts) that analyses a training or evaluation log: summary, training progress, lap times, tables of the
-best episodes, track heatmaps, episode paths, action usage and speed/steering per waypoint.
+best episodes, track heatmaps, episode paths, action usage and speed/steering per waypoint, and for a
+model folder one section per evaluation and race it drove (laps, lap times, off-tracks, best lap, video).
+
+Iterations are numbered as the training console and the checkpoint names count them: iteration 1 is the
+first, whose steps are in `training-simtrace/0-iteration.csv` (the simtrace files count from 0).
 
 The track comes from `track=` (a name, path or `Track`), else from a racerlab model folder's
 training.toml, else from the bundled and user tracks whose length equals the log's `track_len`. Without
@@ -12,6 +16,8 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,9 +58,10 @@ def log_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
             return resolve_track(path, default=False), "from the model folder's training.toml"
         except RacerlabError as exc:
             return None, f"the model folder's track cannot be loaded ({exc}); pass --track"
-    found = _tracks_of_length(df)
+    found, same = _tracks_of_length(df)
     if len(found) == 1:
-        return found[0], f"the only known track {_track_len(df):.2f} m long (the log's track_len)"
+        alias = f"; {', '.join(same)} {'is' if len(same) == 1 else 'are'} the same geometry" if same else ""
+        return found[0], f"the only known track {_track_len(df):.2f} m long (the log's track_len{alias})"
     if found:
         names = ", ".join(t.name for t in found)
         return None, f"several known tracks are {_track_len(df):.2f} m long ({names}); pass --track"
@@ -65,20 +72,28 @@ def _track_len(df: pd.DataFrame) -> float:
     return float(df["track_len"].median()) if len(df) else float("nan")
 
 
-def _tracks_of_length(df: pd.DataFrame) -> list[Track]:
+def _tracks_of_length(df: pd.DataFrame) -> tuple[list[Track], list[str]]:
+    """Known tracks as long as the log's track_len, one per distinct geometry (AWS ships some route files
+    under several names, e.g. reinvent_base = reinvent_carpet = reinvent_concrete = reinvent_wood: the
+    first name in sorted order stands for them), and the names of the identical files left out."""
     from racerlab import track as tracks
     from racerlab.track.registry import catalogue
 
     target = _track_len(df)
-    out = []
-    for name in catalogue():
+    out: dict[bytes, Track] = {}
+    same = []
+    for name in sorted(catalogue()):
         try:
             t = tracks.load(name)
         except RacerlabError:
             continue
         if abs(round(t.length, 2) - target) <= 0.011:
-            out.append(t)
-    return out
+            key = t.as_array().tobytes()
+            if key in out:
+                same.append(name)
+            else:
+                out[key] = t
+    return list(out.values()), same
 
 
 def rows_on_track(df: pd.DataFrame, track: Track) -> pd.DataFrame:
@@ -117,7 +132,10 @@ class _Doc:
     def table(self, df: pd.DataFrame, caption: str = "") -> None:
         if caption:
             self.parts.append(f"<h3>{html.escape(caption)}</h3>")
-        self.parts.append(df.to_html(classes="t", float_format=lambda v: f"{v:.4g}", na_rep="", border=0))
+        df = df.rename(columns=_HEADERS)
+        df.index.name = _HEADERS.get(df.index.name, df.index.name)
+        body = df.to_html(classes="t", float_format=lambda v: f"{v:.4g}", na_rep="", border=0)
+        self.parts.append(f'<div class="tw">{body}</div>')  # a wide table scrolls inside the page
 
     def render(self, toc: list[tuple[str, str]]) -> str:
         nav = " · ".join(f'<a href="#{a}">{html.escape(t)}</a>' for a, t in toc)
@@ -131,7 +149,16 @@ h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-top:.6em}h3{font-size
 nav{margin-bottom:1em;line-height:1.8}figure{margin:1em 0}img{max-width:100%;border:1px solid #eee}
 figcaption{color:#555;font-size:.9em}table.t{border-collapse:collapse;font-size:.85em;margin:.5em 0}
 table.t td,table.t th{padding:.2em .6em;border-bottom:1px solid #eee;text-align:right}
-.note{color:#8a5300;background:#fff6e5;padding:.4em .8em}.kv td{padding:.1em 1em .1em 0}"""
+.note{color:#8a5300;background:#fff6e5;padding:.4em .8em}.kv td{padding:.1em 1em .1em 0}
+.tw{max-width:100%;overflow-x:auto}table.t th{white-space:normal;max-width:7em;vertical-align:bottom}"""
+
+# short table headers, so that the tables fit the page
+_HEADERS = {"unique_episode": "episode", "start_waypoint": "start wp", "lap_time": "lap time (s)",
+            "time": "time (s)", "distance": "distance (m)", "true_speed": "speed (m/s)", "speed": "cmd speed",
+            "reward_mean": "reward mean", "reward_std": "reward std", "progress_mean": "progress %",
+            "completion_rate": "lap share", "lap_time_min": "best lap (s)", "lap_time_mean": "mean lap (s)",
+            "train_completion": "train progress %", "eval_completion": "eval progress %",
+            "eval_lap_time_min": "best eval lap (s)", "approx_kl": "approx KL"}
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -150,8 +177,18 @@ def write_report(path, out=None, track=None, *, kind: str = "auto") -> Path:
     out = Path(out) if out else _default_out(path)
     trk, track_note = log_track(path, df, track)
     doc = _Doc(f"racerlab report: {path.name or path}")
-    toc = _build(doc, path, df, trk, track_note)
+    toc = _build(doc, path, df, trk, track_note, out)
     return atomic_write_text(out, doc.render(toc))
+
+
+def count_iterations_from_one(eps: pd.DataFrame | None = None, its: pd.DataFrame | None = None) -> None:
+    """Renumber (in place) the 0-based iterations of the simtrace files as the training console and the
+    checkpoint names count them: iteration 1 is the one that wrote 0-iteration.csv. Every table and
+    figure shown to a user uses this numbering."""
+    if eps is not None:
+        eps["iteration"] += 1
+    if its is not None:
+        its.index = its.index + 1
 
 
 def _default_out(path: Path) -> Path:
@@ -165,20 +202,27 @@ def _default_out(path: Path) -> Path:
     return path.with_name(f"{name}-report.html")
 
 
-def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_note: str) -> list[tuple[str, str]]:
+def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_note: str,
+           out: Path) -> list[tuple[str, str]]:
     kin = step_kinematics(df)
     eps = episode_summary(df, kin)
     training = df.attrs.get("kind", "training") == "training"
     tm, jsonl = run_metrics(path) if training else (None, [])
     its = iteration_summary(eps, tm, jsonl)
+    count_iterations_from_one(eps, its)
     toc = [("summary", "Summary")]
     _summary(doc, path, df, eps, trk, track_note)
     if training:
         toc.append(("progress", "Training progress"))
         doc.h2("Training progress", "progress")
-        doc.figure(P.training_progress(its), "Per iteration: simtrace episodes, TrainingMetrics.json (training and "
-                                             "in-training evaluation) and metrics.jsonl (entropy, KL)")
+        doc.figure(P.training_progress(its), "Per iteration (numbered as the console and the checkpoint names: "
+                                             "iteration 1 is 0-iteration.csv): simtrace episodes, TrainingMetrics.json "
+                                             "(training and in-training evaluation) and metrics.jsonl (entropy, KL)")
         doc.table(_iteration_table(its), "Per iteration")
+    evaluations = _evaluation_summaries(path)
+    if evaluations:
+        toc.append(("evaluations", "Evaluations and races"))
+        _evaluations(doc, evaluations, out)
     toc.append(("laps", "Lap times and episodes"))
     _laps(doc, eps)
     if trk is not None:
@@ -187,7 +231,8 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
                      trk, eps)
     toc += [("actions", "Actions"), ("waypoints", "Per waypoint")]
     doc.h2("Action space usage", "actions")
-    doc.figure(P.action_usage(df), "Steps per action (continuous spaces: binned steering x speed)")
+    doc.figure(P.action_usage(df.assign(iteration=df["iteration"] + 1)),
+               "Steps per action (continuous spaces: binned steering x speed)")
     doc.h2("Speed and steering per waypoint", "waypoints")
     doc.figure(P.waypoint_profile(rows_on_track(df, trk) if trk is not None else df, trk),
                "Commanded and true speed, and steering, averaged per waypoint (grey: turns tighter than 2 m radius)")
@@ -228,8 +273,8 @@ def _iteration_table(its: pd.DataFrame) -> pd.DataFrame:
     return t if len(t) <= 40 else pd.concat([t.head(10), t.tail(30)])
 
 
-_EPISODE_COLUMNS = ["iteration", "episode", "outcome", "start_waypoint", "steps", "time", "progress", "reward",
-                    "lap_time", "distance", "true_speed", "max_true_speed", "speed", "mean_abs_slide"]
+_EPISODE_COLUMNS = ["iteration", "outcome", "start_waypoint", "steps", "time", "progress", "reward", "lap_time",
+                    "distance", "true_speed", "speed"]
 
 
 def _laps(doc: _Doc, eps: pd.DataFrame) -> None:
@@ -237,10 +282,19 @@ def _laps(doc: _Doc, eps: pd.DataFrame) -> None:
     doc.figure(P.lap_time_distribution(eps), "Lap times of complete laps")
     cols = [c for c in _EPISODE_COLUMNS if c in eps]
     laps = eps[eps["complete"]]
+    tables = []
     if len(laps):
-        doc.table(laps.nsmallest(TABLE_ROWS, "lap_time")[cols], "Fastest laps")
-        doc.table(laps.nlargest(TABLE_ROWS, "reward")[cols], "Best rewarded laps")
-    doc.table(eps.sort_values(["progress", "reward"], ascending=False).head(TABLE_ROWS)[cols], "Most progress")
+        tables += [(laps.nsmallest(TABLE_ROWS, "lap_time"), "Fastest laps"),
+                    (laps.nlargest(TABLE_ROWS, "reward"), "Best rewarded laps")]
+    tables.append((eps.sort_values(["progress", "reward"], ascending=False).head(TABLE_ROWS), "Most progress"))
+    shown: dict[frozenset, str] = {}
+    for rows, caption in tables:
+        key = frozenset(rows.index)
+        if key in shown:  # the same episodes again: say so instead of a second copy
+            doc.p(f"{caption}: the same episodes as “{shown[key]}” above.")
+            continue
+        shown[key] = caption
+        doc.table(rows[cols], caption)
     out = eps.groupby("start_waypoint").agg(episodes=("progress", "size"), progress=("progress", "mean"),
                                             laps=("complete", "sum"))
     if 1 < len(out) <= 40:
@@ -253,12 +307,16 @@ def _track_views(doc: _Doc, df: pd.DataFrame, trk: Track, eps: pd.DataFrame) -> 
     doc.figure(P.track_heatmap(run, trk, "reward", "mean", 0.1), "Mean reward per 10 cm cell (all steps)")
     doc.figure(P.track_heatmap(run, trk, "true_speed", "mean", 0.1, cmap="plasma"),
                "Mean true speed (m/s, from positions) per 10 cm cell")
-    doc.figure(P.track_heatmap(run, trk, "reward", "count", 0.1, cmap="magma"), "Steps per 10 cm cell: where cars go")
+    doc.figure(P.track_heatmap(run, trk, "reward", "count", 0.1, cmap="magma"),
+               "Steps per 10 cm cell: where cars go")
     ends = df.groupby("unique_episode").tail(1)
     ends = ends[ends["episode_status"].astype(str).isin(["off_track", "crashed", "reversed", "immobilized"])]
     if len(ends):
-        doc.figure(P.track_heatmap(ends, trk, "reward", "count", 0.25, cmap="Reds"),
-                   f"Where episodes ended off track, crashed, reversed or immobilized ({len(ends)} episodes, 25 cm)")
+        doc.figure(P.track_heatmap(ends, trk, "reward", "count", 0.25, cmap="Reds", rows="episode ends",
+                                   title=f"where {len(ends):,} episodes ended off track, crashed, reversed or "
+                                         "immobilized (25 cm cells)"),
+                   f"Where episodes ended off track, crashed, reversed or immobilized: episodes ending in each "
+                   f"25 cm cell ({len(ends)} episodes)")
     doc.h2("Episode paths", "paths")
     for ids, what in _chosen_episodes(eps):
         doc.figure(P.episode_paths(df, trk, ids, "speed", title=f"{what}: commanded speed"),
@@ -268,6 +326,48 @@ def _track_views(doc: _Doc, df: pd.DataFrame, trk: Track, eps: pd.DataFrame) -> 
                f"Episode {best[0]} coloured by action")
     doc.figure(P.episode_paths(df, trk, best, "true_speed", title=f"episode {best[0]}: true speed"),
                f"Episode {best[0]} coloured by true speed (m/s, from positions)")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# evaluations and races
+
+
+def _evaluation_summaries(path: Path) -> list[tuple[Path, dict]]:
+    """The `summary.json` of every `evaluation-<stamp>/` of a model folder (evaluate and race write one each)."""
+    if not path.is_dir():
+        return []
+    out = []
+    for f in sorted(path.glob("evaluation-*/summary.json")):
+        try:
+            out.append((f.parent, json.loads(f.read_text())))
+        except (OSError, ValueError):
+            continue  # an evaluation still being written, or damaged: its simtrace is still analysed
+    return out
+
+
+def _evaluations(doc: _Doc, evaluations: list[tuple[Path, dict]], out: Path) -> None:
+    doc.h2("Evaluations and races", "evaluations")
+    doc.p("Every evaluation of this model (`racerlab evaluate`, and each model's run in `racerlab race`), "
+          "newest last; times include the off-track penalties, as AWS times them.")
+    for folder, s in evaluations:
+        rules = s.get("rules", {})
+        r = s.get("result", {})
+        mode = "continuous" if rules.get("continuous", True) else "separate"
+        doc.parts.append(f"<h3>{html.escape(folder.name)}: checkpoint {html.escape(str(s.get('checkpoint')))} on "
+                         f"{html.escape(str(s.get('track')))}, {rules.get('trials', '?')} trials ({mode} laps), "
+                         f"off-track penalty {rules.get('off_track_penalty', '?')} s</h3>")
+        laps = pd.DataFrame([{"lap": lap["trial"], "time (s)": lap["elapsed"], "status": lap["status"],
+                              "progress %": lap["progress"], "off-track": lap["off_track"], "resets": lap["resets"]}
+                             for lap in s.get("laps", [])])
+        if len(laps):
+            doc.table(laps.set_index("lap"))
+        best = r.get("best_lap")
+        doc.p(f"result: {r.get('text', '?')}; best lap {'-' if best is None else f'{best:.3f} s'}; "
+              f"{r.get('off_track', 0)} off-track; total {r.get('total_time', 0):.3f} s")
+        video = s.get("files", {}).get("video")
+        if video:
+            rel = os.path.relpath(folder / video, out.parent)
+            doc.parts.append(f'<p><a href="{html.escape(rel)}">video: {html.escape(rel)}</a></p>')
 
 
 def _chosen_episodes(eps: pd.DataFrame) -> list[tuple[list[int], str]]:
@@ -281,4 +381,4 @@ def _chosen_episodes(eps: pd.DataFrame) -> list[tuple[list[int], str]]:
     return out
 
 
-__all__ = ["log_track", "png_data_uri", "rows_on_track", "write_report"]
+__all__ = ["count_iterations_from_one", "log_track", "png_data_uri", "rows_on_track", "write_report"]

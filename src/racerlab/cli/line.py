@@ -50,6 +50,7 @@ def run_line(args) -> int:
     print(f"theoretical best lap {line.lap_time:.3f} s (standing start, as the simulator times it), "
           f"flying lap {line.flying_lap_time:.3f} s, speed {s['min_speed_mps']}-{s['max_speed_mps']} m/s, "
           f"solved in {line.solve_s:.2f} s")
+    print(f"wrote into {Path(out).resolve()}:")
     for kind, path in paths.items():
-        print(f"  {kind:15s} {path}")
+        print(f"  {kind:15s} {path.resolve()}")
     return 0

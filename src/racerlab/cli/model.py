@@ -52,8 +52,15 @@ def run_init(args) -> int:
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force)
     print(f"created {folder.path}: reward_function.py, model_metadata.json, hyperparameters.json, training.toml")
+    if args.sensor == "features":
+        print(FEATURES_NOTE)
     print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
     return 0
+
+
+FEATURES_NOTE = ("note: sensor FEATURES (speed, steering, offsets and the centre line ahead, the fastest to train) "
+                 "is racerlab's own: the AWS console and DRfC accept only cameras and LIDAR, so this model trains, "
+                 "races and is analysed here only; `racerlab init --sensor camera` makes one you can upload")
 
 
 def run_train(args) -> int:

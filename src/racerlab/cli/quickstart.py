@@ -2,7 +2,8 @@
 
 Creates the default model folder if it is missing, trains it on the default track for a few
 minutes, evaluates the best checkpoint (the fastest evaluation laps) under race rules (3 laps) and
-draws the evaluation and the training curve, then says where everything is.
+draws the evaluation and the training curve, then says which checkpoint drove the laps, where
+everything is and what to run next.
 """
 
 from __future__ import annotations
@@ -34,7 +35,10 @@ def run(args) -> int:
         # fastest greedy evaluation laps, not AWS's default (highest mean progress, newest on ties), which
         # keeps a late, slower checkpoint once every evaluation episode completes its lap.
         init_model(folder.path, track=args.track, max_speed=args.max_speed, best_model_metric="laptime")
+        from racerlab.cli.model import FEATURES_NOTE
+
         print(f"created model folder {folder.path}")
+        print(FEATURES_NOTE)
     train(folder.path, minutes=args.minutes, tracks=[args.track] if args.track else None)
     res = evaluate(folder.path, track=args.track)
     print(res.report())
@@ -43,8 +47,49 @@ def run(args) -> int:
     lap_png, curve_png = out / "evaluation.png", out / "training.png"
     draw_lap(res, args.track or folder.config().track.names[0], lap_png)
     draw_curve(folder.path, curve_png)
+    print(checkpoint_line(folder, res))
     print(f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}")
+    print(next_steps(folder.path))
     return 0
+
+
+def checkpoint_line(folder, res) -> str:
+    """Which checkpoint drove the evaluation's laps, and why that one."""
+    checkpoints = folder.checkpoints()
+    last = max((c.iteration for c in checkpoints), default=0)
+    it = next((c.iteration for c in checkpoints if c.name == res.checkpoint), None)
+    metric = {"laptime": "the fastest evaluation laps", "progress": "the highest evaluation progress",
+              "reward": "the highest evaluation reward"}.get(folder.config().evaluation.best_model_metric, "")
+    laps = f"laps 1-{len(res.laps)}" if len(res.laps) > 1 else "lap 1"
+    where = f"iteration {it} of {last}" if it is not None else "a checkpoint"
+    return (f"{laps} above: driven by checkpoint {res.checkpoint} ({where}, the best checkpoint: {metric} "
+            f"during training)")
+
+
+def next_steps(model: Path) -> str:
+    """What a newcomer runs next: look at the report, evaluate again, try a new reward."""
+    m = str(model)
+    lines = [
+        ("racerlab report " + m, f"then open {model / 'report.html'}: training, laps, track heatmaps"),
+        (f"racerlab evaluate {m} --video", "race it again (3 laps) and write an MP4 of the laps"),
+        (f"cp {model / 'reward_function.py'} my_reward.py", "a new reward: edit my_reward.py, then"),
+        ("racerlab reward check my_reward.py --track " + _track_arg(model), "call it over the whole track"),
+        (f"racerlab reward rescore {m} --reward my_reward.py", "how it scores the laps already driven"),
+        (f"racerlab clone {m} my-model --reward my_reward.py && racerlab train my-model --minutes 5",
+         "train with it"),
+    ]
+    width = max(len(c) for c, _ in lines)
+    return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in lines)
+
+
+def _track_arg(model: Path) -> str:
+    from racerlab.errors import RacerlabError
+    from racerlab.model import ModelFolder
+
+    try:
+        return ModelFolder(model).config().track.names[0]
+    except (RacerlabError, IndexError):
+        return "lab_technical"
 
 
 def draw_lap(res, track, path: Path) -> None:
@@ -69,7 +114,7 @@ def draw_lap(res, track, path: Path) -> None:
     lc = LineCollection(segs, array=(step / STEP_S)[keep], cmap="plasma", linewidths=2.0, zorder=5)
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="speed (m/s)", shrink=0.7)
-    ax.set_title(f"{res.model} on {res.track}: {res.text}")
+    ax.set_title(f"{res.model} ({res.checkpoint}) on {res.track}: {res.text}")
     fig.savefig(path, dpi=120, bbox_inches="tight")
 
 
@@ -78,7 +123,9 @@ def draw_curve(model: Path, path: Path) -> None:
     from racerlab.analysis import load
     from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
     from racerlab.analysis.plots import save_png, training_progress
+    from racerlab.analysis.report import count_iterations_from_one
 
     df = load(model)
     its = iteration_summary(episode_summary(df, step_kinematics(df)), *run_metrics(model))
+    count_iterations_from_one(its=its)  # as the console printed them
     save_png(training_progress(its, title=f"{model.name}: training progress"), path)

@@ -108,7 +108,7 @@ def run_map(args) -> int:
     out = save_png(reward_map_figure(rm), args.out or Path(f"{args.reward.stem}-map.png"))
     for p in rm.problems:
         print("warning: " + p.describe(), file=sys.stderr)
-    print(out)
+    print(f"picture: {out.resolve()}")
     return 0
 
 
@@ -152,6 +152,7 @@ def _print_comparison(cmp, corr) -> None:
     with pd.option_context("display.width", 160, "display.max_columns", 20):
         if len(laps):
             t = laps[["iteration", "lap_time", "reward", "new_reward"]].copy()
+            t["iteration"] += 1  # as the training console and the checkpoint names count them
             t["reward_rank"] = laps["reward"].rank(ascending=False).astype(int)
             t["new_rank"] = laps["new_reward"].rank(ascending=False, na_option="bottom").astype(int)
             print(f"\ncomplete laps, fastest first (rank 1 = most reward; {len(laps)} laps):")

@@ -1,7 +1,9 @@
-"""`racerlab tracks list|show|generate`: what tracks there are, a picture of one, a new random one."""
+"""`racerlab tracks list|show|generate|fetch|import`: what tracks there are, a picture of one, a new random one,
+the AWS tracks downloaded or imported by name."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 
@@ -34,6 +36,24 @@ def register(sub) -> None:
     gen.add_argument("--name", default=None, help="track name (default generated_<seed>)")
     gen.add_argument("--force", action="store_true", help="overwrite a user track of the same name")
     gen.set_defaults(func=run_generate)
+
+    fetch = tsub.add_parser("fetch", help="download AWS tracks by name into the user track folder",
+                            description="Download AWS DeepRacer route files from the community's public track "
+                                        "data (github.com/aws-deepracer-community/deepracer-race-data, "
+                                        "raw_data/tracks/npy/), check each against the sha256 racerlab ships and "
+                                        "save it in the user track folder, where every command finds it by name. "
+                                        "$RACERLAB_AWS_TRACKS_URL points the downloads at a mirror.")
+    fetch.add_argument("names", metavar="NAME", nargs="*", help="AWS track names, e.g. reInvent2019_track")
+    fetch.add_argument("--all", action="store_true", help="every AWS track racerlab knows (about 1.2 MB)")
+    fetch.add_argument("--list", action="store_true", help="list the AWS track names and titles, download nothing")
+    fetch.set_defaults(func=run_fetch)
+
+    imp = tsub.add_parser("import", help="copy the AWS route files found in a folder into the user track folder",
+                          description="Copy every AWS route file found under a folder you already have (a DRfC "
+                                      "or deepracer-simapp checkout, any depth) into the user track folder, each "
+                                      "checked against the sha256 racerlab ships.")
+    imp.add_argument("folder", type=Path, metavar="DIR", help="the folder to search for .npy route files")
+    imp.set_defaults(func=run_import)
 
 
 def _source(path: Path) -> str:
@@ -81,8 +101,45 @@ def run_show(args) -> int:
         raise RacerlabError(f"--out {out}: the picture is a PNG; give a file name ending in .png")
     save_track_png(t, out)
     print(describe(t))
-    print(f"picture: {out}")
+    print(f"picture: {out.resolve()}")
     return 0
+
+
+def run_fetch(args) -> int:
+    from racerlab.errors import RacerlabError
+    from racerlab.track import user_dir
+    from racerlab.track.aws import catalogue, fetch, resolve_names
+
+    if args.list:
+        _print_table(("name", "title"), [(t.name, t.title) for t in catalogue().values()])
+        return 0
+    if not args.names and not args.all:
+        raise RacerlabError("name the tracks to fetch (e.g. `racerlab tracks fetch reInvent2019_track`), "
+                            "or use --all; --list shows the names")
+    wanted = resolve_names(args.names, everything=args.all)
+    folder = user_dir()
+    done, kept = fetch(wanted, folder, report=lambda t, path: print(f"fetched {t.name} ({t.title}): {path}"))
+    for path in kept:
+        print(f"already there: {path}")
+    print(f"{len(done)} downloaded, {len(kept)} already there, in {folder}; "
+          f"use them by name, e.g. `racerlab tracks show {wanted[0].name}`")
+    return 0
+
+
+def run_import(args) -> int:
+    from racerlab.track import user_dir
+    from racerlab.track.aws import import_folder
+
+    folder = user_dir()
+    res = import_folder(args.folder, folder)
+    for path in res.copied:
+        print(f"imported {path.stem}: {path}")
+    for path in res.mismatched:
+        print(f"skipped {path}: not the AWS file of that name (its sha256 differs); "
+              f"`racerlab tracks fetch {path.stem}` downloads the real one", file=sys.stderr)
+    print(f"{len(res.copied)} imported, {len(res.already)} already there, {len(res.mismatched)} skipped "
+          f"(different bytes), {res.other} other .npy files left alone; into {folder}")
+    return 0 if res.copied or res.already else 1
 
 
 def describe(t) -> str:

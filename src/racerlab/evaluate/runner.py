@@ -10,7 +10,9 @@ columns. What happens, following simapp (facts §2, §8):
   that step, so held penalty time is included;
 - continuous mode drives all trials in one episode; at each lap-complete step progress restarts from
   the start line and the immobilized/reversed counters are cleared, as simapp resets its metrics and
-  reset rules there. (On an open track every trial is its own episode.)
+  reset rules there. Like AWS's logs, the row that completes a lap other than the episode's last says
+  `in_progress` at progress 100 (done False); only the last says `lap_complete`. (On an open track
+  every trial is its own episode.)
 - an incident (off track, reversed, immobilized, crash) pauses the car while resets remain: the
   incident's row carries the penalty in `pause_duration`; the car is put on the nearer lane at the
   previous step's progress (`Lanes.reset_pose`), stopped, and held for the penalty as simulated time:
@@ -156,6 +158,7 @@ class _Driver:
         ep.laps_left -= 1
         if ep.laps_left == 0:
             return True
+        self.trace.set_last("episode_status", "in_progress")
         self._restart_progress()
         ep.lap_start = self.sim.time
         ep.first_row = len(self.trace)

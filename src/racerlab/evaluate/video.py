@@ -3,8 +3,10 @@
 The track is drawn once with matplotlib (`racerlab.track.plot.draw_track`) into an RGB picture;
 each frame copies it, adds the newest piece of the car's trail (coloured by ground speed; the
 trail picture persists, so nothing is redrawn) and then draws the car to scale (0.196 m × 0.324 m,
-AWS's collision box), the lap timer and, for camera models, what the camera saw. During a penalty
-the car blinks, as in the AWS simulator. Frames go to an MP4 through imageio's ffmpeg writer.
+AWS's collision box). Beside the track, never over it, a panel holds what the camera saw (camera
+models), the lap timer, speed, progress, every finished lap's time and the trail's colour scale; it
+is as tall as the laps it lists need. During a penalty the car blinks, as in the AWS simulator.
+Frames go to an MP4 through imageio's ffmpeg writer.
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ CAR_LENGTH_M = 0.324  # BOT_CAR_DIMENSION (facts §2), centred on the base pose
 CAR_WIDTH_M = 0.196
 SPEED_CMAP = "plasma"
 MAX_TRAIL_JUMP_M = 0.5  # longer moves between rows are resets: no trail line
-PANEL = (255, 255, 255, 215)
 TEXT = (20, 20, 20)
 
 
@@ -77,7 +78,7 @@ class TrackCanvas:
         dpi = 100
         fig = Figure(figsize=(self.width / dpi, self.height / dpi), dpi=dpi)
         ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-        draw_track(track, ax, waypoint_numbers=False, title=False)
+        draw_track(track, ax, waypoint_numbers=False, title=False, legend=False)
         ax.set_aspect("auto")
         ax.set_xlim(self.x0, self.x1)
         ax.set_ylim(self.y0, self.y1)
@@ -118,6 +119,8 @@ def car_polygon(canvas: TrackCanvas, x: float, y: float, yaw: float) -> list[tup
 class _Hud:
     """Text and pictures drawn over each frame."""
 
+    LINE = 21  # text line height at scale 1 (px)
+
     def __init__(self, title: str, laps_wanted: int, vmax: float, scale: int):
         from PIL import ImageFont
 
@@ -128,17 +131,22 @@ class _Hud:
         self.vmax = vmax
         self.scale = scale
 
-    def draw(self, draw, lines: list[str]) -> None:
-        s = self.scale
-        width = max(draw.textlength(t, font=self.font) for t in lines) + 16 * s
-        draw.rectangle((6 * s, 6 * s, 6 * s + width, 12 * s + 21 * s * len(lines)), fill=PANEL)
-        for i, t in enumerate(lines):
-            draw.text((14 * s, 10 * s + 21 * s * i), t, fill=TEXT, font=self.font)
+    def max_lines(self) -> int:
+        """Title, lap clock, speed and progress, state, then one line per lap."""
+        return (1 if self.title else 0) + 3 + self.laps_wanted
 
-    def speed_bar(self, draw, width: int, height: int, colours: list) -> None:
+    def text_height(self) -> int:
+        return (12 + self.LINE * self.max_lines()) * self.scale
+
+    def draw(self, draw, lines: list[str], x0: int, y0: int) -> None:
         s = self.scale
-        x0, y0, w, h = width - 190 * s, height - 34 * s, 170 * s, 10 * s
-        draw.rectangle((x0 - 8 * s, y0 - 22 * s, x0 + w + 8 * s, y0 + h + 6 * s), fill=PANEL)
+        for i, t in enumerate(lines):
+            draw.text((x0 + 10 * s, y0 + 6 * s + self.LINE * s * i), t, fill=TEXT, font=self.font)
+
+    def speed_bar(self, draw, x0: int, width: int, height: int, colours: list) -> None:
+        s = self.scale
+        w, h = width - 20 * s, 10 * s
+        x0, y0 = x0 + 10 * s, height - 20 * s
         for i in range(w):
             draw.line((x0 + i, y0, x0 + i, y0 + h), fill=colours[int(i / w * (len(colours) - 1))])
         draw.text((x0, y0 - 19 * s), f"trail: speed 0 to {self.vmax:.1f} m/s", fill=TEXT, font=self.small)
@@ -158,10 +166,13 @@ def render_video(path, track: Track, run, *, title: str = "", max_speed: float =
     hud = _Hud(title, int(trace["episode"].max(initial=0)) + 1, max_speed, scale)
     bar = _speed_colours(np.linspace(0, max_speed, 64), max_speed)
     report = _progress_printer(progress)
+    inset = _inset_size(run.frames, scale)
+    side = _Side(canvas, hud, inset, scale)
     trail = Image.fromarray(canvas.background)
     tdraw = ImageDraw.Draw(trail)
     px, py = canvas.px(extra["base_x"], extra["base_y"])
     lap_of = trace["episode"]
+    lap_end = lap_ends(trace)
     lap_times: list[str] = []
     tmp = path.with_name(f".{path.stem}.partial{path.suffix}")  # published by rename when complete
     writer = _open_writer(tmp)
@@ -174,15 +185,15 @@ def render_video(path, track: Track, run, *, title: str = "", max_speed: float =
                     extra["base_x"][i] - extra["base_x"][i - 1], extra["base_y"][i] - extra["base_y"][i - 1]) \
                     < MAX_TRAIL_JUMP_M:
                 tdraw.line((px[i - 1], py[i - 1], px[i], py[i]), fill=colours[i], width=3 * scale)
-            frame = trail.copy()
-            draw = ImageDraw.Draw(frame, "RGBA")
-            _draw_car(draw, canvas, extra, trace, i)
-            if trace["episode_status"][i] == "lap_complete":
+            if lap_end[i]:
                 lap_times.append(f"lap {len(lap_times) + 1}: {extra['lap_clock'][i]:.3f} s")
-            hud.draw(draw, _hud_lines(hud, trace, extra, i, lap_times))
-            hud.speed_bar(draw, canvas.width, canvas.height, bar)
-            if run.frames is not None and run.frames[i] is not None:
-                _inset(frame, run.frames[i], canvas.width, scale)
+            frame = side.frame(trail)
+            _draw_car(ImageDraw.Draw(frame, "RGBA"), canvas, extra, trace, i)
+            draw = ImageDraw.Draw(frame)
+            hud.draw(draw, _hud_lines(hud, trace, extra, i, lap_times, bool(lap_end[i])), side.x0, side.text_y)
+            hud.speed_bar(draw, side.x0, side.width, side.height, bar)
+            if inset and run.frames[i] is not None:
+                _inset(frame, run.frames[i], side.x0, scale)
             writer.append_data(np.asarray(frame))
             report(i + 1, n)
         writer.close()
@@ -193,18 +204,51 @@ def render_video(path, track: Track, run, *, title: str = "", max_speed: float =
     return path
 
 
-def _hud_lines(hud: _Hud, trace, extra, i: int, lap_times: list[str]) -> list[str]:
+def lap_ends(trace) -> np.ndarray:
+    """Per row: a lap ended here. Laps end at progress 100; in a continuous evaluation only the trial's last
+    lap says `lap_complete`, the others stay `in_progress` as in AWS's logs."""
+    status = np.asarray(trace["episode_status"]).astype(str)
+    return (status == "lap_complete") | ((np.asarray(trace["progress"]) >= 100.0) & (status != "pause"))
+
+
+class _Side:
+    """The frame: the track picture on the left, the panel (camera, text, colour scale) to its right."""
+
+    def __init__(self, canvas: TrackCanvas, hud: _Hud, inset: tuple[int, int] | None, scale: int):
+        from PIL import Image
+
+        self.x0 = canvas.width
+        self.width = _even16(max(300 * scale, (inset[0] if inset else 0) + 20 * scale))
+        self.text_y = (inset[1] + 20 * scale) if inset else 0
+        self.height = max(canvas.height, _even16(self.text_y + hud.text_height() + 50 * scale + 8))
+        self.blank = Image.new("RGB", (canvas.width + self.width, self.height), (255, 255, 255))
+
+    def frame(self, trail):
+        frame = self.blank.copy()
+        frame.paste(trail, (0, 0))
+        return frame
+
+
+def _inset_size(frames, scale: int) -> tuple[int, int] | None:
+    """Width and height of the camera picture as drawn, or None without pictures."""
+    first = next((f for f in frames or [] if f is not None), None)
+    if first is None:
+        return None
+    factor = 2 * scale if first.shape[1] <= 200 else scale
+    return first.shape[1] * factor, first.shape[0] * factor
+
+
+def _hud_lines(hud: _Hud, trace, extra, i: int, lap_times: list[str], lap_end: bool) -> list[str]:
     lap = min(int(trace["episode"][i]) + 1, hud.laps_wanted)
-    status = str(trace["episode_status"][i])
+    status = "lap_complete" if lap_end else str(trace["episode_status"][i])
     state = {"pause": f"penalty: {trace['pause_duration'][i]:.1f} s left", "off_track": "off track!",
              "reversed": "reversed!", "immobilized": "immobilized!", "crashed": "crashed!",
              "lap_complete": "lap complete", "prepare": "ready"}.get(status, "")
     lines = [hud.title] if hud.title else []
     lines += [f"lap {lap}/{hud.laps_wanted}   {extra['lap_clock'][i]:6.2f} s",
               f"speed {extra['speed'][i]:.2f} m/s   progress {trace['progress'][i]:5.1f} %"]
-    if state:
-        lines.append(state)
-    return lines + lap_times[-4:]
+    lines.append(state)
+    return lines + lap_times
 
 
 def _draw_car(draw, canvas: TrackCanvas, extra, trace, i: int) -> None:
@@ -220,14 +264,14 @@ def _draw_car(draw, canvas: TrackCanvas, extra, trace, i: int) -> None:
     draw.line((fx1, fy1, fx2, fy2), fill=(255, 255, 255, 255), width=2)  # the front
 
 
-def _inset(frame, image: np.ndarray, width: int, scale: int) -> None:
-    """What the camera saw, top right, at twice its size."""
+def _inset(frame, image: np.ndarray, x0: int, scale: int) -> None:
+    """What the camera saw, at the top of the panel, at twice its size."""
     from PIL import Image
 
     pic = Image.fromarray(image).convert("RGB")
     factor = 2 * scale if image.shape[1] <= 200 else scale
     pic = pic.resize((image.shape[1] * factor, image.shape[0] * factor), Image.NEAREST)
-    x = width - pic.width - 10 * scale
+    x = x0 + 10 * scale
     frame.paste((20, 20, 20), (x - 3, 7, x + pic.width + 3, 13 + pic.height))
     frame.paste(pic, (x, 10))
 

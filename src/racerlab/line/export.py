@@ -106,10 +106,11 @@ def python_text(line: RacingLine) -> str:
 def draw_line(line: RacingLine, track: Track, ax=None):
     """The line on the track, coloured by speed, with a colour bar; returns the axes."""
     from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
 
-    from racerlab.track.plot import draw_track
+    from racerlab.track.plot import draw_track, track_legend
 
-    ax = draw_track(track, ax=ax, waypoint_numbers=False, center_line=False, title=False)
+    ax = draw_track(track, ax=ax, waypoint_numbers=False, center_line=False, title=False, legend=False)
     pts = np.vstack([line.xy, line.xy[:1]])
     segs = np.stack([pts[:-1], pts[1:]], axis=1)
     lc = LineCollection(segs, cmap="plasma", linewidths=2.5, zorder=6)
@@ -117,6 +118,8 @@ def draw_line(line: RacingLine, track: Track, ax=None):
     lc.set_clim(float(line.speed.min()), line.car.max_speed_mps)
     ax.add_collection(lc)
     ax.figure.colorbar(lc, ax=ax, shrink=0.7, label="speed (m/s)")
+    track_legend(ax, [Line2D([], [], color=lc.cmap(0.6), lw=2.5, label="racing line, coloured by speed")],
+                 center_line=False)
     ax.set_title(f"{line.track_name}: {line.method} line, margin {line.margin_m} m — lap {line.lap_time:.3f} s "
                  f"(flying {line.flying_lap_time:.3f} s), {line.length:.2f} m", fontsize=10)
     return ax

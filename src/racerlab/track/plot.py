@@ -83,12 +83,13 @@ def _draw_numbers(ax, track: Track, step: int) -> None:
 
 def draw_track(track: Track, ax=None, waypoint_numbers: bool = True, *, label_every: int | None = None,
                title: str | bool = True, center_line: bool = True, road_color: str = ROAD_COLOR,
-               background: str | None = GRASS_COLOR):
+               background: str | None = GRASS_COLOR, legend: bool = True):
     """Draw `track` on `ax` (a new figure when None) in metres with equal aspect; returns the axes.
 
     Draws the road surface, both borders, the dashed centre line, the start line and an arrow for
     the driving direction, and (optionally) every `label_every`-th waypoint number (chosen so that
-    at most `MAX_LABELS` are written when None).
+    at most `MAX_LABELS` are written when None), with a legend below the axes saying what each is
+    (`track_legend` redraws it with more entries, e.g. a plot's start and end markers).
     """
     from matplotlib.patches import PathPatch
 
@@ -109,12 +110,35 @@ def draw_track(track: Track, ax=None, waypoint_numbers: bool = True, *, label_ev
         _draw_numbers(ax, track, label_every or label_step(track.num_waypoints))
     if title:
         ax.set_title(title if isinstance(title, str) else _title(track), fontsize=10)
+    if legend:
+        track_legend(ax, center_line=center_line, waypoint_numbers=waypoint_numbers, road_color=road_color)
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
     ax.set_xlabel("x (m)", fontsize=8)
     ax.set_ylabel("y (m)", fontsize=8)
     ax.tick_params(labelsize=7)
     return ax
+
+
+def track_legend(ax, extra=(), *, center_line: bool = True, waypoint_numbers: bool = False,
+                 road_color: str = ROAD_COLOR, side: bool = False):
+    """A legend below `ax` (right of it with `side`) naming the track's parts, then the `extra` handles
+    (artists with labels)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [Patch(facecolor=road_color, edgecolor=BORDER_COLOR, label="road, between the borders"),
+               Line2D([], [], color=START_COLOR, lw=3, label="start / finish line"),
+               Line2D([], [], color=START_COLOR, marker=">", ls="-", lw=1.5, label="driving direction")]
+    if center_line:
+        handles.append(Line2D([], [], color=CENTER_COLOR, lw=1, ls=(0, (4, 4)), label="centre line"))
+    if waypoint_numbers:
+        handles.append(Line2D([], [], color=LABEL_COLOR, marker="o", ms=3, ls="", label="waypoint (number)"))
+    handles += list(extra)
+    if side:
+        return ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
+    return ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=min(len(handles), 4),
+                     fontsize=8, frameon=False)
 
 
 def _title(track: Track) -> str:

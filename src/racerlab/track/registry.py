@@ -57,16 +57,28 @@ def is_bundled(path: Path) -> bool:
 
 
 def resolve(name_or_path) -> Path:
-    """The file for a track name or path; a clear error with close matches when unknown."""
+    """The file for a track name or path; a clear error with close matches when unknown.
+
+    A bare file name that is not in the current folder (`reInvent2019_track.npy`) is looked up by its
+    name in the track folders; an AWS track not downloaded yet says which command fetches it."""
+    from racerlab.track.aws import fetch_hint
+
     p = Path(name_or_path)
     if p.suffix.lower() in TRACK_SUFFIXES or os.sep in str(name_or_path) or p.is_file():
-        if not p.is_file():
-            raise TrackError(f"{p}: no such track file")
-        return p
+        if p.is_file():
+            return p
+        if p.parent == Path(".") and p.stem in (cat := catalogue()):
+            return cat[p.stem]
+        hint = fetch_hint(p.name) if p.parent == Path(".") else None
+        raise TrackError(f"{p}: no such track file" + (f"; {hint}" if hint else ""))
     cat = catalogue()
     if str(name_or_path) in cat:
         return cat[str(name_or_path)]
+    hint = fetch_hint(str(name_or_path))
+    if hint:
+        raise TrackError(hint)
     close = difflib.get_close_matches(str(name_or_path), list(cat), n=3, cutoff=0.5)
     hint = f" Did you mean {', '.join(close)}?" if close else ""
     raise TrackError(f"unknown track {name_or_path!r}: not a file and not in {', '.join(map(str, search_dirs()))}."
-                     f"{hint} Run `racerlab tracks list` to see the names.")
+                     f"{hint} Run `racerlab tracks list` to see the names, `racerlab tracks fetch --list` "
+                     f"for the AWS tracks.")

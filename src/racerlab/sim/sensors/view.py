@@ -38,7 +38,7 @@ def sensor_view(track: Track, cars: int = 4, *, randomize: bool = False, walls: 
     fig = Figure(figsize=(13.5, max(2.3 * cars, 6.0)))
     grid = fig.add_gridspec(cars, 3, width_ratios=[2.4, 1.6, 1.0], wspace=0.08, hspace=0.25)
     ax = fig.add_subplot(grid[:, 0])
-    draw_track(track, ax, waypoint_numbers=False)
+    draw_track(track, ax, waypoint_numbers=False, legend=False)
     for i in range(cars):
         _draw_car(ax, sim.car[i], i)
         _draw_frame(fig.add_subplot(grid[i, 1]), frames[i, :, :, 0], i, randomize)
