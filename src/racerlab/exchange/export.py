@@ -51,7 +51,7 @@ def _tar(entries: dict[str, bytes], out: Path) -> Path:
     from racerlab.logs import atomic_write_bytes
 
     buf = io.BytesIO()
-    with tarfile.open(fileobj=buf, mode="w:gz", compresslevel=6) as tar:
+    with tarfile.open(fileobj=buf, mode="w:gz", compresslevel=1) as tar:
         for name, data in entries.items():
             info = tarfile.TarInfo(name)
             info.size, info.mtime, info.mode = len(data), int(time.time()), 0o644
