@@ -87,7 +87,8 @@ def write_virtual_tree(model: LocalModel, root: Path) -> list[Path]:
         f"model/model_{info.iteration}.pb": graph_bytes(build_graph(policy, f"{PREFIX}/{POLICY_NETWORK}",
                                                                     POLICY_OUTPUT, activation)),
         "model/.coach_checkpoint": f"{ckpt}\n".encode(),
-        "model/deepracer_checkpoints.json": _checkpoint_index(ckpt),
+        "model/deepracer_checkpoints.json": _checkpoint_index(
+            ckpt, (model.folder.checkpoints_dir / info.name).stat().st_mtime),
         "model/model_metadata.json": json.dumps(meta.to_json(), indent=2).encode(),
         "model_metadata.json": json.dumps(meta.to_json(), indent=2).encode(),
         "ip/hyperparameters.json": json.dumps(model.hyperparameters.to_json(), indent=2).encode(),
@@ -101,9 +102,9 @@ def write_virtual_tree(model: LocalModel, root: Path) -> list[Path]:
     return written
 
 
-def _checkpoint_index(ckpt: str) -> bytes:
+def _checkpoint_index(ckpt: str, saved_at: float) -> bytes:
     """deepracer_checkpoints.json with last and best both naming `ckpt`, as `dr-upload-model` writes it."""
-    entry = {"name": ckpt, "time_stamp": round(time.time(), 3), "avg_eval_metric": 0.0}
+    entry = {"name": ckpt, "time_stamp": round(saved_at, 3), "avg_eval_metric": 0.0}
     return json.dumps({"best_checkpoint": entry, "last_checkpoint": entry}, indent=2).encode()
 
 
