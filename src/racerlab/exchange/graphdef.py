@@ -59,7 +59,7 @@ class _Builder:
         return self.av.AttrValue(type=dtype if dtype is not None else self.f32)
 
     def const(self, name, array) -> str:
-        a = np.ascontiguousarray(array)
+        a = np.array(array, order="C")  # keeps 0-d scalars 0-d (ascontiguousarray would make them 1-d)
         dtype = self.types.DT_INT32 if a.dtype.kind == "i" else self.f32
         a = a.astype(np.int32 if dtype == self.types.DT_INT32 else np.float32)
         tensor = self.tp.TensorProto(dtype=dtype, tensor_shape=self._shape(a.shape), tensor_content=a.tobytes())
