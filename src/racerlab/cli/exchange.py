@@ -1,0 +1,86 @@
+"""`racerlab export | import | s3`: models to and from the car, DRoA, DRfC and S3 (racerlab.exchange)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="export a model for the physical car, DeepRacer-on-AWS or DRfC",
+                       description="--car writes <model>-car.tar.gz (model_metadata.json + agent/model.pb); "
+                                   "--droa writes <model>-droa.tar.gz for DRoA's Import model; --drfc DIR writes "
+                                   "the folder layout DRfC uploads and trains from.")
+    p.add_argument("model", type=Path)
+    dest = p.add_mutually_exclusive_group(required=True)
+    dest.add_argument("--car", action="store_true", help="the physical car's .tar.gz")
+    dest.add_argument("--droa", action="store_true", help="DeepRacer-on-AWS's import .tar.gz")
+    dest.add_argument("--drfc", type=Path, metavar="DIR", help="DRfC's model folder layout, written into DIR")
+    p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
+    p.add_argument("-o", "--output", type=Path, help="archive path (default: <model>-car.tar.gz / -droa.tar.gz)")
+    p.set_defaults(func=run_export)
+
+    p = sub.add_parser("import", help="make a racerlab model from a console, DRoA, DRfC or car model",
+                       description="PATH is a model folder or a .tar.gz/.zip holding model_metadata.json and a "
+                                   "TF checkpoint and/or model.pb. Nothing in it is executed: its "
+                                   "reward_function.py is kept as text under imported/.")
+    p.add_argument("path", type=Path)
+    p.add_argument("name", type=Path, nargs="?", help="the new model folder (default: <PATH name>-imported)")
+    p.set_defaults(func=run_import)
+
+    p = sub.add_parser("s3", help="push a model to S3 in DRfC's layout, or pull one",
+                       description="Works with AWS S3, MinIO and DRfC's local MinIO (--endpoint-url or "
+                                   "AWS_ENDPOINT_URL); credentials and region as the AWS CLI finds them.")
+    s3 = p.add_subparsers(dest="s3_command", metavar="push|pull", required=True)
+    push = s3.add_parser("push", help="upload MODEL to s3://bucket/prefix")
+    push.add_argument("model", type=Path)
+    push.add_argument("url", metavar="s3://bucket/prefix")
+    push.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
+    pull = s3.add_parser("pull", help="download s3://bucket/prefix into DIR")
+    pull.add_argument("url", metavar="s3://bucket/prefix")
+    pull.add_argument("dir", type=Path)
+    for q in (push, pull):
+        q.add_argument("--profile", help="AWS CLI profile (default: AWS_PROFILE or the default profile)")
+        q.add_argument("--region", help="AWS region (default: AWS_DEFAULT_REGION or the profile's)")
+        q.add_argument("--endpoint-url", help="S3-compatible endpoint, e.g. http://localhost:9000 for MinIO")
+    push.set_defaults(func=run_push)
+    pull.set_defaults(func=run_pull)
+
+
+def run_export(args) -> int:
+    from racerlab.exchange import export_car, export_drfc, export_droa
+
+    if args.car:
+        out = export_car(args.model, args.output, args.checkpoint)
+        print(f"wrote {out}: upload it in the car's web console (Models > Upload)")
+    elif args.droa:
+        out = export_droa(args.model, args.output, args.checkpoint)
+        print(f"wrote {out}: upload its contents to DRoA's import bucket and choose Import model")
+    else:
+        out = export_drfc(args.model, args.drfc, args.checkpoint)
+        print(f"wrote {out}: copy it under DRfC's bucket prefix, or `racerlab s3 push {args.model} s3://bucket/prefix`")
+    return 0
+
+
+def run_import(args) -> int:
+    from racerlab.exchange import import_model
+
+    out = import_model(args.path, args.name)
+    print(f"imported {args.path} into {out}; race it with `racerlab evaluate {out}`, train on with "
+          f"`racerlab train {out}` (its own reward function is in {out / 'imported'} as text)")
+    return 0
+
+
+def run_push(args) -> int:
+    from racerlab.exchange.s3 import push
+
+    counts = push(args.model, args.url, args.checkpoint, args.profile, args.region, args.endpoint_url)
+    print(f"pushed {args.model} to {args.url}: {counts['uploaded']} uploaded, {counts['skipped']} already there")
+    return 0
+
+
+def run_pull(args) -> int:
+    from racerlab.exchange.s3 import pull
+
+    n = pull(args.url, args.dir, args.profile, args.region, args.endpoint_url)
+    print(f"pulled {n} files into {args.dir}; make a racerlab model of it with `racerlab import {args.dir}`")
+    return 0

@@ -1,0 +1,145 @@
+"""Export a racerlab model: the physical car's archive, DRoA's import archive and DRfC's folder layout.
+
+- car: `<model>-car.tar.gz` = `model_metadata.json` + `agent/model.pb` (frozen graph, `graphdef`).
+- DRoA: `<model>-droa.tar.gz` = the tree below, which DRoA's "Import model" takes.
+- DRfC: the same tree in a folder, as `dr-upload-model` lays it out under `s3://bucket/prefix/`:
+
+      model/<N>_Step-<S>.ckpt.{index,data-00000-of-00001,meta}   TF checkpoint, rl_coach names (`tfckpt`)
+      model/model_<N>.pb, model/model_metadata.json, model/.coach_checkpoint, model/deepracer_checkpoints.json
+      ip/hyperparameters.json, model_metadata.json, reward_function.py, training_params.yaml
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+from racerlab.errors import ConfigError, RacerlabError
+from racerlab.exchange.coach import CAR_SENSORS, POLICY_NETWORK, POLICY_OUTPUT, PREFIX, SAC_OUTPUT, ppo_towers
+from racerlab.exchange.coach import tower_from_torch as _tower
+from racerlab.exchange.graphdef import build_graph, graph_bytes
+from racerlab.exchange.local import LocalModel, load_local_model
+
+
+def frozen_graph(model: LocalModel):
+    """The car's frozen GraphDef of a model's policy."""
+    meta = model.metadata
+    if meta.training_algorithm == "sac":
+        actor = model.networks["actor"]
+        tower = _tower(actor, meta, model.shapes, "sac_policy_head_0/policy_mean")
+        d = tower.head.kernel.shape[1] // 2  # the actor's head gives (mean, log-std); the car takes tanh(mean)
+        tower.head.kernel, tower.head.bias = tower.head.kernel[:, :d], tower.head.bias[:d]
+        return build_graph(tower, SAC_OUTPUT.rsplit("/", 2)[0], SAC_OUTPUT, "tanh")
+    policy, _ = ppo_towers(model.networks["policy"], model.networks["value"], meta, model.shapes)
+    activation = "softmax" if meta.action_space_type == "discrete" else "identity"
+    return build_graph(policy, f"{PREFIX}/{POLICY_NETWORK}", POLICY_OUTPUT, activation)
+
+
+def _check_car_sensors(meta) -> None:
+    bad = [s for s in meta.sensor if s not in CAR_SENSORS]
+    if bad:
+        raise ConfigError(f"{meta.source}: the car has no {bad[0]} sensor (it takes {', '.join(CAR_SENSORS)}); "
+                          "train a model with `racerlab init DIR --sensor camera` (or stereo, lidar)")
+
+
+def _tar(entries: dict[str, bytes], out: Path) -> Path:
+    """A .tar.gz of `entries` (archive name -> bytes), written atomically."""
+    from racerlab.logs import atomic_write_bytes
+
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz", compresslevel=1) as tar:
+        for name, data in entries.items():
+            info = tarfile.TarInfo(name)
+            info.size, info.mtime, info.mode = len(data), int(time.time()), 0o644
+            tar.addfile(info, io.BytesIO(data))
+    return atomic_write_bytes(out, buf.getvalue())
+
+
+def export_car(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+    """`<model>-car.tar.gz` for the physical car: model_metadata.json and agent/model.pb at the root."""
+    model = load_local_model(model_dir, checkpoint)
+    _check_car_sensors(model.metadata)
+    pb = graph_bytes(frozen_graph(model))
+    out = Path(out) if out else Path(f"{model.name}-car.tar.gz")
+    return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "agent/model.pb": pb}, out)
+
+
+def write_virtual_tree(model: LocalModel, root: Path) -> list[Path]:
+    """DRfC's / DRoA's tree of a clipped-PPO model under `root`; returns the files written."""
+    from racerlab.exchange.tfckpt import coach_variables, write_checkpoint
+
+    meta = model.metadata
+    if meta.training_algorithm == "sac":
+        raise ConfigError(f"{model.folder.metadata_path}: SAC models cannot be exported to DRoA/DRfC yet "
+                          "(rl_coach's SAC variable names are not pinned down); use --car, or train clipped_ppo")
+    policy, value = ppo_towers(model.networks["policy"], model.networks["value"], meta, model.shapes)
+    info = model.checkpoint
+    ckpt = f"{info.iteration}_Step-{info.steps}.ckpt"
+    mdir = root / "model"
+    mdir.mkdir(parents=True, exist_ok=True)
+    written = write_checkpoint(mdir / ckpt, coach_variables(policy, value, info.steps))
+    activation = "softmax" if meta.action_space_type == "discrete" else "identity"
+    files = {
+        f"model/model_{info.iteration}.pb": graph_bytes(build_graph(policy, f"{PREFIX}/{POLICY_NETWORK}",
+                                                                    POLICY_OUTPUT, activation)),
+        "model/.coach_checkpoint": f"{ckpt}\n".encode(),
+        "model/deepracer_checkpoints.json": _checkpoint_index(
+            ckpt, (model.folder.checkpoints_dir / info.name).stat().st_mtime),
+        "model/model_metadata.json": json.dumps(meta.to_json(), indent=2).encode(),
+        "model_metadata.json": json.dumps(meta.to_json(), indent=2).encode(),
+        "ip/hyperparameters.json": json.dumps(model.hyperparameters.to_json(), indent=2).encode(),
+        "reward_function.py": model.folder.reward_path.read_bytes(),
+        "training_params.yaml": training_params(model).encode(),
+    }
+    for name, data in files.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_bytes(data)
+        written.append(root / name)
+    return written
+
+
+def _checkpoint_index(ckpt: str, saved_at: float) -> bytes:
+    """deepracer_checkpoints.json with last and best both naming `ckpt`, as `dr-upload-model` writes it."""
+    entry = {"name": ckpt, "time_stamp": round(saved_at, 3), "avg_eval_metric": 0.0}
+    return json.dumps({"best_checkpoint": entry, "last_checkpoint": entry}, indent=2).encode()
+
+
+def training_params(model: LocalModel) -> str:
+    """training_params.yaml as DRfC writes it: flat keys, every value a quoted string."""
+    try:
+        track = model.folder.config().track.names[0]
+    except RacerlabError:
+        track = "reInvent2019_track"
+    name = model.name
+    values = {
+        "AWS_REGION": "us-east-1", "JOB_TYPE": "TRAINING", "RACE_TYPE": "TIME_TRIAL", "WORLD_NAME": track,
+        "MODEL_METADATA_FILE_S3_KEY": "model_metadata.json", "REWARD_FILE_S3_KEY": "reward_function.py",
+        "SAGEMAKER_SHARED_S3_PREFIX": name, "BODY_SHELL_TYPE": "deepracer", "CAR_NAME": name, "CAR_COLOR": "Black",
+        "DISPLAY_NAME": name, "RACER_NAME": name, "ALTERNATE_DRIVING_DIRECTION": "False",
+        "CHANGE_START_POSITION": "True", "ENABLE_DOMAIN_RANDOMIZATION": "False", "MIN_EVAL_TRIALS": "5",
+        "NUMBER_OF_OBSTACLES": "0", "NUMBER_OF_BOT_CARS": "0",
+    }
+    return "".join(f'{k}: "{v}"\n' for k, v in values.items())
+
+
+def export_droa(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+    """`<model>-droa.tar.gz`: the tree DRoA's "Import model" takes, at the archive's root."""
+    model = load_local_model(model_dir, checkpoint)
+    out = Path(out) if out else Path(f"{model.name}-droa.tar.gz")
+    with tempfile.TemporaryDirectory(prefix="racerlab-droa-") as tmp:
+        files = write_virtual_tree(model, Path(tmp))
+        return _tar({p.relative_to(tmp).as_posix(): p.read_bytes() for p in sorted(files)}, out)
+
+
+def export_drfc(model_dir, out_dir, checkpoint: str | int = "best") -> Path:
+    """The tree DRfC's `dr-upload-model` puts under its S3 prefix (and DR_LOCAL_S3_PRETRAINED_PREFIX reads)."""
+    model = load_local_model(model_dir, checkpoint)
+    out = Path(out_dir)
+    if out.exists() and any(out.iterdir()):
+        raise RacerlabError(f"{out}: already exists and is not empty; export into a new folder")
+    write_virtual_tree(model, out)
+    return out

@@ -1,0 +1,148 @@
+"""The racerlab side of an exchange: read a model folder's networks, write an imported model folder.
+
+This is the only module of `racerlab.exchange` that knows racerlab's model-folder modules (metadata,
+hyperparameters, folder, training config) and the training checkpoint format.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, replace
+
+from racerlab.errors import ConfigError, RacerlabError
+from racerlab.hyperparameters import Hyperparameters, parse_hyperparameters
+from racerlab.metadata import ModelMetadata, load_model_metadata, parse_model_metadata
+from racerlab.train.config import TrackSettings, TrainingConfig
+from racerlab.train.folder import CheckpointInfo, ModelFolder
+from racerlab.train.init import EXAMPLE_REWARD
+
+__all__ = ["CheckpointInfo", "Hyperparameters", "LocalModel", "ModelFolder", "ModelMetadata", "aws_shapes",
+           "load_local_model", "load_model_metadata", "parse_model_metadata", "write_imported_model"]
+
+CHECKPOINT_FORMAT = "racerlab.checkpoint/1"  # racerlab.train.loop.STATE_FORMAT: the dict a training checkpoint holds
+IMPORTED_DIR = "imported"
+
+
+def aws_shapes(metadata: ModelMetadata) -> dict[str, tuple[int, ...]]:
+    """racerlab observation input -> shape of one observation for the AWS sensors in `metadata`."""
+    from racerlab.sim.sensors.geometry import IMAGE_H, IMAGE_W, LIDAR_RAYS
+    from racerlab.sim.sensors.lidar import SECTORS, discretized_config
+
+    shapes: dict[str, tuple[int, ...]] = {}
+    for s in metadata.sensor:
+        if s == "FEATURES":
+            raise ConfigError(f"{metadata.source}: sensor FEATURES is racerlab's own vector of track features; a "
+                              "DeepRacer car has no such sensor. Train a model for a sensor it has: "
+                              "`racerlab init DIR --sensor camera` (or stereo, lidar)")
+        if s == "STEREO_CAMERAS":
+            shapes["stereo"] = (IMAGE_H, IMAGE_W, 2)
+        elif s in ("FRONT_FACING_CAMERA", "LEFT_CAMERA", "observation"):
+            shapes["camera"] = (IMAGE_H, IMAGE_W, 1)
+        elif s == "LIDAR":
+            shapes["lidar"] = (LIDAR_RAYS,)
+        elif s == "SECTOR_LIDAR":
+            shapes["sector_lidar"] = (SECTORS,)
+        else:  # DISCRETIZED_SECTOR_LIDAR
+            n, v, _ = discretized_config(metadata.lidar_config, metadata.source)
+            shapes["discretized_sector_lidar"] = (n * v,)
+    return shapes
+
+
+@dataclass
+class LocalModel:
+    """A racerlab model's files and the networks of one checkpoint, on the CPU in eval mode."""
+
+    folder: ModelFolder
+    metadata: ModelMetadata
+    hyperparameters: Hyperparameters
+    checkpoint: CheckpointInfo
+    shapes: dict[str, tuple[int, ...]]
+    networks: dict  # "policy", "value" (clipped PPO) or "actor" (SAC) -> nn.Module
+
+    @property
+    def name(self) -> str:
+        return self.folder.path.resolve().name
+
+
+def load_local_model(model_dir, checkpoint: str | int = "best") -> LocalModel:
+    from racerlab.agent import build_networks
+
+    folder = ModelFolder(model_dir)
+    folder.require()
+    meta = folder.metadata()
+    shapes = aws_shapes(meta)
+    info = folder.resolve_checkpoint(checkpoint)
+    ck = folder.load_checkpoint(info)
+    where = folder.checkpoints_dir / info.name
+    agent = ck.get("agent") if isinstance(ck, dict) else None
+    if not isinstance(agent, dict):
+        raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+    nets = build_networks(shapes, meta)
+    names = ("actor",) if meta.training_algorithm == "sac" else ("policy", "value")
+    networks = {}
+    for name, net in zip(names, nets, strict=False):
+        try:
+            net.load_state_dict(agent[name])
+        except (KeyError, RuntimeError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise RacerlabError(f"{where}: its {name} weights do not fit the AWS {meta.neural_network} network for "
+                                f"sensors {list(meta.sensor)} ({first}); export a model trained on AWS sensors "
+                                "(training.toml [run] observation left empty)") from None
+        networks[name] = net.eval()
+    return LocalModel(folder, meta, folder.hyperparameters(), info, shapes, networks)
+
+
+def parse_hyperparameters_text(text: str, source: str) -> Hyperparameters | None:
+    """Hyperparameters from an imported hyperparameters.json, or None when racerlab cannot use them."""
+    try:
+        return parse_hyperparameters(json.loads(text), source)
+    except (json.JSONDecodeError, ConfigError):
+        return None
+
+
+def write_imported_model(dst, metadata: ModelMetadata, networks: dict, hyperparameters: Hyperparameters | None,
+                         originals: dict[str, bytes], track: str | None, note: dict) -> ModelFolder:
+    """A racerlab model folder whose first checkpoint holds `networks` ({"policy", "value"} torch modules).
+
+    `originals` (file name -> bytes) are kept unexecuted under `imported/`; reward_function.py of the new
+    folder is racerlab's example reward with a header pointing at the imported one. The checkpoint is
+    marked `cloned`, so `racerlab train` continues from these weights with fresh counters.
+    """
+    from racerlab.agent import PPO
+
+    folder = ModelFolder(dst)
+    if folder.path.exists() and any(folder.path.iterdir()):
+        raise RacerlabError(f"{folder.path}: already exists and is not empty; import into a new folder")
+    hp = hyperparameters or Hyperparameters()
+    agent = PPO(aws_shapes(metadata), metadata, hp, device="cpu", seed=0)
+    agent.policy_net.load_state_dict(networks["policy"].state_dict())
+    agent.value_net.load_state_dict(networks["value"].state_dict())
+    folder.path.mkdir(parents=True)
+    for name, data in originals.items():
+        (folder.path / IMPORTED_DIR).mkdir(exist_ok=True)
+        (folder.path / IMPORTED_DIR / _kept_name(name)).write_bytes(data)
+    header = ("# racerlab import: this is racerlab's example reward. The imported model's own reward function is\n"
+              f"# kept as text, never run, in {IMPORTED_DIR}/reward_function.py.txt: read it, then copy it here\n"
+              "# to train with it.\n\n") if "reward_function.py" in originals else ""
+    folder.reward_path.write_text(header + EXAMPLE_REWARD.read_text())
+    folder.metadata_path.write_text(json.dumps(metadata.to_json(), indent=2) + "\n")
+    folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
+    cfg = TrainingConfig()
+    cfg = replace(cfg, run=replace(cfg.run, num_cars=16))  # as `racerlab init` for sensor models
+    if track:
+        cfg = replace(cfg, track=TrackSettings(names=(track,)))
+    folder.config_path.write_text(cfg.to_toml())
+    state = {"format": CHECKPOINT_FORMAT, "agent": agent.state_dict(), "metadata": metadata.to_json(),
+             "iteration": 0, "episodes": 0, "env_steps": 0, "train_steps": 0, "best_name": None,
+             "best_metric": None, "best_lap_time": math.nan, "rollbacks": 0, "starts": None, "first_lap": None,
+             "saved_at": time.time(), "cloned": True}
+    info = folder.save_checkpoint(state, 0, 0)
+    folder.update_index(info, float("nan"), None, None)
+    (folder.path / "lineage.json").write_text(json.dumps({"imported": note}, indent=2) + "\n")
+    return folder
+
+
+def _kept_name(name: str) -> str:
+    return name + ".txt" if name.endswith(".py") else name
