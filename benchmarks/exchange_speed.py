@@ -23,7 +23,7 @@ import torch
 from racerlab.agent import PPO
 from racerlab.exchange import export_car, export_drfc, export_droa, import_model
 from racerlab.exchange.local import aws_shapes
-from racerlab.train.init import init_model
+from racerlab.model import init_model
 
 
 def make_model(path: Path):

@@ -9,7 +9,7 @@ import torch
 
 from racerlab.agent import PPO, SAC
 from racerlab.exchange.local import aws_shapes
-from racerlab.train.init import init_model
+from racerlab.model import init_model
 
 N_OBS = 100
 

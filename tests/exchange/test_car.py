@@ -89,7 +89,7 @@ def test_tensorflow_runs_the_car_graph_like_racerlab(tmp_path):
 
 
 def test_a_features_model_is_refused_with_the_sensors_to_train(tmp_path):
-    from racerlab.train.init import init_model
+    from racerlab.model import init_model
 
     folder = init_model(tmp_path / "f", sensor="features")
     with pytest.raises(ConfigError, match=r"car has no such sensor.*--sensor camera"):

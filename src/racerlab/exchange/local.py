@@ -12,11 +12,18 @@ import time
 from dataclasses import dataclass, replace
 
 from racerlab.errors import ConfigError, RacerlabError
-from racerlab.hyperparameters import Hyperparameters, parse_hyperparameters
-from racerlab.metadata import ModelMetadata, load_model_metadata, parse_model_metadata
-from racerlab.train.config import TrackSettings, TrainingConfig
-from racerlab.train.folder import CheckpointInfo, ModelFolder
-from racerlab.train.init import EXAMPLE_REWARD
+from racerlab.model import (
+    EXAMPLE_REWARD,
+    CheckpointInfo,
+    Hyperparameters,
+    ModelFolder,
+    ModelMetadata,
+    TrainingConfig,
+    load_model_metadata,
+    parse_hyperparameters,
+    parse_model_metadata,
+)
+from racerlab.model.config import TrackSettings
 
 __all__ = ["CheckpointInfo", "Hyperparameters", "LocalModel", "ModelFolder", "ModelMetadata", "aws_shapes",
            "load_local_model", "load_model_metadata", "parse_model_metadata", "write_imported_model"]
