@@ -100,7 +100,7 @@ class Replay:
         from racerlab.logs.read import read_simtrace_csv
 
         table = read_simtrace_csv(path.read_bytes(), str(path))
-        cols = {k: table.column(k).to_numpy() for k in ("episode", "X", "Y", "yaw")}
+        cols = {k: table.column(k).to_numpy() for k in ("episode", "x", "y", "yaw")}
         self.path, self.iteration = path, iteration
         episodes, starts = np.unique(cols["episode"], return_index=True)
         order = np.argsort(starts)[:MAX_VIEW_CARS]
@@ -109,7 +109,7 @@ class Replay:
         for k in order:
             lo = starts[k]
             hi = min(b for b in bounds if b > lo)
-            self.cars.append(np.stack([cols["X"][lo:hi], cols["Y"][lo:hi], cols["yaw"][lo:hi]], axis=1))
+            self.cars.append(np.stack([cols["x"][lo:hi], cols["y"][lo:hi], cols["yaw"][lo:hi]], axis=1))
         self.episodes = [int(e) for e in episodes[order]]
 
     def poses(self, step: int) -> list[np.ndarray]:
@@ -125,9 +125,7 @@ def newest_replay(model_dir: Path, current: Replay | None) -> Replay | None:
         return current
     try:
         return Replay(files[it], it)
-    except (OSError, ValueError, KeyError) as exc:  # a file being replaced: keep what we have
-        if current is None:
-            raise exc
+    except (OSError, ValueError, KeyError):  # a file being replaced: keep what we have
         return current
 
 
@@ -166,7 +164,7 @@ async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = V
     t0 = time.monotonic()
     frame = 0
     while not await is_disconnected():
-        replay = newest_replay(folder.path, replay)
+        replay = await asyncio.to_thread(newest_replay, folder.path, replay)
         if replay is None:
             yield sse("waiting", {"message": "no training iteration logged yet"})
             await asyncio.sleep(1.0)
@@ -177,10 +175,10 @@ async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = V
                "cars": [[round(float(p[0]), 3), round(float(p[1]), 3), round(float(p[2]), 1)] for p in poses]}
         if frame % CAMERA_EVERY == 0 and poses:
             if sensors is None:
-                sensors = Sensors(_model_track(folder))
+                sensors = await asyncio.to_thread(Sensors, _model_track(folder))
             k = min(max(car, 0), len(poses) - 1)
             msg["car"] = k
-            msg["camera"], msg["lidar"] = sensors.at(*poses[k])
+            msg["camera"], msg["lidar"] = await asyncio.to_thread(sensors.at, *poses[k])
             msg["angles"] = sensors.angles
         yield sse("view", msg)
         frame += 1
