@@ -490,7 +490,7 @@ async function viewAnalysis() {
       const s = done.result.summary;
       lineOut.replaceChildren(el("p", { id: "line-summary", text: `theoretical best lap ${fmt(s.lap_time_s, 3)} s (flying ${fmt(s.flying_lap_time_s, 3)} s), ${s.length_m} m` }),
         el("img", { src: `/api/lines/${encodeURIComponent(sel.value)}/${method.value}.png?t=${Date.now()}`, style: "max-width:100%" }),
-        el("h3", { text: "RACING_LINE for a reward function" }), el("pre", { text: done.result.python }));
+        el("h3", { text: "racing_line for a reward function" }), el("pre", { text: done.result.python }));
     });
   } });
   const file = el("input", { type: "file", id: "upload-file", accept: ".tar.gz,.tgz,.tar" });
