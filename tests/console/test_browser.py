@@ -85,6 +85,8 @@ def test_create_train_stop_evaluate_play(browser, tmp_path):
         page.evaluate("document.querySelector('video').muted = true; document.querySelector('video').play()")
         page.wait_for_function("document.querySelector('video').currentTime > 0.3", timeout=30_000)
         assert page.evaluate("document.querySelector('video').videoWidth") > 0
+        page.locator(".evaluation h3").first.scroll_into_view_if_needed()
+        page.evaluate("window.scrollBy(0, 380)")
         shot(page, "evaluation")
         page.goto(console.url + "/#/models")
         page.locator('tr[data-model="e2e"] .badge', has_text="idle").wait_for()

@@ -7,9 +7,8 @@ import tarfile
 
 import pytest
 
-from tests.console.conftest import Console, csrf_of
-
 from racerlab.console.security import ConsoleError, check_archive, check_name, is_loopback
+from tests.console.conftest import Console, csrf_of
 
 
 @pytest.mark.parametrize("name", ["..", "../x", "a/b", "/etc", "a\\b", ".hidden", "", "x" * 65, "a..b", "a b",

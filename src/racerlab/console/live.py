@@ -94,7 +94,8 @@ async def metric_events(workspace, name: str, is_disconnected, poll_s: float = P
 # ---- the live view ------------------------------------------------------------------------------
 
 class Replay:
-    """Car poses of one training iteration, by episode and step, from its simtrace file."""
+    """Car poses of one training iteration, by episode and step, from its simtrace file (training
+    iteration N is logged in `<N-1>-iteration.csv`, as AWS numbers them)."""
 
     def __init__(self, path: Path, iteration: int):
         from racerlab.logs.read import read_simtrace_csv
@@ -120,11 +121,11 @@ def newest_replay(model_dir: Path, current: Replay | None) -> Replay | None:
     files = logs.simtrace_files(logs.training_simtrace_dir(model_dir))
     if not files:
         return None
-    it = max(files)
-    if current is not None and current.iteration == it:
+    last = max(files)
+    if current is not None and current.iteration == last + 1:
         return current
     try:
-        return Replay(files[it], it)
+        return Replay(files[last], last + 1)
     except (OSError, ValueError, KeyError):  # a file being replaced: keep what we have
         return current
 

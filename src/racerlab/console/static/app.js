@@ -311,7 +311,7 @@ function liveView(name) {
   const lidar = el("canvas", { width: 160, height: 160, style: "background:#fafbfc;border:1px solid #d9dde3" });
   wrap.append(el("div", { class: "map" }, img, canvas),
     el("div", {}, el("div", {}, "car ", carSel, " camera (160×120, as the model sees it) and lidar"), cam, lidar, info));
-  let frame = null, es = null, running = true;
+  let frame = null, es = null, running = true, shown = 0;
   const track = fetch(`/api/models/${encodeURIComponent(name)}`).then(r => r.json()).then(async m => {
     const t = (m.track || [])[0];
     const text = await (await fetch(`/api/tracks/${encodeURIComponent(t)}.svg`)).text();
@@ -326,11 +326,12 @@ function liveView(name) {
     es.addEventListener("view", (e) => {
       const d = JSON.parse(e.data);
       info.textContent = `replaying iteration ${d.iteration} (logged simtrace), step ${d.step}, ${d.cars.length} cars`;
+      if (d.car !== undefined) shown = d.car;
       if (frame) {
         const g = canvas.getContext("2d"); g.clearRect(0, 0, canvas.width, canvas.height);
         d.cars.forEach((c, i) => {
           const x = (c[0] - frame.x0) * frame.scale, y = (frame.y1 - c[1]) * frame.scale, a = -c[2] * Math.PI / 180;
-          g.save(); g.translate(x, y); g.rotate(a); g.fillStyle = i === d.car ? "#e4572e" : "#4c9be8";
+          g.save(); g.translate(x, y); g.rotate(a); g.fillStyle = i === shown ? "#e4572e" : "#4c9be8";
           g.fillRect(-5, -3, 10, 6); g.restore();
         });
       }
