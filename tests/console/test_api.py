@@ -221,3 +221,26 @@ def test_uploaded_log_archive_is_analysed(trained):
     rep = trained.client.get(f"/api/uploads/{up['name']}/report")
     assert rep.status_code == 200 and "<html" in rep.text.lower()
     assert trained.client.get("/api/uploads").json()["uploads"][0]["report"]
+
+
+def test_live_camera_is_the_simulators_own_frame_at_the_logged_pose():
+    """The live view gets a model-point pose from the simtrace; the frame it renders there is the frame the
+    simulator renders for a car standing at that pose."""
+    import math
+
+    import numpy as np
+
+    from racerlab import track as tracks
+    from racerlab.console.live import Sensors
+    from racerlab.sim.sensors.camera import Camera
+    from racerlab.sim.sensors.view import place_cars
+
+    t = tracks.load("lab_oval")
+    sim = place_cars(t, 3)
+    expected = Camera(sim).render()[:, :, :, 0]
+    sensors = Sensors(t)
+    for i in range(3):
+        x, y, yaw = sim.pose[i]
+        ahead = sensors.ahead
+        sensors.at(x + ahead * math.cos(yaw), y + ahead * math.sin(yaw), math.degrees(yaw))
+        assert np.array_equal(sensors.camera.render()[0, :, :, 0], expected[i])
