@@ -1,0 +1,192 @@
+"""Live data for the browser, as server-sent events.
+
+- `metric_events`: a model's `metrics/metrics.jsonl` (one line per training iteration, written by the
+  trainer right after the iteration's checkpoint): all lines on connect, then each new line as soon as
+  it lands (the file's size is looked at every `POLL_S`), plus the model's state when it changes.
+- `live_view`: the cars of the newest complete training iteration, replayed from its simtrace at the
+  simulator's 15 steps per second, and for one car the 160×120 camera frame and the 64 lidar ranges
+  rendered at its logged pose. Positions go out 10 times a second, the camera 3 times: about 40 kB/s.
+
+Nothing runs for a browser that is not connected: the work is done inside the generators.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from racerlab import logs
+
+POLL_S = 0.2
+HEARTBEAT_S = 15.0
+VIEW_HZ = 10
+CAMERA_EVERY = 3  # one camera frame per this many position frames
+MAX_VIEW_CARS = 32
+CHART_KEYS = ("iteration", "episodes", "time", "charts/mean_reward", "charts/completion", "losses/entropy",
+              "eval/mean_progress", "eval/best_lap", "best/lap_time", "charts/env_steps_per_s")
+
+
+def sse(event: str, data) -> str:
+    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'), allow_nan=False)}\n\n"
+
+
+def _chart_point(entry: dict) -> dict:
+    out = {}
+    for k in CHART_KEYS:
+        v = entry.get(k)
+        out[k] = v if isinstance(v, int | float) and math.isfinite(v) else None
+    return out
+
+
+def _read_lines(path: Path, offset: int) -> tuple[list[dict], int]:
+    """Complete JSON lines after byte `offset`, and the offset after the last complete one."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(offset)
+            data = f.read()
+    except OSError:
+        return [], offset
+    end = data.rfind(b"\n") + 1
+    out = []
+    for line in data[:end].splitlines():
+        try:
+            out.append(_chart_point(json.loads(line)))
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue
+    return out, offset + end
+
+
+async def metric_events(workspace, name: str, is_disconnected, poll_s: float = POLL_S):
+    path = logs.metrics_jsonl_path(workspace.folder(name).path)
+    points, offset = _read_lines(path, 0)
+    state = workspace.state(name)
+    yield sse("history", {"points": points, "state": state})
+    last_beat = time.monotonic()
+    while not await is_disconnected():
+        await asyncio.sleep(poll_s)
+        try:
+            size = path.stat().st_size
+        except OSError:
+            size = 0
+        if size < offset:  # truncated: a training resumed from an older checkpoint
+            points, offset = _read_lines(path, 0)
+            yield sse("history", {"points": points, "state": state})
+        elif size > offset:
+            points, offset = _read_lines(path, offset)
+            for p in points:
+                p["received"] = time.time()
+                yield sse("point", p)
+        now_state = workspace.state(name)
+        if now_state != state:
+            state = now_state
+            yield sse("state", {"state": state})
+        if time.monotonic() - last_beat > HEARTBEAT_S:
+            last_beat = time.monotonic()
+            yield ": keep-alive\n\n"
+
+
+# ---- the live view ------------------------------------------------------------------------------
+
+class Replay:
+    """Car poses of one training iteration, by episode and step, from its simtrace file (training
+    iteration N is logged in `<N-1>-iteration.csv`, as AWS numbers them)."""
+
+    def __init__(self, path: Path, iteration: int):
+        from racerlab.logs.read import read_simtrace_csv
+
+        table = read_simtrace_csv(path.read_bytes(), str(path))
+        cols = {k: table.column(k).to_numpy() for k in ("episode", "x", "y", "yaw")}
+        self.path, self.iteration = path, iteration
+        episodes, starts = np.unique(cols["episode"], return_index=True)
+        order = np.argsort(starts)[:MAX_VIEW_CARS]
+        bounds = list(starts[np.argsort(starts)]) + [len(cols["episode"])]
+        self.cars = []
+        for k in order:
+            lo = starts[k]
+            hi = min(b for b in bounds if b > lo)
+            self.cars.append(np.stack([cols["x"][lo:hi], cols["y"][lo:hi], cols["yaw"][lo:hi]], axis=1))
+        self.episodes = [int(e) for e in episodes[order]]
+
+    def poses(self, step: int) -> list[np.ndarray]:
+        return [c[step % len(c)] for c in self.cars]
+
+
+def newest_replay(model_dir: Path, current: Replay | None) -> Replay | None:
+    files = logs.simtrace_files(logs.training_simtrace_dir(model_dir))
+    if not files:
+        return None
+    last = max(files)
+    if current is not None and current.iteration == last + 1:
+        return current
+    try:
+        return Replay(files[last], last + 1)
+    except (OSError, ValueError, KeyError):  # a file being replaced: keep what we have
+        return current
+
+
+class Sensors:
+    """One car on a track whose camera and lidar are rendered at given poses."""
+
+    def __init__(self, track):
+        from racerlab.console.modelapi import MODEL_POINT_AHEAD_M
+        from racerlab.sim.core import Simulator
+        from racerlab.sim.sensors.camera import Camera
+        from racerlab.sim.sensors.lidar import Lidar
+
+        self.ahead = MODEL_POINT_AHEAD_M
+        self.sim = Simulator(track, 1)
+        self.sim.reset()
+        from racerlab.sim.sensors.geometry import lidar_ray_angles
+
+        self.camera, self.lidar = Camera(self.sim), Lidar(self.sim)
+        self.angles = [round(float(a), 4) for a in lidar_ray_angles()]
+
+    def at(self, x: float, y: float, yaw_deg: float) -> tuple[str, list[float]]:
+        """The camera frame as a PNG data URI and the lidar ranges (m), for a logged model-point pose."""
+        import imageio.v3 as iio
+
+        yaw = math.radians(yaw_deg)
+        self.sim.relocate(0, x - self.ahead * math.cos(yaw), y - self.ahead * math.sin(yaw), yaw)
+        frame = self.camera.render()[0, :, :, 0]
+        png = iio.imwrite("<bytes>", frame, extension=".png")
+        ranges = self.lidar.scan()[0]
+        return "data:image/png;base64," + base64.b64encode(png).decode(), [round(float(r), 3) for r in ranges]
+
+
+async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = VIEW_HZ):
+    folder = workspace.folder(name)
+    replay, sensors = None, None
+    t0 = time.monotonic()
+    frame = 0
+    while not await is_disconnected():
+        replay = await asyncio.to_thread(newest_replay, folder.path, replay)
+        if replay is None:
+            yield sse("waiting", {"message": "no training iteration logged yet"})
+            await asyncio.sleep(1.0)
+            continue
+        step = int((time.monotonic() - t0) * 15)
+        poses = replay.poses(step)
+        msg = {"iteration": replay.iteration, "step": step,
+               "cars": [[round(float(p[0]), 3), round(float(p[1]), 3), round(float(p[2]), 1)] for p in poses]}
+        if frame % CAMERA_EVERY == 0 and poses:
+            if sensors is None:
+                sensors = await asyncio.to_thread(Sensors, _model_track(folder))
+            k = min(max(car, 0), len(poses) - 1)
+            msg["car"] = k
+            msg["camera"], msg["lidar"] = await asyncio.to_thread(sensors.at, *poses[k])
+            msg["angles"] = sensors.angles
+        yield sse("view", msg)
+        frame += 1
+        await asyncio.sleep(1.0 / hz)
+
+
+def _model_track(folder):
+    from racerlab import track as tracks
+
+    return tracks.load(folder.config().track.names[0])

@@ -1,0 +1,289 @@
+"""Routes that run racerlab's own functions in the background and show their files: evaluations and
+races (`racerlab.evaluate`), reports (`racerlab.analysis.report`), racing lines (`racerlab.line`),
+uploaded log archives, and the reward check and map of the wizard."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import re
+import time
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import Body, FastAPI, File, Request, UploadFile
+from fastapi.responses import FileResponse
+
+from racerlab import logs
+from racerlab.console.security import ConsoleError, check_archive, check_name, inside, save_upload
+
+EVAL_RE = re.compile(r"^evaluation-\d{14}(-\d+)?$")
+UPLOAD_SUFFIXES = (".tar.gz", ".tgz", ".tar")
+# the report is racerlab's own HTML, but it is shown as a document of no origin: scripts in it (if any)
+# cannot reach the console
+SANDBOX = {"Content-Security-Policy": "sandbox allow-popups", "Cache-Control": "no-store"}
+
+
+def ws(request: Request):
+    return request.app.state.workspace
+
+
+def _rules(body: dict):
+    from racerlab.evaluate import RaceRules
+
+    try:
+        return RaceRules(trials=int(body.get("trials", 3)), continuous=bool(body.get("continuous", True)),
+                         off_track_penalty=float(body.get("off_track_penalty", 5.0)),
+                         collision_penalty=float(body.get("collision_penalty", 5.0)),
+                         max_resets=int(body.get("max_resets", 100)), reverse=bool(body.get("reverse", False)))
+    except (TypeError, ValueError) as exc:
+        raise ConsoleError(f"race rules: {exc}") from None
+
+
+def _track_arg(body: dict):
+    from racerlab.track import registry
+
+    name = body.get("track") or None
+    if name is not None and name not in registry.names():
+        raise ConsoleError(f"track {name!r}: not a known track name")
+    return name
+
+
+def register(app: FastAPI) -> None:
+    _evaluation_routes(app)
+    _race_routes(app)
+    _analysis_routes(app)
+    _upload_routes(app)
+
+    @app.get("/api/tasks")
+    def tasks(request: Request):
+        return {"tasks": [t.to_json() for t in ws(request).tasks.values()]}
+
+    @app.get("/api/tasks/{key}")
+    def task(request: Request, key: str):
+        t = ws(request).tasks.get(key)
+        if t is None:
+            raise ConsoleError(f"no task {key!r}", 404)
+        return t.to_json()
+
+
+# ---- evaluations ----------------------------------------------------------------------------------------
+
+def _evaluation_routes(app: FastAPI) -> None:
+    @app.post("/api/models/{name}/evaluate")
+    def evaluate(request: Request, name: str, body: Annotated[dict | None, Body()] = None):
+        from racerlab.evaluate import evaluate as run
+
+        body = body or {}
+        w = ws(request)
+        folder = w.folder(name)
+        if w.state(name) == "training":
+            raise ConsoleError(f"{name}: training; stop it first (its checkpoints change under the evaluation)", 409)
+        rules, track = _rules(body), _track_arg(body)
+        checkpoint, video = str(body.get("checkpoint") or "best"), bool(body.get("video", True))
+
+        def job():
+            res = run(folder.path, track=track, rules=rules, checkpoint=checkpoint, video=video, progress=False)
+            return {"evaluation": res.out_dir.name, "text": res.text, "table": res.table()}
+
+        return w.run_task("evaluate", f"evaluate:{name}", job).to_json()
+
+    @app.get("/api/models/{name}/evaluations")
+    def evaluations(request: Request, name: str):
+        folder = ws(request).folder(name)
+        return {"evaluations": [_eval_summary(p) for p in reversed(logs.evaluation_dirs(folder.path))]}
+
+    @app.get("/api/models/{name}/evaluations/{ev}/video")
+    def video(request: Request, name: str, ev: str):
+        from racerlab.evaluate.api import VIDEO_NAME
+
+        path = _eval_dir(request, name, ev) / VIDEO_NAME
+        if not path.is_file():
+            raise ConsoleError(f"{name}/{ev}: no video (evaluate with video on)", 404)
+        return FileResponse(path, media_type="video/mp4")
+
+
+def _eval_dir(request: Request, name: str, ev: str) -> Path:
+    if not EVAL_RE.match(ev):
+        raise ConsoleError(f"{ev!r}: not an evaluation folder name", 404)
+    path = inside(ws(request).folder(name).path, ev)
+    if not path.is_dir():
+        raise ConsoleError(f"{name}/{ev}: no such evaluation", 404)
+    return path
+
+
+def _eval_summary(path: Path) -> dict:
+    from racerlab.evaluate.api import SUMMARY_NAME, VIDEO_NAME
+
+    try:
+        summary = json.loads((path / SUMMARY_NAME).read_text())
+    except (OSError, json.JSONDecodeError):
+        summary = None
+    return {"name": path.name, "summary": summary, "video": (path / VIDEO_NAME).is_file()}
+
+
+# ---- races ---------------------------------------------------------------------------------------------
+
+def _races_dir(request: Request) -> Path:
+    return ws(request).state_root / "races"
+
+
+def _race_routes(app: FastAPI) -> None:
+    @app.post("/api/races")
+    def start_race(request: Request, body: Annotated[dict, Body()]):
+        from racerlab.evaluate import race
+
+        w = ws(request)
+        names = body.get("models") or []
+        if not isinstance(names, list) or len(names) < 1:
+            raise ConsoleError("a race needs at least one model")
+        folders = [w.folder(str(n)).path for n in names]
+        rules, track = _rules(body), _track_arg(body)
+        out = _races_dir(request) / f"race-{time.strftime('%Y%m%d%H%M%S')}.json"
+
+        def job():
+            board = race(folders, track=track, rules=rules, out=out, progress=False)
+            return {"race": out.name, "table": board.table()}
+
+        return w.run_task("race", "race", job).to_json()
+
+    @app.get("/api/races")
+    def races(request: Request):
+        out = []
+        folder = _races_dir(request)
+        for p in sorted(folder.glob("race-*.json"), reverse=True) if folder.is_dir() else []:
+            try:
+                out.append({"name": p.name, **json.loads(p.read_text())})
+            except (OSError, json.JSONDecodeError):
+                continue
+        return {"races": out}
+
+
+# ---- reports, racing lines, reward check -------------------------------------------------------------------
+
+def _analysis_routes(app: FastAPI) -> None:
+    @app.post("/api/models/{name}/report")
+    def make_report(request: Request, name: str):
+        from racerlab.analysis.report import write_report
+
+        w = ws(request)
+        folder = w.folder(name)
+        return w.run_task("report", f"report:{name}", lambda: {"report": write_report(folder.path).name}).to_json()
+
+    @app.get("/api/models/{name}/report")
+    def report(request: Request, name: str):
+        path = ws(request).folder(name).path / "report.html"
+        if not path.is_file():
+            raise ConsoleError(f"{name}: no report yet; make one first", 404)
+        return FileResponse(path, media_type="text/html", headers=SANDBOX)
+
+    @app.post("/api/lines")
+    def make_line(request: Request, body: Annotated[dict, Body()]):
+        from racerlab import track as tracks
+        from racerlab.line import DEFAULT_MARGIN_M, racing_line
+        from racerlab.line.export import write_all
+
+        track = _track_arg(body)
+        if track is None:
+            raise ConsoleError("choose a track for the racing line")
+        method = body.get("method", "mincurv")
+        if method not in ("mincurv", "shortest"):
+            raise ConsoleError(f"method {method!r}: use mincurv or shortest")
+        margin = float(body.get("margin", DEFAULT_MARGIN_M))
+        out = ws(request).state_root / "lines" / f"{track}_{method}"
+
+        def job():
+            t = tracks.load(track)
+            line = racing_line(t, margin=margin, method=method)
+            paths = write_all(line, t, out)
+            return {"summary": line.summary(), "png": paths["png"].name, "python": paths["py"].read_text()}
+
+        return ws(request).run_task("line", f"line:{track}:{method}", job).to_json()
+
+    @app.get("/api/lines/{track}/{method}.png")
+    def line_png(request: Request, track: str, method: str):
+        if method not in ("mincurv", "shortest"):
+            raise ConsoleError(f"method {method!r}: use mincurv or shortest", 404)
+        folder = inside(ws(request).state_root / "lines", f"{check_name(track, 'track')}_{method}")
+        pngs = sorted(folder.glob("*.png")) if folder.is_dir() else []
+        if not pngs:
+            raise ConsoleError(f"{track}: no racing line yet", 404)
+        return FileResponse(pngs[0], media_type="image/png")
+
+    @app.post("/api/reward/check")
+    def reward_check(request: Request, body: Annotated[dict, Body()]):
+        return _reward_check(body)
+
+
+def _reward_check(body: dict) -> dict:
+    from racerlab import track as tracks
+    from racerlab.analysis.plots import reward_map_figure
+    from racerlab.analysis.reward_tools import check_reward, reward_map
+    from racerlab.console.wizard import check_reward_text
+
+    fn = check_reward_text(body.get("reward", ""))
+    t = tracks.load(_track_arg(body) or tracks.DEFAULT_TRACK)
+    rep = check_reward(fn, t, per_segment=int(body.get("samples", 20)))
+    rm = reward_map(fn, t, ds=0.1, across=15)
+    buf = io.BytesIO()
+    reward_map_figure(rm).savefig(buf, format="png", dpi=70)
+    png = base64.b64encode(buf.getvalue()).decode()
+    return {"ok": rep.ok, "report": rep.format(), "map": "data:image/png;base64," + png}
+
+
+# ---- uploaded log archives ----------------------------------------------------------------------------------
+
+def _uploads_dir(request: Request) -> Path:
+    d = ws(request).state_root / "uploads"
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def upload_name(filename: str) -> str:
+    """A safe stored name for an uploaded archive: its base name with unusual characters replaced."""
+    base = re.split(r"[\\/]", filename or "")[-1]
+    suffix = next((s for s in UPLOAD_SUFFIXES if base.lower().endswith(s)), None)
+    if suffix is None:
+        raise ConsoleError(f"{base!r}: upload a log archive ending in {', '.join(UPLOAD_SUFFIXES)}")
+    stem = re.sub(r"[^A-Za-z0-9._-]", "_", base[: -len(suffix)]).strip("._-")[:48] or "logs"
+    return check_name(stem, "upload name") + suffix
+
+
+def _upload_routes(app: FastAPI) -> None:
+    @app.post("/api/uploads")
+    async def upload(request: Request, file: Annotated[UploadFile, File()]):
+        from racerlab.analysis.report import write_report
+
+        name = upload_name(file.filename)
+        dest = _uploads_dir(request) / name
+        if dest.exists():
+            raise ConsoleError(f"{name}: already uploaded; delete it or rename the file", 409)
+        size = await save_upload(file, dest, request.app.state.upload_limit)
+        try:
+            files = check_archive(dest)
+        except ConsoleError:
+            dest.unlink(missing_ok=True)
+            raise
+        report = dest.with_name(_stem(name) + "-report.html")
+        task = ws(request).run_task("upload", f"upload:{name}", lambda: {"report": write_report(dest, report).name})
+        return {"name": name, "bytes": size, "files": files, "task": task.to_json()}
+
+    @app.get("/api/uploads")
+    def uploads(request: Request):
+        d = _uploads_dir(request)
+        return {"uploads": [{"name": p.name, "bytes": p.stat().st_size,
+                             "report": (d / (_stem(p.name) + "-report.html")).is_file()}
+                            for p in sorted(d.iterdir()) if p.name.endswith(UPLOAD_SUFFIXES)]}
+
+    @app.get("/api/uploads/{name}/report")
+    def upload_report(request: Request, name: str):
+        d = _uploads_dir(request)
+        path = inside(d, _stem(upload_name(name)) + "-report.html")
+        if not path.is_file():
+            raise ConsoleError(f"{name}: no report (yet)", 404)
+        return FileResponse(path, media_type="text/html", headers=SANDBOX)
+
+
+def _stem(name: str) -> str:
+    return next(name[: -len(s)] for s in UPLOAD_SUFFIXES if name.endswith(s))

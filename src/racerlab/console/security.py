@@ -1,0 +1,141 @@
+"""What keeps the console safe to leave running: who may talk to it, which names and files it accepts.
+
+- Loopback by default. Bound to any other address the console needs a token (`--token`, or one generated
+  and printed once); the browser presents it once as `?token=...` and gets an HttpOnly cookie.
+- Every state-changing request (POST, PUT, DELETE) carries the page's CSRF token in `X-CSRF-Token`, and a
+  request whose Origin is another site is refused.
+- On loopback, the Host header must name the loopback (a page of another site that rebinds its DNS
+  name to 127.0.0.1 cannot talk to the console).
+- Model, evaluation and upload names are plain names (no path separators, no `..`); every file the
+  console serves is found from such a name, inside the workspace.
+- Uploads are size-limited while they stream; a tar archive is checked member by member (plain files
+  and folders only, relative paths that stay inside, total size and member count bounded) before any
+  part of it is read.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import re
+import secrets
+import tarfile
+from pathlib import Path, PurePosixPath
+
+from racerlab.errors import RacerlabError
+
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+COOKIE = "racerlab_console"
+CSRF_HEADER = "X-CSRF-Token"
+MAX_UPLOAD_BYTES = 512 * 1024 * 1024
+MAX_ARCHIVE_MEMBERS = 100_000
+MAX_ARCHIVE_BYTES = 8 * 1024 * 1024 * 1024
+SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
+
+
+class ConsoleError(RacerlabError):
+    """A request the console refuses; `status` is the HTTP status it answers with."""
+
+    def __init__(self, message: str, status: int = 400):
+        super().__init__(message)
+        self.status = status
+
+
+def is_loopback(host: str) -> bool:
+    if host in ("localhost", ""):
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def check_name(name: str, what: str = "model name") -> str:
+    """A plain folder name: letters, digits, `.`, `_`, `-`, starting with a letter or digit, at most 64."""
+    if not isinstance(name, str) or not NAME_RE.match(name) or ".." in name:
+        raise ConsoleError(f"{what} {name!r}: use 1-64 letters, digits, '.', '_' or '-' starting with a letter "
+                           "or digit (no '/', no '..')")
+    return name
+
+
+def inside(root: Path, *names: str) -> Path:
+    """`root/names...` after checking each name; refuses anything that resolves outside `root`."""
+    path = Path(root)
+    for n in names:
+        path = path / check_name(n, "name")
+    real_root = Path(root).resolve()
+    if not path.resolve().is_relative_to(real_root):
+        raise ConsoleError(f"{'/'.join(names)}: outside the workspace", 404)
+    return path
+
+
+class Guard:
+    """The token (None on loopback) and the CSRF token of one console process."""
+
+    def __init__(self, host: str, token: str | None = None):
+        self.loopback = is_loopback(host)
+        self.token = token or (None if self.loopback else secrets.token_urlsafe(24))
+        self.csrf = secrets.token_urlsafe(24)
+
+    def host_allowed(self, host_header: str) -> bool:
+        if not self.loopback:
+            return True
+        name = host_header.rsplit(":", 1)[0] if not host_header.endswith("]") else host_header
+        return is_loopback(name.strip("[]")) or name == "localhost"
+
+    def authorized(self, cookie: str | None, bearer: str | None, query_token: str | None) -> bool:
+        if self.token is None:
+            return True
+        return any(v and hmac.compare_digest(v, self.token) for v in (cookie, bearer, query_token))
+
+    def csrf_ok(self, method: str, header: str | None, origin: str | None, host_header: str) -> bool:
+        if method in SAFE_METHODS:
+            return True
+        if origin and origin != "null":
+            origin_host = origin.split("://", 1)[-1]
+            if origin_host != host_header:
+                return False
+        return bool(header) and hmac.compare_digest(header, self.csrf)
+
+
+def check_archive(path: Path, max_bytes: int = MAX_ARCHIVE_BYTES, max_members: int = MAX_ARCHIVE_MEMBERS) -> int:
+    """Refuse a tar archive with links, devices, absolute or escaping paths, too many members or too many
+    bytes; returns the number of files. Called before anything reads the archive's contents."""
+    try:
+        with tarfile.open(path) as tar:
+            total, files = 0, 0
+            for n, m in enumerate(tar):
+                if n >= max_members:
+                    raise ConsoleError(f"{path.name}: more than {max_members} members; upload a smaller archive")
+                if not (m.isfile() or m.isdir()):
+                    raise ConsoleError(f"{path.name}: member {m.name!r} is a link or special file; only plain "
+                                       "files and folders are accepted")
+                p = PurePosixPath(m.name)
+                if p.is_absolute() or ".." in p.parts or m.name.startswith(("/", "\\")) or ":" in p.parts[0]:
+                    raise ConsoleError(f"{path.name}: member {m.name!r} points outside the archive")
+                total += m.size
+                files += m.isfile()
+                if total > max_bytes:
+                    raise ConsoleError(f"{path.name}: unpacks to more than {max_bytes} bytes")
+    except (tarfile.TarError, EOFError, OSError) as exc:
+        raise ConsoleError(f"{path.name}: not a readable tar archive ({exc}); upload a .tar.gz of log files") from None
+    if files == 0:
+        raise ConsoleError(f"{path.name}: the archive holds no files")
+    return files
+
+
+async def save_upload(upload, dest: Path, limit: int = MAX_UPLOAD_BYTES) -> int:
+    """Stream an UploadFile to `dest`, stopping (and deleting) as soon as it passes `limit` bytes."""
+    size = 0
+    tmp = dest.with_name(dest.name + ".part")
+    try:
+        with open(tmp, "wb") as f:
+            while chunk := await upload.read(1 << 20):
+                size += len(chunk)
+                if size > limit:
+                    raise ConsoleError(f"{upload.filename}: larger than the upload limit of {limit} bytes", 413)
+                f.write(chunk)
+        tmp.replace(dest)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return size

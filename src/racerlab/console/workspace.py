@@ -1,0 +1,221 @@
+"""The console's workspace: a folder whose sub-folders are model folders, their state, and the training
+processes it starts.
+
+A training is `racerlab train MODEL` in a process of its own (a new session, so closing the console or
+its terminal does not stop it). Its pid and command are kept in `<workspace>/.console/<model>/training.json`;
+a console started later finds it there and reattaches. Stop sends SIGINT, which `racerlab train` handles
+as Ctrl-C: the last complete iteration is saved.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from racerlab import logs
+from racerlab.console.modelapi import ModelFolder
+from racerlab.console.security import ConsoleError, check_name, inside
+from racerlab.errors import RacerlabError
+
+STATE_DIR = ".console"
+TAIL_BYTES = 64 * 1024
+
+
+def last_jsonl_entry(path: Path) -> dict | None:
+    """The last complete JSON line of a file, reading only its tail."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(size - TAIL_BYTES, 0))
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        try:
+            return json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue
+    return None
+
+
+def _pid_alive(pid: int, folder: Path) -> bool:
+    """True while `pid` runs `racerlab train` on `folder` (a reused pid of another program is not ours)."""
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    proc = Path(f"/proc/{pid}")
+    if proc.is_dir():
+        try:
+            if (proc / "stat").read_text().split(") ", 1)[1].startswith("Z"):
+                return False
+            cmd = (proc / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            return False
+        return b"train" in cmd and str(folder).encode() in cmd
+    return True
+
+
+@dataclass
+class Task:
+    """A job the console runs in a thread of its own (evaluation, race, report, racing line, analysis)."""
+
+    kind: str
+    key: str
+    status: str = "running"  # running | done | failed
+    message: str = ""
+    result: dict = field(default_factory=dict)
+    started: float = field(default_factory=time.time)
+    finished: float | None = None
+
+    def to_json(self) -> dict:
+        return {"kind": self.kind, "key": self.key, "status": self.status, "message": self.message,
+                "result": self.result, "started": self.started, "finished": self.finished}
+
+
+class Workspace:
+    def __init__(self, root):
+        self.root = Path(root).resolve()
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.state_root = self.root / STATE_DIR
+        self._children: dict[str, subprocess.Popen] = {}
+        self.tasks: dict[str, Task] = {}
+        self._lock = threading.Lock()
+
+    # ---- models ------------------------------------------------------------------------------
+    def folder(self, name: str, must_exist: bool = True) -> ModelFolder:
+        path = inside(self.root, name)
+        if must_exist and not (path / "model_metadata.json").is_file():
+            raise ConsoleError(f"{name}: no such model in {self.root}", 404)
+        return ModelFolder(path)
+
+    def model_names(self) -> list[str]:
+        out = []
+        for p in sorted(self.root.iterdir()):
+            if p.is_dir() and not p.name.startswith(".") and (p / "model_metadata.json").is_file():
+                out.append(p.name)
+        return out
+
+    def summary(self, name: str) -> dict:
+        folder = self.folder(name)
+        out = {"name": name, "state": self.state(name), "track": None, "sensor": None, "algorithm": None,
+               "action_space": None, "best_lap": None, "iteration": 0, "episodes": 0, "error": None}
+        try:
+            meta = folder.metadata()
+            out.update(sensor=list(meta.sensor), algorithm=meta.training_algorithm,
+                       action_space=meta.action_space_type)
+            out["track"] = list(folder.config().track.names)
+        except RacerlabError as exc:
+            out["error"] = str(exc)
+        last = last_jsonl_entry(logs.metrics_jsonl_path(folder.path))
+        if last:
+            lap = last.get("best/lap_time")
+            out.update(iteration=last.get("iteration", 0), episodes=last.get("episodes", 0),
+                       best_lap=lap if isinstance(lap, int | float) and math.isfinite(lap) else None)
+        out["evaluations"] = [p.name for p in logs.evaluation_dirs(folder.path)]
+        return out
+
+    def delete(self, name: str) -> None:
+        if self.state(name) != "idle":
+            raise ConsoleError(f"{name}: stop its {self.state(name)} first", 409)
+        folder = self.folder(name)
+        shutil.rmtree(folder.path)
+        shutil.rmtree(self.state_root / name, ignore_errors=True)
+
+    # ---- state -------------------------------------------------------------------------------
+    def state(self, name: str) -> str:
+        if self.training_pid(name):
+            return "training"
+        task = self.tasks.get(f"evaluate:{name}")
+        if task and task.status == "running":
+            return "evaluating"
+        return "idle"
+
+    def _training_file(self, name: str) -> Path:
+        return self.state_root / check_name(name) / "training.json"
+
+    def training_log(self, name: str) -> Path:
+        return self.state_root / check_name(name) / "training.log"
+
+    def training_pid(self, name: str) -> int | None:
+        child = self._children.get(name)
+        if child is not None and child.poll() is not None:
+            self._children.pop(name, None)  # reaped: an exited child is no longer training
+        try:
+            info = json.loads(self._training_file(name).read_text())
+        except (OSError, json.JSONDecodeError):
+            return None
+        pid = int(info.get("pid", 0))
+        return pid if pid > 0 and _pid_alive(pid, self.root / name) else None
+
+    # ---- training ----------------------------------------------------------------------------
+    def start_training(self, name: str, minutes=None, episodes=None, iterations=None) -> int:
+        folder = self.folder(name)
+        with self._lock:
+            if self.state(name) != "idle":
+                raise ConsoleError(f"{name}: already {self.state(name)}", 409)
+            cmd = [sys.executable, "-m", "racerlab", "train", str(folder.path)]
+            for flag, value in (("--minutes", minutes), ("--episodes", episodes), ("--iterations", iterations)):
+                if value is not None:
+                    cmd += [flag, str(value)]
+            log = self.training_log(name)
+            log.parent.mkdir(parents=True, exist_ok=True)
+            with open(log, "ab") as out:
+                out.write(f"\n$ racerlab train {name} {' '.join(cmd[5:])}\n".encode())
+                out.flush()
+                child = subprocess.Popen(cmd, cwd=self.root, stdout=out, stderr=subprocess.STDOUT,
+                                         stdin=subprocess.DEVNULL, start_new_session=True)
+            self._children[name] = child
+            logs.atomic_write_json(self._training_file(name), {"pid": child.pid, "command": cmd,
+                                                               "started": time.time()})
+            return child.pid
+
+    def stop_training(self, name: str) -> bool:
+        """SIGINT, as Ctrl-C: the trainer saves its last complete iteration and exits."""
+        pid = self.training_pid(name)
+        if pid is None:
+            return False
+        os.kill(pid, signal.SIGINT)
+        return True
+
+    def log_tail(self, name: str, lines: int = 40) -> str:
+        try:
+            with open(self.training_log(name), "rb") as f:
+                f.seek(0, os.SEEK_END)
+                f.seek(max(f.tell() - TAIL_BYTES, 0))
+                text = f.read().decode("utf-8", "replace")
+        except OSError:
+            return ""
+        return "\n".join(text.splitlines()[-lines:])
+
+    # ---- background tasks --------------------------------------------------------------------
+    def run_task(self, kind: str, key: str, fn) -> Task:
+        """Run `fn()` (returning a dict) in a thread; one task per key at a time."""
+        with self._lock:
+            old = self.tasks.get(key)
+            if old and old.status == "running":
+                raise ConsoleError(f"{key}: already running", 409)
+            task = self.tasks[key] = Task(kind, key)
+
+        def work():
+            try:
+                task.result = fn() or {}
+                task.status = "done"
+            except RacerlabError as exc:
+                task.status, task.message = "failed", str(exc)
+            except Exception as exc:  # noqa: BLE001 - shown in the page rather than lost in a thread
+                task.status, task.message = "failed", f"{type(exc).__name__}: {exc}"
+            task.finished = time.time()
+
+        threading.Thread(target=work, name=f"console-{key}", daemon=True).start()
+        return task

@@ -1,0 +1,121 @@
+"""End to end in a real browser: Debian's chromium driven by Playwright.
+
+open the console → create a model in the wizard → start training → a chart point appears → stop →
+run an evaluation → the video plays. Also: text from a model folder is shown as text, not run as HTML.
+With RACERLAB_SCREENSHOTS=DIR the pages are saved there (docs/img holds the ones in docs/console.md).
+Skipped, with the reason, where chromium or Playwright is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tests.console.conftest import Console
+
+CHROMIUM = os.environ.get("RACERLAB_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run"]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is not installed (pip install playwright)")
+    if not Path(CHROMIUM).is_file():
+        pytest.skip(f"no chromium at {CHROMIUM}: install Debian's package (apt-get install -y chromium) "
+                    "or set RACERLAB_CHROMIUM")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+        assert b.version.split(".")[0] in _version(CHROMIUM)
+        yield b
+        b.close()
+
+
+def _version(path: str) -> str:
+    import subprocess
+
+    return subprocess.run([path, "--version"], capture_output=True, text=True, timeout=60).stdout
+
+
+def shot(page, name: str) -> None:
+    folder = os.environ.get("RACERLAB_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(folder) / f"console_{name}.png"), full_page=False)
+
+
+def test_create_train_stop_evaluate_play(browser, tmp_path):
+    console = Console(tmp_path / "ws")
+    page = browser.new_page(viewport={"width": 1280, "height": 900})
+    page.on("dialog", lambda d: d.accept())
+    try:
+        page.goto(console.url + "/")
+        page.get_by_text("No models in this workspace yet").wait_for()
+        page.click("text=New model >> nth=0")
+        page.fill("#new-name", "e2e")
+        page.click('.trackpick[data-track="lab_oval"]')
+        page.fill("#new-cars", "4")
+        page.fill('input[data-hp="num_episodes_between_training"]', "4")
+        page.evaluate("window.scrollTo(0, 0)")
+        shot(page, "wizard")
+        page.click("#reward-check")
+        page.locator("#reward-report").wait_for(timeout=60_000)
+        page.locator("#reward-report").scroll_into_view_if_needed()
+        shot(page, "wizard_reward")
+        page.click("#new-create")
+        page.wait_for_url("**/#/model/e2e")
+        page.fill("#train-iterations", "30")
+        page.click("#train-start")
+        page.locator("#model-state", has_text="training").wait_for()
+        # a chart point appears when the first iteration is logged
+        page.wait_for_function("document.querySelector('#chart-reward')?.dataset.points >= 1", timeout=300_000)
+        lag = page.evaluate("window.__chartPoints[0].shown - window.__chartPoints[0].time")
+        assert lag < 1.0, f"chart point shown {lag:.2f} s after the iteration was logged"
+        page.locator("#live-camera[src^='data:image/png']").wait_for(timeout=120_000)
+        shot(page, "training")
+        page.click("#train-stop")
+        page.locator("#model-state", has_text="idle").wait_for(timeout=120_000)
+        page.goto(console.url + "/#/model/e2e/evaluation")
+        page.fill("#eval-trials", "1")
+        page.locator(".form input[type=number]").nth(3).fill("1")  # resets allowed
+        page.click("#eval-start")
+        video = page.locator("video")
+        video.wait_for(timeout=300_000)
+        page.wait_for_function("document.querySelector('video').readyState >= 2", timeout=60_000)
+        page.evaluate("document.querySelector('video').muted = true; document.querySelector('video').play()")
+        page.wait_for_function("document.querySelector('video').currentTime > 0.3", timeout=30_000)
+        assert page.evaluate("document.querySelector('video').videoWidth") > 0
+        page.locator(".evaluation h3").first.scroll_into_view_if_needed()
+        page.evaluate("window.scrollBy(0, 380)")
+        shot(page, "evaluation")
+        page.goto(console.url + "/#/models")
+        page.locator('tr[data-model="e2e"] .badge', has_text="idle").wait_for()
+        shot(page, "models")
+    finally:
+        page.close()
+        console.stop()
+
+
+def test_text_from_files_is_not_run_as_html(browser, tmp_path):
+    console = Console(tmp_path / "ws")
+    c = console.client
+    c.post("/api/models", json={"name": "x"})
+    toml = console.app.state.workspace.root / "x" / "training.toml"
+    evil = '<img src=y onerror="window.__pwned=1">'
+    import re
+
+    toml.write_text(re.sub(r"(?m)^names = .*$", f"names = ['{evil}']", toml.read_text()))
+    page = browser.new_page()
+    try:
+        page.goto(console.url + "/")
+        cell = page.locator('tr[data-model="x"] td').nth(2)
+        cell.wait_for()
+        assert cell.text_content() == evil
+        assert page.evaluate("window.__pwned") is None
+        assert page.locator("tr[data-model='x'] img").count() == 0
+    finally:
+        page.close()
+        console.stop()
