@@ -91,7 +91,7 @@ def test_init_writes_the_racing_line_of_the_models_track(tmp_path, capsys):
     model = tmp_path / "m"
     assert main(["init", str(model), "--track", track, "--reward", "racing_line", "--max-speed", "3"]) == 0
     text = (model / "reward_function.py").read_text()
-    assert "reInvent2019_track" in text and "__RACING_LINE__" not in text
+    assert "reInvent2019_track" in text and "RACING_LINE = []" not in text
     space: dict = {}
     exec(compile(text, "reward_function.py", "exec"), space)  # noqa: S102
     assert max(p[2] for p in space["RACING_LINE"]) <= 3.0

@@ -60,7 +60,8 @@ def run_init(args) -> int:
 
         metadata = folder.metadata()
         write_reward(folder.reward_path, args.reward, folder.config().track.names[0], top_speed(metadata.actions))
-    print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, training.toml")
+    print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
+          "training.toml")
     print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
     return 0
 
