@@ -116,3 +116,12 @@ def test_openmp_threads_sleep_while_waiting_unless_the_user_says_otherwise():
     out = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
                          capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "ACTIVE"
+
+
+def test_checkpoint_of_other_widths_is_a_one_line_error():
+    from racerlab.errors import ConfigError
+
+    old = PPO({"features": (6,)}, DISCRETE, device="cpu", mlp_hidden=(256, 256))
+    new = PPO({"features": (6,)}, DISCRETE, device="cpu")
+    with pytest.raises(ConfigError, match=r"has shape \(256, 6\), this network's is \(64, 6\)"):
+        new.load_state_dict(old.state_dict())

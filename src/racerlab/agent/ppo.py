@@ -50,7 +50,7 @@ from racerlab.agent.common import (
 )
 from racerlab.agent.distributions import epsilon_greedy, epsilon_schedule
 from racerlab.agent.mlp_update import MLPUpdater
-from racerlab.agent.networks import MLP_HIDDEN, build_ppo_networks
+from racerlab.agent.networks import PPO_MLP_HIDDEN, build_ppo_networks
 from racerlab.errors import ConfigError
 from racerlab.hyperparameters import Hyperparameters
 
@@ -202,7 +202,7 @@ class PPO:
     """
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
-                 device: str | torch.device = "auto", seed: int = 0, mlp_hidden=MLP_HIDDEN,
+                 device: str | torch.device = "auto", seed: int = 0, mlp_hidden=PPO_MLP_HIDDEN,
                  fast_update: bool = True):
         self.metadata = metadata
         self.hp = hyperparameters or Hyperparameters()
@@ -357,6 +357,17 @@ class PPO:
 
     # -- checkpoints ----------------------------------------------------------------------------------
 
+    @staticmethod
+    def _check_shapes(saved: dict, net: torch.nn.Module) -> None:
+        """A checkpoint from networks of other widths (features models saved before PPO_MLP_HIDDEN became 64)
+        fails with the widths named, not with PyTorch's list of size mismatches."""
+        own = net.state_dict()
+        for key, value in saved.items():
+            if key in own and tuple(value.shape) != tuple(own[key].shape):
+                raise ConfigError(f"checkpoint: layer {key} has shape {tuple(value.shape)}, this network's is "
+                                  f"{tuple(own[key].shape)}; it was saved by networks of other widths (before "
+                                  f"racerlab's features MLP became {PPO_MLP_HIDDEN}): train that model anew")
+
     def networks(self) -> tuple[torch.nn.Module, ...]:
         return self.policy_net, self.value_net
 
@@ -378,6 +389,7 @@ class PPO:
     def load_state_dict(self, state: dict) -> None:
         if state.get("format") != STATE_FORMAT:
             raise ValueError(f"not a PPO state (format {state.get('format')!r}, expected {STATE_FORMAT!r})")
+        self._check_shapes(state["policy"], self.policy_net)
         self.policy_net.load_state_dict(state["policy"])
         self.value_net.load_state_dict(state["value"])
         # Optimizer.load_state_dict keeps the given tensors; copy them so the caller's dict stays apart.
