@@ -75,25 +75,23 @@ class VectorChain:
 
 
 class Adam:
-    """torch.optim.Adam's update (no weight decay, no amsgrad) on a list of float32 arrays."""
+    """torch.optim.Adam's update (no weight decay, no amsgrad) on flat float32 arrays."""
 
     def __init__(self, lr: float, betas: tuple[float, float], eps: float):
         self.lr, self.betas, self.eps = lr, betas, eps
 
-    def step(self, params, grads, m, v, t: int) -> None:
+    def step(self, p: np.ndarray, g: np.ndarray, m: np.ndarray, v: np.ndarray, t: int) -> None:
+        """One step on flat arrays, in place: p the weights, g the gradients, m and v the moments."""
         b1, b2 = self.betas
-        c1 = 1.0 - b1 ** t
-        c2_sqrt = np.sqrt(1.0 - b2 ** t)
-        step_size = np.float32(self.lr / c1)
-        for p, g, mk, vk in zip(params, grads, m, v, strict=True):
-            mk *= b1
-            mk += (1.0 - b1) * g
-            vk *= b2
-            vk += (1.0 - b2) * g * g
-            denom = np.sqrt(vk)
-            denom /= c2_sqrt
-            denom += self.eps
-            p -= step_size * mk / denom
+        step_size = np.float32(self.lr / (1.0 - b1 ** t))
+        m *= b1
+        m += (1.0 - b1) * g
+        v *= b2
+        v += (1.0 - b2) * g * g
+        denom = np.sqrt(v)
+        denom /= np.sqrt(1.0 - b2 ** t)
+        denom += self.eps
+        p -= step_size * m / denom
 
 
 def policy_head_grad(out, actions, old_log_probs, advantages, log_std, *, discrete: bool, clip: float,
@@ -170,25 +168,34 @@ class MLPUpdater:
             VectorChain.of(value_net) is not None
 
     def _load(self):
-        params = [p.detach().cpu().numpy().copy() for p in self.torch_params]
-        m, v, t = [], [], 0
-        for p, arr in zip(self.torch_params, params, strict=True):
-            st = self.optimizer.state.get(p, {})
-            if "exp_avg" in st:
-                m.append(st["exp_avg"].cpu().numpy().copy())
-                v.append(st["exp_avg_sq"].cpu().numpy().copy())
-                t = int(st["step"])
-            else:
-                m.append(np.zeros_like(arr))
-                v.append(np.zeros_like(arr))
-        return params, m, v, t
+        """Weights and Adam moments as one flat float32 buffer each (one Adam pass over all of them),
+        with a view per parameter; the step count."""
+        shapes = [tuple(p.shape) for p in self.torch_params]
+        flat = np.concatenate([p.detach().cpu().numpy().ravel() for p in self.torch_params]).astype(np.float32)
+        m, v, t = np.zeros_like(flat), np.zeros_like(flat), 0
+        states = [self.optimizer.state.get(p, {}) for p in self.torch_params]
+        if all("exp_avg" in st for st in states):
+            m[:] = np.concatenate([st["exp_avg"].cpu().numpy().ravel() for st in states])
+            v[:] = np.concatenate([st["exp_avg_sq"].cpu().numpy().ravel() for st in states])
+            t = int(states[0]["step"])
+        return shapes, flat, m, v, t
 
-    def _store(self, params, m, v, t):
+    @staticmethod
+    def _views(flat: np.ndarray, shapes) -> list[np.ndarray]:
+        out, at = [], 0
+        for shape in shapes:
+            n = int(np.prod(shape))
+            out.append(flat[at:at + n].reshape(shape))
+            at += n
+        return out
+
+    def _store(self, shapes, flat, m, v, t):
         with torch.no_grad():
-            for p, arr, mk, vk in zip(self.torch_params, params, m, v, strict=True):
+            views = zip(self._views(flat, shapes), self._views(m, shapes), self._views(v, shapes), strict=True)
+            for p, (arr, mk, vk) in zip(self.torch_params, views, strict=True):
                 p.copy_(torch.from_numpy(arr))
-                self.optimizer.state[p] = {"step": torch.tensor(float(t)), "exp_avg": torch.from_numpy(mk),
-                                           "exp_avg_sq": torch.from_numpy(vk)}
+                self.optimizer.state[p] = {"step": torch.tensor(float(t)), "exp_avg": torch.from_numpy(mk.copy()),
+                                           "exp_avg_sq": torch.from_numpy(vk.copy())}
 
     def run(self, x, actions, old_log_probs, advantages, returns, batches, *, clip: float, beta: float,
             loss_type: str) -> tuple[list[np.ndarray], bool]:
@@ -203,8 +210,9 @@ class MLPUpdater:
     def _run(self, x, actions, old_log_probs, advantages, returns, batches, clip, beta, loss_type):
         group = self.optimizer.param_groups[0]
         adam = Adam(group["lr"], group["betas"], group["eps"])
-        params, m, v, t = self._load()
-        grads = [np.empty_like(p) for p in params]
+        shapes, flat, m, v, t = self._load()
+        flat_grads = np.empty_like(flat)
+        params, grads = self._views(flat, shapes), self._views(flat_grads, shapes)
         pw = params[:self._np]
         vw = params[len(params) - len(self.value.linears) * 2:]
         log_std = None if self.discrete else params[self._np]
@@ -225,7 +233,7 @@ class MLPUpdater:
                 grads[self._np][...] = g_ls
             self.value.backward(vw, va, g_v, grads[len(grads) - len(vw):])
             t += 1
-            adam.step(params, grads, m, v, t)
+            adam.step(flat, flat_grads, m, v, t)
             history.append(np.array([stats[0], v_loss, stats[1], stats[2], stats[3]]))
-        self._store(params, m, v, t)
+        self._store(shapes, flat, m, v, t)
         return history, nonfinite
