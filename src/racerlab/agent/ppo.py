@@ -216,7 +216,12 @@ class PPO:
         self.policy_net, self.value_net = policy.to(self.device), value.to(self.device)
         self.keys = self.policy_net.body.keys
         params = [*self.policy_net.parameters(), *self.value_net.parameters()]
-        self.optimizer = torch.optim.Adam(params, lr=self.hp.lr, betas=(0.9, 0.999), eps=ADAM_EPS)
+        if any(isinstance(m, torch.nn.Conv2d) for m in self.policy_net.modules()):
+            # oneDNN's convolutions run ~8 % faster on channels-last weights (the images arrive NHWC)
+            self.policy_net.to(memory_format=torch.channels_last)
+            self.value_net.to(memory_format=torch.channels_last)
+        # fused: one kernel for all weights (the same update as torch's per-tensor Adam)
+        self.optimizer = torch.optim.Adam(params, lr=self.hp.lr, betas=(0.9, 0.999), eps=ADAM_EPS, fused=True)
         self.generator = make_generator(seed, self.device)
         # small vector networks on the CPU: the same update in NumPy, without autograd's per-step overhead
         covered = fast_update and MLPUpdater.covers(self.policy_net, self.value_net, self.device)
