@@ -92,7 +92,7 @@ def test_mlp_for_features_and_continuous_head():
     policy, value = build_networks({"features": (12,)}, meta(MLP, continuous=True, sensor=("FEATURES",)))
     layers = list(policy.body.middleware)
     assert [type(m).__name__ for m in layers] == ["Linear", "ReLU", "Linear", "ReLU"]
-    assert layers[0].in_features == 12 and layers[2].out_features == 256
+    assert layers[0].in_features == 12 and layers[2].out_features == 64  # PPO_MLP_HIDDEN
     x = {"features": torch.randn(5, 12)}
     dist = policy.distribution(x)
     assert dist.mean.shape == (5, 2) and torch.equal(policy.log_std, torch.zeros(2))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 from collections.abc import Iterator, Mapping
 
 import numpy as np
@@ -26,6 +27,16 @@ def seeded(seed: int) -> Iterator[None]:
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         yield
+
+
+def learner_threads(networks, requested: int = 0) -> int:
+    """Torch CPU threads for training `networks`: `requested` when > 0; else every core for a network with
+    convolutions (large products that split well) and 1 for dense networks on vectors, whose small
+    products gain nothing from a second thread and lose much when the machine is busy."""
+    if requested > 0:
+        return int(requested)
+    convolutional = any(isinstance(m, torch.nn.Conv2d) for net in networks for m in net.modules())
+    return (os.cpu_count() or 1) if convolutional else 1
 
 
 def make_generator(seed: int, device: torch.device) -> torch.Generator:

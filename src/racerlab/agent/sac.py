@@ -274,6 +274,9 @@ class SAC:
         return {"actor": self.actor, "q1": self.q1, "q2": self.q2, "q1_target": self.q1_target,
                 "q2_target": self.q2_target}
 
+    def networks(self) -> tuple[torch.nn.Module, ...]:
+        return tuple(self._modules().values())
+
     def finite(self) -> bool:
         params = [p for m in self._modules().values() for p in m.parameters()]
         return bool(torch.stack([torch.isfinite(p).all() for p in params]).all())

@@ -7,6 +7,7 @@ from pathlib import Path
 
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
+    from racerlab.rewards import TEMPLATES as REWARD_TEMPLATES
 
     p = sub.add_parser("init", help="create a model folder with AWS-default files",
                        description="Write reward_function.py, model_metadata.json, hyperparameters.json and "
@@ -20,6 +21,9 @@ def register(sub) -> None:
     p.add_argument("--cars", type=int, help="cars simulated in parallel")
     p.add_argument("--best-model-metric", choices=BEST_MODEL_METRICS,
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
+    p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
+                   help="reward template: example (centre, heading and speed), centre_line, progress (progress "
+                        "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -51,7 +55,13 @@ def run_init(args) -> int:
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force)
-    print(f"created {folder.path}: reward_function.py, model_metadata.json, hyperparameters.json, training.toml")
+    if args.reward != "example":
+        from racerlab.rewards import top_speed, write_reward
+
+        metadata = folder.metadata()
+        write_reward(folder.reward_path, args.reward, folder.config().track.names[0], top_speed(metadata.actions))
+    print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
+          "training.toml")
     if args.sensor == "features":
         print(FEATURES_NOTE)
     print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")

@@ -32,7 +32,7 @@ class RunSettings:
     num_cars: int = 32  # cars simulated in parallel (DRfC: workers)
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda | cuda:N
-    threads: int = 0  # torch CPU threads; 0 = all cores
+    threads: int = 0  # torch CPU threads; 0 = auto (agent.common.learner_threads)
     observation: str = ""  # "" follows model_metadata.json's sensor list
     reward_order: str = "aws"  # aws | after_action (see racerlab.sim)
     max_steps_per_iteration: int = 10_000  # AWS MAX_MEMORY_STEPS: whole episodes beyond it are dropped

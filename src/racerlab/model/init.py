@@ -79,7 +79,8 @@ _TOML_HEADER = """\
 # space and hyperparameters). Command-line flags of `racerlab train` override these values.
 #   [track]  names: one or more tracks (bundled names, your own, or paths); cars are spread over them
 #            reverse / alternate_direction / change_start / round_robin_advance / start_offset: as DRfC
-#   [run]    num_cars in parallel, seed, device (auto|cpu|cuda), threads (0 = all cores),
+#   [run]    num_cars in parallel, seed, device (auto|cpu|cuda), threads (0 = auto: all cores for
+#            camera networks, 1 for vector ones),
 #            observation ("" follows model_metadata.json), reward_order (aws|after_action),
 #            max_steps_per_iteration (AWS: 10000), max_episode_steps
 #   [stop]   minutes, episodes, iterations (0 = no limit)

@@ -11,7 +11,6 @@ a reward function that raises) resumes from the last complete iteration.
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -89,7 +88,6 @@ class Trainer:
         self.hp = self.folder.hyperparameters()
         self.cfg = apply_overrides(self.folder.config(), **overrides)
         self.reward = RewardCaller(self.folder.reward_function())
-        self._set_threads()
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
         self.eval_world = self._make_world(self.cfg.track.names[0], max(self.cfg.evaluation.episodes, 1), seed=10_007)
@@ -97,6 +95,7 @@ class Trainer:
 
         self.agent = make_agent(self.worlds[0].observation.space, self.metadata, self.hp, device=self.cfg.run.device,
                                 seed=self.cfg.run.seed)
+        self._set_threads()  # after the agent is built: the thread count depends on its networks
         self.logs = TrainingLogs(self.folder.path, self.cfg)
         self.progress = Progress(enabled=progress)
         self.state = _State()
@@ -106,8 +105,9 @@ class Trainer:
     def _set_threads(self):
         import torch
 
-        n = self.cfg.run.threads or os.cpu_count() or 1
-        torch.set_num_threads(n)
+        from racerlab.agent.common import learner_threads
+
+        torch.set_num_threads(learner_threads(self.agent.networks(), self.cfg.run.threads))
 
     def _make_world(self, track_name, cars, seed):
         r = self.cfg.track

@@ -1,0 +1,67 @@
+"""Best evaluation lap after a fixed training time, beside racerlab's theoretical limit and the AWS record.
+
+For each observation kind it creates a fresh model on reInvent2019_track (continuous actions, top speed
+4 m/s, AWS default hyperparameters, the reward template given), trains for `--minutes`, and prints one
+JSON line: the best greedy evaluation lap, the theoretical lap of `racerlab line` for the same car (the
+limit), their ratio next to the target (features <= 1.05x, camera <= 1.25x), the all-time record in the
+AWS simulator (7.198 s), when the best lap was reached and the load average, since the machine may be
+shared (read the ratio, and compare runs taken at a similar load).
+
+Usage: python benchmarks/lap_near_limit.py [--kinds features camera] [--minutes 30] [--reward racing_line]
+       [--track PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from racerlab.model import init_model
+
+from racerlab.line import racing_line
+from racerlab.rewards import TEMPLATES, top_speed, write_reward
+from racerlab.train import train
+
+REPO = Path(__file__).resolve().parents[1]
+# the real AWS tracks beside the checkout, or where RACERLAB_TEST_AWS_TRACKS points (as the tests look)
+AWS_TRACKS = Path(os.environ.get("RACERLAB_TEST_AWS_TRACKS", REPO.parent / "shared" / "tracks"))
+REINVENT = AWS_TRACKS / "reInvent2019_track.npy"
+AWS_RECORD_S = 7.198  # all-time best lap on reInvent2019_track in the AWS simulator (track_records.md)
+TARGET_RATIO = {"features": 1.05, "camera": 1.25}
+
+
+def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float) -> dict:
+    load_before = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = init_model(Path(tmp) / "m", track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
+                            best_model_metric="laptime")
+        write_reward(folder.reward_path, reward, str(track), top_speed(folder.metadata().actions))
+        r = train(folder.path, minutes=minutes, progress=False)
+    laps = [(h["eval/best_lap"], h["iteration"], h["env_steps"]) for h in r.history if h.get("eval/best_lap")]
+    best = min(laps) if laps else (float("nan"), None, None)
+    return {"bench": "lap_near_limit", "observation": kind, "track": track.stem, "minutes": minutes,
+            "reward": reward, "iterations": r.iterations, "env_steps": r.env_steps,
+            "best_eval_lap_s": round(best[0], 3), "best_at_iteration": best[1], "best_at_env_steps": best[2],
+            "theoretical_limit_s": round(limit_s, 3), "ratio_to_limit": round(best[0] / limit_s, 3),
+            "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S,
+            "first_lap": r.first_lap, "loadavg_1min_before_after": [round(load_before, 2),
+                                                                    round(os.getloadavg()[0], 2)]}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kinds", nargs="+", default=["features", "camera"], choices=["features", "camera"])
+    ap.add_argument("--minutes", type=float, default=30.0)
+    ap.add_argument("--reward", choices=list(TEMPLATES), default="racing_line")
+    ap.add_argument("--track", type=Path, default=REINVENT)
+    args = ap.parse_args()
+    limit = racing_line(str(args.track)).lap_time
+    for kind in args.kinds:
+        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
