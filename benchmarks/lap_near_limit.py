@@ -19,9 +19,8 @@ import os
 import tempfile
 from pathlib import Path
 
-from racerlab.model import init_model
-
 from racerlab.line import racing_line
+from racerlab.model import init_model
 from racerlab.rewards import TEMPLATES, top_speed, write_reward
 from racerlab.train import train
 

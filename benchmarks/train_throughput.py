@@ -24,10 +24,10 @@ import time
 from pathlib import Path
 
 import torch
-from racerlab.model import init_model
 
 from racerlab.agent.flops import gradient_step_limit
 from racerlab.agent.networks import observation_shapes
+from racerlab.model import init_model
 from racerlab.train.loop import Trainer
 
 

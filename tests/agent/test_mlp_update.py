@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 import torch
-from racerlab.model.hyperparameters import Hyperparameters
-from racerlab.model.metadata import ContinuousActions, DiscreteActions, ModelMetadata
 
 from racerlab.agent.mlp_update import MLPUpdater, VectorChain
 from racerlab.agent.ppo import PPO, PPOBatch
+from racerlab.model.hyperparameters import Hyperparameters
+from racerlab.model.metadata import ContinuousActions, DiscreteActions, ModelMetadata
 
 FIVE = DiscreteActions((-30.0, -15.0, 0.0, 15.0, 30.0), (1.0, 2.0, 3.0, 2.0, 1.0))
 DISCRETE = ModelMetadata(FIVE, ("FEATURES",), "MLP")
