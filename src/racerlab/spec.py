@@ -149,20 +149,25 @@ class ParamsMaker:
         self.constant = tuple(k for k in REWARD_PARAM_NAMES if k not in per_row)
         self.parts = parts
         self._rows = _row_function(self.per_row, tuple(sorted(parts.items())))
+        self._row_keys = frozenset(self.per_row)
+        self._const_keys = frozenset(self.constant)
+        self._order = tuple((k, k in parts) for k in self.per_row)
 
     def __call__(self, columns: Mapping[str, Sequence], constants: Mapping[str, object]) -> Iterator[dict]:
-        if columns.keys() != set(self.per_row) or constants.keys() != set(self.constant):
+        if columns.keys() != self._row_keys or constants.keys() != self._const_keys:
             missing = set(REWARD_PARAM_NAMES) - columns.keys() - constants.keys()
             extra = (columns.keys() | constants.keys()) - set(REWARD_PARAM_NAMES)
             raise ValueError(f"ParamsMaker: columns must be {self.per_row} and constants {self.constant} "
                              f"(missing {sorted(missing)}, unknown {sorted(extra)})")
         flat = []
-        for k in self.per_row:
-            if k in self.parts:
+        for k, split in self._order:
+            if split:
                 flat += columns[k]
             else:
                 flat.append(columns[k])
-        return self._rows(*flat, *(constants[k] for k in self.constant))
+        for k in self.constant:
+            flat.append(constants[k])
+        return self._rows(*flat)
 
 
 _TYPES = {p.name: p.type for p in REWARD_PARAMS}

@@ -94,6 +94,7 @@ class ParamsBuilder:
         self.sim = sim
         self._waypoints = (sim.track.waypoints, sim.track_reversed.waypoints)
         self._length = sim.track.length
+        self._constants = {"track_length": sim.track.length, "is_crashed": False, **NO_OBJECTS}
 
     def build(self, idx=None, status=None, actions=None) -> list[dict]:
         """Params for cars `idx` (all by default) from `sim.params`, with the commanded actions."""
@@ -103,34 +104,34 @@ class ParamsBuilder:
         """Yield the params dict of each car in `idx` in turn (streaming keeps memory warm for big batches)."""
         sim = self.sim
         idx = np.arange(sim.num_cars) if idx is None else np.asarray(idx)
-        p = sim.params[idx]  # the judged pose's measurements, one column per K.M* name
+        c = sim.params[idx].T.tolist()  # the judged pose's measurements, one list per K.M* column
+        ctr = sim.ctr[idx].T.tolist()
         st = sim.status[idx] if status is None else np.asarray(status)[idx]
         steer = sim.car[idx, K.CCMD_STEER] if actions is None else actions[0][idx]
         speed = sim.car[idx, K.CCMD_SPEED] if actions is None else actions[1][idx]
-        rev = sim.ctr[idx, K.KREV].astype(bool).tolist()
+        rev = [r != 0 for r in ctr[K.KREV]]
         wps = self._waypoints
         cols = {
-            "all_wheels_on_track": (p[:, K.MWHEELS] == 4.0).tolist(),
-            "x": p[:, K.MX].tolist(),
-            "y": p[:, K.MY].tolist(),
-            "heading": p[:, K.MHEADING].tolist(),
-            "distance_from_center": p[:, K.MDIST].tolist(),
-            "is_left_of_center": (p[:, K.MLEFT] > 0.5).tolist(),
+            "all_wheels_on_track": [w == 4.0 for w in c[K.MWHEELS]],
+            "x": c[K.MX],
+            "y": c[K.MY],
+            "heading": c[K.MHEADING],
+            "distance_from_center": c[K.MDIST],
+            "is_left_of_center": [v > 0.5 for v in c[K.MLEFT]],
             "is_reversed": rev,
-            "progress": p[:, K.MPROG].tolist(),
-            "steps": sim.ctr[idx, K.KSTEPS].astype(np.float64).tolist(),
+            "progress": c[K.MPROG],
+            "steps": [float(v) for v in ctr[K.KSTEPS]],
             "speed": np.asarray(speed, dtype=np.float64).tolist(),
             "steering_angle": np.asarray(steer, dtype=np.float64).tolist(),
-            "track_width": p[:, K.MWIDTH].tolist(),
+            "track_width": c[K.MWIDTH],
             "waypoints": [wps[r] for r in rev],
-            "closest_waypoints": (p[:, K.MWP_PREV].astype(np.int64).tolist(),
-                                  p[:, K.MWP_NEXT].astype(np.int64).tolist()),
-            "projection_distance": p[:, K.MS].tolist(),
+            "closest_waypoints": ([int(v) for v in c[K.MWP_PREV]], [int(v) for v in c[K.MWP_NEXT]]),
+            "projection_distance": c[K.MS],
             "is_offtrack": (st == K.OFF_TRACK).tolist(),
         }
         # sim_time of the measured pose: the step's start (AWS order) or its end (after_action)
         t = sim.time if sim.after_action else sim.time - sim.dt
-        return self._make(cols, {"track_length": self._length, "is_crashed": False, "sim_time": t, **NO_OBJECTS})
+        return self._make(cols, {**self._constants, "sim_time": t})
 
 
 class RewardCaller:
