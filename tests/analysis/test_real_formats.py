@@ -18,7 +18,7 @@ import pytest
 
 from racerlab.analysis.episodes import episode_summary
 from racerlab.analysis.load import load
-from racerlab.analysis.report import resolve_track, write_report
+from racerlab.analysis.report import log_track, write_report
 from racerlab.analysis.rescore import compare, rescore
 from tests.conftest import AWS_TRACKS, aws_track_path
 from tests.logs.samples import HEADER_17, log_text, write
@@ -132,10 +132,10 @@ def aws_tracks_on_path(monkeypatch, tmp_path):
 
 def test_identical_track_files_are_one_track(aws_tracks_on_path):
     df = pd.DataFrame({"track_len": [17.71] * 3})
-    trk, note = resolve_track("some.log", df)
+    trk, note = log_track("some.log", df)
     assert trk is not None and trk.name == "reinvent_base"
     assert "reinvent_carpet, reinvent_concrete, reinvent_wood are the same geometry" in note
     # RL Speedway and Forever Raceway share a centre line and its length but not their width or direction:
     # four different tracks, so the report still asks
-    trk, note = resolve_track("some.log", pd.DataFrame({"track_len": [25.11] * 3}))
+    trk, note = log_track("some.log", pd.DataFrame({"track_len": [25.11] * 3}))
     assert trk is None and "several known tracks are 25.11 m long" in note and "--track" in note

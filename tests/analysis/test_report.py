@@ -86,7 +86,7 @@ def test_report_has_every_evaluation_and_one_iteration_numbering(model, tmp_path
     from racerlab.evaluate import evaluate
 
     first = evaluate(model.path, trials=2)
-    second = evaluate(model.path, trials=1, video=True)
+    second = evaluate(model.path, trials=1, video=True, max_resets=0)  # ends at the first incident: a short video
     out = tmp_path / "r.html"
     text = write_report(model.path, out).read_text(encoding="utf-8")
     section = text[text.index('id="evaluations"'):text.index('id="laps"')]
