@@ -30,8 +30,7 @@ class DeepRacerSB3VecEnv(VecEnv):
     """`num_envs` DeepRacer cars in one batched simulator, as an SB3 `VecEnv` (see the module docstring)."""
 
     def __init__(self, num_envs: int = 1, **env_kwargs):
-        import racerlab  # noqa: F401 - registers racerlab/DeepRacer-v0
-
+        # racerlab/DeepRacer-v0 is registered by the package root, imported with this module
         self.venv = gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point", **env_kwargs)
         self._actions = None
         self._info_keys = ("episode_status", "progress", "steps")
