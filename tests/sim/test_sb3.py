@@ -86,3 +86,12 @@ def test_sb3_ppo_learns_a_lap_through_the_adapter():
             break
     assert info["episode_status"] == "lap_complete" and info["progress"] == pytest.approx(100.0)
     assert len(model.ep_info_buffer) > 0  # VecMonitor saw whole episodes end through the adapter's dones
+
+
+def test_sb3_make_vec_env_builds_without_warnings():
+    from stable_baselines3.common.env_util import make_vec_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # it used to warn that rgb_array is not a declared render mode
+        venv = make_vec_env("racerlab/DeepRacer-v0", n_envs=2, env_kwargs={"track": "lab_oval"})
+    assert venv.render_mode == "rgb_array" and venv.reset().shape[0] == 2
