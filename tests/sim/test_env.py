@@ -93,7 +93,9 @@ def test_same_step_autoreset_keeps_final_observation(aws_track):
             break
     assert term.any()
     i = int(np.flatnonzero(term)[0])
-    assert info["_final_obs"][i] and info["final_info"][i]["episode_status"] == "off_track"
+    fin = info["final_info"]
+    assert info["_final_obs"][i] and fin["_episode_status"][i] and fin["episode_status"][i] == "off_track"
+    assert list(fin["_progress"]) == list(term | trunc) and fin["steps"][i] == info["steps"][i] > 0
     assert not np.allclose(info["final_obs"][i], obs[i])  # the new episode's first observation
     assert venv.unwrapped.sim.steps[i] == 0  # reset, waiting for its prepare step
 
@@ -109,3 +111,50 @@ def test_no_reward_function_is_the_fast_path(aws_track):
 def test_unknown_observation_is_a_clear_error(aws_track):
     with pytest.raises(ConfigError, match="observation 'radar' is not available"):
         DeepRacerEnv(aws_track("reInvent2019_track"), observation="radar")
+
+
+def _run_to_first_end(venv, action):
+    venv.reset(seed=0)
+    for _ in range(300):
+        obs, rew, term, trunc, info = venv.step(np.array([action] * venv.num_envs))
+        if term.any():
+            return term, info
+    raise AssertionError("no episode ended")
+
+
+def test_vector_info_is_batched_like_gymnasiums_own_vector_envs(aws_track):
+    """Gymnasium's SyncVectorEnv over the single env is the reference: same keys, masks and dtypes."""
+    track = aws_track("reInvent2019_track")
+    ours = DeepRacerVectorEnv(2, track, centre_reward)
+    theirs = gym.vector.SyncVectorEnv([lambda: DeepRacerEnv(track, centre_reward) for _ in range(2)],
+                                      autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    (t1, ours_info), (t2, ref_info) = _run_to_first_end(ours, 4), _run_to_first_end(theirs, 4)
+    def keys(d):  # the single env always keeps params; the vector env only with info_params=True
+        return sorted(set(d) - {"params", "_params"})
+
+    assert keys(ours_info) == keys(ref_info)
+    assert keys(ours_info["final_info"]) == keys(ref_info["final_info"])
+    for info, term in ((ours_info, t1), (ref_info, t2)):
+        assert info["_steps"].all() and info["_episode_status"].all()
+        fin = info["final_info"]
+        assert list(fin["_episode_status"]) == list(term)
+        assert set(fin["episode_status"][term]) == {"off_track"}
+    for key in ("progress", "steps"):
+        assert ours_info["final_info"][key].dtype.kind == ref_info["final_info"][key].dtype.kind
+
+
+def test_render_modes_are_declared_so_make_vec_env_does_not_warn(aws_track):
+    import warnings
+
+    env = gym.make("racerlab/DeepRacer-v0", track=aws_track("reInvent2019_track"), render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3 and frame.std() > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        venv = gym.make_vec("racerlab/DeepRacer-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                            track=aws_track("reInvent2019_track"), render_mode="rgb_array")
+    venv.reset(seed=0)
+    assert len(venv.render()) == 2
+    with pytest.raises(ConfigError, match="render_mode"):
+        DeepRacerEnv(aws_track("reInvent2019_track"), render_mode="human")

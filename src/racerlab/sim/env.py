@@ -21,6 +21,11 @@ AWS names); `truncated` at `max_episode_steps`. Rewards and termination are judg
 the observation was taken in, as AWS does, unless `reward_order="after_action"`.
 
 `reset(seed=...)` reseeds and restarts the round-robin start sequence, so seeded runs repeat.
+
+## Rendering
+`render_mode="rgb_array"` (what SB3's `make_vec_env` asks for): `render()` returns the car's front
+camera as an (H, W, 3) uint8 image (the grey camera repeated into three channels); the vector env
+returns a tuple of them, one per car. The camera is built on the first `render()` call.
 """
 
 from __future__ import annotations
@@ -30,17 +35,35 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
+from racerlab.errors import ConfigError
 from racerlab.sim.world import World
 from racerlab.spec import STATUS_NAMES
 from racerlab.track import DEFAULT_TRACK
 
 _STATUS_OBJ = np.array(STATUS_NAMES, dtype=object)
+RENDER_MODES = ["rgb_array"]
+
+
+def _check_render_mode(render_mode):
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ConfigError(f"racerlab/DeepRacer-v0: render_mode {render_mode!r} is not supported; "
+                          f"use one of {RENDER_MODES} or None")
+    return render_mode
+
+
+def _camera_frames(env, rows):
+    """(len(rows), H, W, 3) uint8 front-camera images, the camera built on first use."""
+    if env._camera is None:
+        from racerlab.sim.sensors.camera import Camera  # the raster is built only when someone renders
+        env._camera = Camera(env.world.sim)
+    grey = env._camera.render(rows)[rows, :, :, 0]
+    return np.repeat(grey[..., None], 3, axis=-1)
 
 
 class DeepRacerEnv(gym.Env):
     """One DeepRacer car (see the module docstring)."""
 
-    metadata = {"render_modes": [], "render_fps": 15}
+    metadata = {"render_modes": RENDER_MODES, "render_fps": 15}
 
     def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
                  car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None):
@@ -50,7 +73,13 @@ class DeepRacerEnv(gym.Env):
         self.sim = self.world.sim
         self.action_space = self.world.action_space
         self.observation_space = self.world.observation.space
-        self.render_mode = render_mode
+        self.render_mode = _check_render_mode(render_mode)
+        self._camera = None
+
+    def render(self):
+        if self.render_mode is None:
+            return None
+        return _camera_frames(self, np.zeros(1, dtype=np.int64))[0]
 
     def _obs(self):
         o = self.world.observation()
@@ -91,7 +120,7 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
     steps); it is off by default because keeping a dict per car per step costs more than the step.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": RENDER_MODES, "render_fps": 15}
 
     def __init__(self, num_envs: int = 1, track=DEFAULT_TRACK, reward_function=None, model_metadata=None,
                  observation=None, *, car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None,
@@ -105,7 +134,13 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
         self.single_observation_space = self.world.observation.space
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self.render_mode = render_mode
+        self.render_mode = _check_render_mode(render_mode)
+        self._camera = None
+
+    def render(self):
+        if self.render_mode is None:
+            return None
+        return tuple(_camera_frames(self, np.arange(self.num_envs, dtype=np.int64)))
 
     def reset(self, *, seed=None, options=None):
         if seed is not None:
@@ -125,20 +160,37 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
         info = self._info(codes, world.params, self.sim.judged.progress)
         done = term | trunc
         if done.any():
-            final_obs = np.empty(self.num_envs, dtype=object)
-            final_info = np.empty(self.num_envs, dtype=object)
+            final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(done).tolist():
                 final_obs[i] = {k: v[i] for k, v in obs.items()} if isinstance(obs, dict) else obs[i]
-                final_info[i] = {"episode_status": info["episode_status"][i], "progress": info["progress"][i]}
             reset_rows = self.sim.reset(done)
             obs = world.observe(reset_rows)
             info["final_obs"], info["_final_obs"] = final_obs, done
-            info["final_info"], info["_final_info"] = final_info, done
+            info["final_info"], info["_final_info"] = self._final_info(info, done), done
         return obs, rewards, term, trunc, info
 
     def _info(self, codes, params, progress):
-        info = {"episode_status": _STATUS_OBJ[codes],
-                "progress": progress.copy(), "steps": self.sim.steps.copy()}
+        every = np.ones(self.num_envs, dtype=bool)
+        info = {"episode_status": _STATUS_OBJ[codes], "_episode_status": every,
+                "progress": progress.copy(), "_progress": every, "steps": self.sim.steps.copy(), "_steps": every}
         if params is not None:
             info["params"] = params
+            info["_params"] = np.array([p is not None for p in params], dtype=bool)
         return info
+
+    @staticmethod
+    def _final_info(info, done):
+        """The ended episodes' last info as Gymnasium's vector envs batch it: arrays, zero/None where `done` is
+        False, each key with its `_key` mask."""
+        final = {}
+        for key in ("episode_status", "progress", "steps"):
+            value = info[key]
+            kept = np.full(len(done), None, dtype=object) if value.dtype == object else np.zeros_like(value)
+            kept[done] = value[done]
+            final[key], final["_" + key] = kept, done.copy()
+        if "params" in info:
+            params = np.full(len(done), None, dtype=object)
+            for i in np.flatnonzero(done).tolist():
+                params[i] = info["params"][i]
+            final["params"], final["_params"] = params, done & info["_params"]
+        return final
