@@ -119,3 +119,26 @@ def test_text_from_files_is_not_run_as_html(browser, tmp_path):
     finally:
         page.close()
         console.stop()
+
+
+def test_exchange_tab_exports_for_the_car_and_offers_the_download(browser, tmp_path):
+    from tests.exchange.conftest import make_model
+
+    console = Console(tmp_path / "ws")
+    make_model(console.app.state.workspace.root / "cam", "camera")
+    page = browser.new_page(viewport={"width": 1280, "height": 700})
+    try:
+        page.goto(console.url + "/#/model/cam/exchange")
+        page.click("#export-car")
+        link = page.locator("#export-files a", has_text="cam-car.tar.gz")
+        link.wait_for(timeout=120_000)
+        with page.expect_download() as dl:
+            link.click()
+        assert dl.value.suggested_filename == "cam-car.tar.gz"
+        assert page.locator("#export-status").text_content() == "cam-car.tar.gz written."
+        shot(page, "exchange")
+        page.goto(console.url + "/#/exchange")
+        page.locator("#import-file").wait_for()
+    finally:
+        page.close()
+        console.stop()

@@ -3,7 +3,7 @@
 Pages are one static HTML file with its script and style (package data, nothing fetched from the
 internet); everything else is JSON under /api, server-sent events for live data, and files found by
 name inside the workspace. Routes for runs (evaluation, races, reports, racing lines, uploads) are in
-`racerlab.console.runs`.
+`racerlab.console.runs`, those for model exchange in `racerlab.console.exchange`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from fastapi.staticfiles import StaticFiles
 
 from racerlab.console import live
 from racerlab.console.security import COOKIE, CSRF_HEADER, MAX_UPLOAD_BYTES, ConsoleError, Guard, check_name
-from racerlab.console.texts import EXCHANGE_ACTIONS, EXCHANGE_PLACEHOLDER, HYPERPARAMETER_HELP
+from racerlab.console.texts import HYPERPARAMETER_HELP
 from racerlab.console.workspace import Workspace
 from racerlab.errors import RacerlabError
 
@@ -39,9 +39,10 @@ def create_app(root, host: str = "127.0.0.1", token: str | None = None,
     _pages(app)
     _model_routes(app)
     _live_routes(app)
-    from racerlab.console import runs
+    from racerlab.console import exchange, runs
 
     runs.register(app)
+    exchange.register(app)
     return app
 
 
@@ -87,7 +88,7 @@ def _middleware(app: FastAPI) -> None:
 
 def _too_large(request: Request) -> bool:
     """Uploads must say their length up front and stay under the limit (checked before a byte is read)."""
-    if request.method != "POST" or request.url.path != "/api/uploads":
+    if request.method != "POST" or request.url.path not in ("/api/uploads", "/api/imports"):
         return False
     try:
         length = int(request.headers.get("content-length", ""))
@@ -105,10 +106,6 @@ def _pages(app: FastAPI) -> None:
     def index(request: Request):
         csrf = request.app.state.guard.csrf
         return HTMLResponse(page.replace("{{csrf}}", csrf), headers=NO_STORE)
-
-    @app.get("/api/exchange")
-    def exchange():
-        return {"available": False, "message": EXCHANGE_PLACEHOLDER, "actions": list(EXCHANGE_ACTIONS)}
 
 
 # ---- models ------------------------------------------------------------------------------------------

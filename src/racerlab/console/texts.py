@@ -1,4 +1,4 @@
-"""Words the console shows: one-line explanations of the hyperparameters and the exchange placeholder."""
+"""Words the console shows: one-line explanations of the hyperparameters."""
 
 HYPERPARAMETER_HELP = {
     "batch_size": "Steps in each gradient-descent mini-batch; larger is steadier, slower to react.",
@@ -16,8 +16,3 @@ HYPERPARAMETER_HELP = {
     "term_cond_avg_score": "Average reward at which AWS would stop (parsed, unused by racerlab).",
     "sac_alpha": "SAC's entropy temperature: higher explores more (SAC only).",
 }
-
-EXCHANGE_PLACEHOLDER = ("Model exchange (export for the physical car, export for the AWS console, ONNX, import) "
-                        "is being built in issue 13 and has not landed in racerlab yet; these buttons will call "
-                        "it once it has.")
-EXCHANGE_ACTIONS = ("Export for the car (.tar.gz)", "Export for the console", "Export ONNX", "Import a model")

@@ -438,13 +438,60 @@ function tabFiles(body, m) {
   body.append(el("div", { class: "card" }, el("h3", { text: "checkpoints" }), el("pre", { text: m.checkpoints.join("\n") || "(none)" })));
 }
 
-async function exchangePanel() {
+// ---- exchange: exports for the car / DeepRacer-on-AWS / DRfC, import of their archives ------------------------
+async function tabExchange(body, m) {
   const x = await api("GET", "/api/exchange");
-  return el("div", { class: "card placeholder", id: "exchange" }, el("p", { text: x.message }),
-    ...x.actions.map(a => el("button", { disabled: true, title: x.message, text: a })).flatMap(b => [b, " "]));
+  const base = `/api/models/${encodeURIComponent(m.name)}/exports`;
+  const files = el("div", { id: "export-files" });
+  const refresh = async () => {
+    const d = await guarded(() => api("GET", base)); if (!d) return;
+    files.replaceChildren(...(d.exports.length ? d.exports.map(e => el("p", {},
+      el("a", { href: `${base}/${encodeURIComponent(e.name)}`, download: e.name, text: e.name }),
+      el("span", { text: ` (${(e.bytes / 1e6).toFixed(2)} MB)` }))) : [el("p", { class: "muted", text: "No exports yet." })]));
+  };
+  const status = el("p", { id: "export-status", class: "muted" });
+  const buttons = x.exports.map(e => el("button", { id: "export-" + e.kind, text: e.label, onclick: async (ev) => {
+    const b = ev.currentTarget; b.disabled = true; status.textContent = e.label + "…";
+    const t = await guarded(() => api("POST", `/api/models/${encodeURIComponent(m.name)}/export/${e.kind}`));
+    if (!t) { b.disabled = false; status.textContent = ""; return; }
+    pollTask(t.key, (done) => {
+      b.disabled = false;
+      status.textContent = done.status === "done" ? `${done.result.archive} written.` : done.message;
+      refresh();
+    });
+  } }));
+  body.append(el("div", { class: "card", id: "exchange" }, el("h2", { text: "Export" }),
+    el("p", { text: "The car takes model_metadata.json and agent/model.pb (camera, stereo or lidar models); " +
+      "DeepRacer-on-AWS and DRfC take the rl_coach tree (clipped PPO)." }),
+    ...buttons.flatMap(b => [b, " "]), status, files));
+  refresh();
 }
-async function tabExchange(body) { body.append(await exchangePanel()); }
-async function viewExchange() { main.append(el("h1", { text: "Exchange" }), await exchangePanel()); }
+
+async function viewExchange() {
+  const x = await api("GET", "/api/exchange");
+  const file = el("input", { type: "file", id: "import-file", accept: x.import_suffixes.join(",") });
+  const name = el("input", { id: "import-name", placeholder: "new model name" });
+  const status = el("p", { id: "import-status", class: "muted" });
+  const go = el("button", { id: "import-start", text: "Import", onclick: async () => {
+    if (!file.files.length) { toast("choose an archive first", true); return; }
+    const form = new FormData(); form.append("file", file.files[0]); form.append("name", name.value.trim());
+    go.disabled = true;
+    const r = await guarded(() => api("POST", "/api/imports", form, true));
+    if (!r) { go.disabled = false; return; }
+    status.textContent = `importing ${r.name}…`;
+    pollTask(r.task.key, (done) => {
+      go.disabled = false;
+      if (done.status !== "done") { status.textContent = done.message; return; }
+      status.replaceChildren(el("a", { href: "#/model/" + encodeURIComponent(done.result.model), text: done.result.model }),
+        " imported.");
+    });
+  } });
+  main.append(el("h1", { text: "Exchange" }), el("div", { class: "card", id: "exchange" },
+    el("h2", { text: "Import a model" }),
+    el("p", { text: `A console, DeepRacer-on-AWS, DRfC or car archive (${x.import_suffixes.join(", ")}, at most ` +
+      `${(x.upload_limit / 1e6).toFixed(0)} MB) becomes a new model folder. Exports are on each model's exchange tab.` }),
+    file, " ", name, " ", go, status));
+}
 
 // ---- races --------------------------------------------------------------------------------------------------
 async function viewRaces() {
