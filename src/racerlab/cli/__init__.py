@@ -15,7 +15,7 @@ from racerlab import __version__
 from racerlab.errors import RacerlabError
 
 # module names under racerlab.cli, in the order `racerlab --help` lists them
-COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "report", "reward", "sim"]
+COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "report", "reward", "sim", "cluster"]
 
 
 def build_parser() -> argparse.ArgumentParser:
