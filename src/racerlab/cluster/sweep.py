@@ -28,6 +28,8 @@ import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
+import numpy as np
+
 from racerlab.cluster.collector import connect
 from racerlab.errors import RacerlabError
 from racerlab.evaluate import Leaderboard, RaceRules, race
@@ -132,7 +134,7 @@ def run_sweep(spec_path, address: str | None = None) -> SweepBoard:
 
 
 def draw_leaderboard(board: Leaderboard, path: Path) -> Path:
-    """Each model's mean progress per lap and best lap time, best first."""
+    """Each model's best lap and average of its ranking laps (left) and incidents (right), best first."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -140,19 +142,25 @@ def draw_leaderboard(board: Leaderboard, path: Path) -> Path:
 
     rows = board.rows()
     names = [r["model"] for r in rows]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 0.6 * len(rows) + 2), sharey=True)
-    y = range(len(rows))
-    a.barh(y, [r["mean_progress"] for r in rows], color="tab:blue")
-    a.set_xlabel("mean progress per trial (%)")
-    a.set_xlim(0, 100)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 0.6 * len(rows) + 2), sharey=True,
+                               gridspec_kw={"width_ratios": [2, 1]})
+    y = np.arange(len(rows))
+    best = [r["best_lap"] or 0.0 for r in rows]
+    avg = [r["ranking_average"] or 0.0 for r in rows]
+    a.barh(y - 0.2, best, height=0.4, color="tab:green", label="best lap")
+    a.barh(y + 0.2, avg, height=0.4, color="tab:olive", label=f"average of {board.ranking_laps} laps")
+    for k, r in enumerate(rows):
+        a.text(best[k], k - 0.2, f" {r['best_lap']:.3f} s" if r["best_lap"] else " no lap", va="center")
+        a.text(avg[k], k + 0.2, f" {r['ranking_average']:.3f} s" if r["ranking_average"] else " -", va="center")
+    a.set_xlabel("lap time (s), shorter is better")
     a.set_yticks(list(y), [f"{r['rank']}. {n}" for r, n in zip(rows, names, strict=True)])
     a.invert_yaxis()
-    laps = [r["best_lap"] or 0.0 for r in rows]
-    b.barh(y, laps, color="tab:green")
-    for k, r in enumerate(rows):
-        b.text(laps[k], k, f" {r['best_lap']:.3f} s" if r["best_lap"] else " no lap", va="center")
-    b.set_xlabel("best lap (s)")
-    fig.suptitle(f"sweep on {board.track}: {board.rules.trials} trials each")
+    a.legend(loc="lower right", fontsize=8)
+    b.barh(y, [r["off_track"] for r in rows], color="tab:red")
+    b.set_xlabel("off-track incidents")
+    penalty = board.rules.off_track_penalty
+    fig.suptitle(f"sweep on {board.track}: {board.rules.trials} trials, continuous={board.rules.continuous}, "
+                 f"off-track penalty {penalty:g} s")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
