@@ -198,3 +198,27 @@ def test_sweep_trains_in_parallel_and_ranks_under_one_rule_set(cluster, tmp_path
     hp = json.loads((tmp_path / "runs" / "cont-centre" / "hyperparameters.json").read_text())
     assert hp["lr"] == 0.001
     assert "disc" in board.table() and "cont-centre" in board.table()
+
+
+def test_a_worker_drives_with_the_learners_weights_but_its_own_random_stream(tmp_path):
+    import torch
+
+    from racerlab.cluster.worker import RolloutWorker, broadcast_state, worker_cars, worker_tracks
+    from racerlab.train.loop import Trainer
+
+    model = _small_model(tmp_path / "m")
+    learner = Trainer(model, progress=False)
+    with torch.no_grad():
+        for p in learner.agent.policy_net.parameters():
+            p.add_(0.05)  # the learner has moved on from the initial weights
+    weights = broadcast_state(learner.agent)
+    assert not any("optimizer" in k or k == "generator" for k in weights)
+    w = RolloutWorker(str(model), 1, 2, {})
+    assert w.describe()["start_offset"] == 0.5 and w.describe()["cars"] == 1
+    ro, starts = w.collect(weights, 2, 10_000, 0)
+    assert len(ro.episodes) == 2 and len(starts) == 1 and starts[0] >= 2  # one world, its round-robin counter
+    obs = learner.worlds[0].observe(np.arange(2))
+    assert np.array_equal(w.agent.policy(obs), learner.agent.policy(obs))
+    assert w.agent.generator.initial_seed() != learner.agent.generator.initial_seed()
+    assert worker_tracks(("a", "b", "c"), 1, 2) == ("b",) and worker_tracks(("a",), 1, 2) == ("a",)
+    assert [worker_cars(5, k, 2) for k in (0, 1)] == [3, 2]

@@ -155,7 +155,8 @@ def draw_leaderboard(board: Leaderboard, path: Path) -> Path:
     a.set_xlabel("lap time (s), shorter is better")
     a.set_yticks(list(y), [f"{r['rank']}. {n}" for r, n in zip(rows, names, strict=True)])
     a.invert_yaxis()
-    a.legend(loc="lower right", fontsize=8)
+    a.set_xlim(0, 1.3 * max([*best, *avg, 1.0]))
+    a.legend(loc="upper right", fontsize=8)  # the winner's bars, at the top, are the shortest
     b.barh(y, [r["off_track"] for r in rows], color="tab:red")
     b.set_xlabel("off-track incidents")
     penalty = board.rules.off_track_penalty

@@ -20,8 +20,15 @@ _LEARNER_ONLY = ("optimizer", "generator")  # state keys a worker keeps its own 
 
 
 def broadcast_state(agent) -> dict:
-    """What the learner sends each iteration: the network weights, without optimizer or random state."""
-    return {k: v for k, v in agent.state_dict().items() if not any(w in k for w in _LEARNER_ONLY)}
+    """What the learner sends each iteration: the network weights (on the CPU, whatever device the learner
+    uses), without optimizer or random state."""
+    return _on_cpu({k: v for k, v in agent.state_dict().items() if not any(w in k for w in _LEARNER_ONLY)})
+
+
+def _on_cpu(obj):
+    if isinstance(obj, dict):
+        return {k: _on_cpu(v) for k, v in obj.items()}
+    return obj.cpu() if hasattr(obj, "cpu") else obj
 
 
 def worker_tracks(names: tuple[str, ...], index: int, workers: int) -> tuple[str, ...]:
