@@ -16,7 +16,7 @@ from racerlab.errors import RacerlabError
 
 # module names under racerlab.cli, in the order `racerlab --help` lists them
 COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "report", "reward", "sim", "exchange",
-                   "console"]
+                   "console", "cluster"]
 
 
 def build_parser() -> argparse.ArgumentParser:

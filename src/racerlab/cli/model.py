@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from racerlab.errors import RacerlabError
+
 
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
@@ -36,6 +38,8 @@ def register(sub) -> None:
     p.add_argument("--track", action="append", help="training track (repeat for several)")
     p.add_argument("--device", help="auto, cpu, cuda or cuda:N")
     p.add_argument("--seed", type=int)
+    p.add_argument("--workers", type=int, help="collect with N Ray rollout workers (needs racerlab[cluster])")
+    p.add_argument("--ray-address", help="an existing Ray cluster, e.g. 10.0.0.1:6379 (default: a local Ray)")
     p.set_defaults(func=run_train)
 
     p = sub.add_parser("clone", help="start a new model from another model's checkpoint")
@@ -74,10 +78,20 @@ FEATURES_NOTE = ("note: sensor FEATURES (speed, steering, offsets and the centre
 
 
 def run_train(args) -> int:
-    from racerlab.train import train
+    overrides = {"minutes": args.minutes, "episodes": args.episodes, "iterations": args.iterations,
+                 "num_cars": args.cars, "device": args.device, "seed": args.seed, "tracks": args.track}
+    if args.workers is None and args.ray_address:
+        raise RacerlabError(f"--ray-address {args.ray_address}: give --workers N as well to train on the cluster")
+    if args.workers is not None:
+        from racerlab.cli.cluster import require_ray
+        from racerlab.cluster import train_on_cluster
 
-    result = train(args.model, minutes=args.minutes, episodes=args.episodes, iterations=args.iterations,
-                   num_cars=args.cars, device=args.device, seed=args.seed, tracks=args.track)
+        require_ray()
+        result = train_on_cluster(args.model, args.workers, args.ray_address, **overrides)
+    else:
+        from racerlab.train import train
+
+        result = train(args.model, **overrides)
     print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/); next: "
           f"`racerlab evaluate {result.model_dir}` or `racerlab report {result.model_dir}`")
     return 0

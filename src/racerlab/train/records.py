@@ -35,7 +35,8 @@ class TrainingLogs:
         self.metrics.add(entries)
         self.metrics.save()
 
-    def _simtrace(self, iteration: int, ro) -> None:
+    def _simtrace(self, iteration: int, ro, base: Path | None = None) -> None:
+        """One iteration's simtrace under `base` (default the model folder; `<model>/<k>` for worker k)."""
         t = ro.trace
         if not t or t["steps"].size == 0:
             return
@@ -49,8 +50,8 @@ class TrainingLogs:
             "obstacle_crash_counter": np.zeros(n, int), "wall_clock": t["wall_clock"],
         }
         compress = self.cfg.logs.compress
-        writer = logs.SimtraceWriter(logs.training_simtrace_path(self.model_dir, iteration - 1, compress=compress),
-                                     compress=compress, sample_episodes=self.cfg.logs.simtrace_every)
+        path = logs.training_simtrace_path(base or self.model_dir, iteration - 1, compress=compress)
+        writer = logs.SimtraceWriter(path, compress=compress, sample_episodes=self.cfg.logs.simtrace_every)
         writer.write(cols)
         writer.close()
 

@@ -1,0 +1,91 @@
+"""One rollout worker: a batched `World` (or one per track) and a CPU copy of the policy.
+
+The class is plain Python; `racerlab.cluster.collector` makes it a Ray actor. It borrows the
+trainer's own world builders so a worker's worlds are exactly those `racerlab train` would build,
+with the worker's share of the cars, its own seed and its own round-robin start offset (DRfC
+gives each robomaker its own start counter).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+from racerlab.model import ModelFolder
+from racerlab.sim.reward import RewardCaller
+from racerlab.train.loop import Trainer, apply_overrides
+from racerlab.train.rollout import Collector
+
+_LEARNER_ONLY = ("optimizer", "generator")  # state keys a worker keeps its own of
+
+
+def broadcast_state(agent) -> dict:
+    """What the learner sends each iteration: the network weights (on the CPU, whatever device the learner
+    uses), without optimizer or random state."""
+    return _on_cpu({k: v for k, v in agent.state_dict().items() if not any(w in k for w in _LEARNER_ONLY)})
+
+
+def _on_cpu(obj):
+    if isinstance(obj, dict):
+        return {k: _on_cpu(v) for k, v in obj.items()}
+    return obj.cpu() if hasattr(obj, "cpu") else obj
+
+
+def worker_tracks(names: tuple[str, ...], index: int, workers: int) -> tuple[str, ...]:
+    """Worker `index`'s tracks: its own slice of the list when there are at least as many tracks as
+    workers (DRfC's multi-config: one track per worker), otherwise one track each, in turn."""
+    if len(names) >= workers:
+        return tuple(names[index::workers])
+    return (names[index % len(names)],)
+
+
+def worker_cars(num_cars: int, index: int, workers: int) -> int:
+    """Worker `index`'s share of the cars (at least one car each)."""
+    return max(1, num_cars // workers + (1 if index < num_cars % workers else 0))
+
+
+class RolloutWorker:
+    """Collects whole training episodes with the weights the learner broadcasts."""
+
+    _make_world = Trainer._make_world
+    _make_worlds = Trainer._make_worlds
+
+    def __init__(self, model_dir: str, index: int, workers: int, overrides: dict):
+        import torch
+
+        torch.set_num_threads(1)
+        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        self.index = index
+        folder = ModelFolder(model_dir)
+        self.metadata = folder.metadata()
+        cfg = apply_overrides(folder.config(), **overrides)
+        r = cfg.track
+        track = replace(r, names=worker_tracks(r.names, index, workers),
+                        start_offset=(r.start_offset + index / workers) % 1.0)
+        run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers),
+                      seed=cfg.run.seed + 1009 * index, device="cpu")
+        self.cfg = replace(cfg, track=track, run=run)
+        self.reward = RewardCaller(folder.reward_function())
+        self.worlds = self._make_worlds()
+        self.collector = Collector(self.worlds)
+        from racerlab.agent import make_agent
+
+        self.agent = make_agent(self.worlds[0].observation.space, self.metadata, folder.hyperparameters(),
+                                device="cpu", seed=self.cfg.run.seed)
+
+    def describe(self) -> dict:
+        return {"index": self.index, "pid": os.getpid(), "cars": self.cfg.run.num_cars,
+                "tracks": list(self.cfg.track.names), "start_offset": self.cfg.track.start_offset}
+
+    def set_starts(self, starts: list[int]) -> None:
+        for w, n in zip(self.worlds, starts, strict=False):
+            w.sim.episodes_started = int(n)
+
+    def collect(self, weights: dict, target: int, max_steps: int, first_episode_number: int):
+        """Load the broadcast weights, then collect `target` whole episodes; returns the `Rollout`
+        (numpy arrays) and each world's round-robin counter."""
+        state = self.agent.state_dict()
+        state.update(weights)
+        self.agent.load_state_dict(state)
+        ro = self.collector.collect(self.agent, target, max_steps, first_episode_number=first_episode_number)
+        return ro, [w.sim.episodes_started for w in self.worlds]

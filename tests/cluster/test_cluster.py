@@ -1,0 +1,224 @@
+"""Rollout workers and sweeps on a real Ray cluster: a head and a second node started on 127.0.0.1.
+
+Both node processes are started here (`ray start --block`) and stopped here, by their own ids.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray")
+
+from racerlab.cluster import ClusterTrainer, merge_rollouts, split_episodes, train_on_cluster  # noqa: E402
+from racerlab.cluster.sweep import run_sweep  # noqa: E402
+from racerlab.model import init_model  # noqa: E402
+
+RAY = str(Path(sys.executable).with_name("ray"))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _small_model(path: Path, episodes: int = 4) -> Path:
+    """A model whose iteration is `episodes` short episodes and one evaluation episode."""
+    folder = init_model(path, num_cars=2)
+    hp = json.loads(folder.hyperparameters_path.read_text())
+    hp.update(num_episodes_between_training=episodes, num_epochs=1)
+    folder.hyperparameters_path.write_text(json.dumps(hp))
+    toml = folder.path / "training.toml"
+    toml.write_text(toml.read_text().replace("[evaluation]\nepisodes = 5", "[evaluation]\nepisodes = 1"))
+    return folder.path
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    tmp = Path(tempfile.mkdtemp(prefix="rl", dir="/tmp"))
+    port = _free_port()
+    saved = os.environ.get("RAY_AUTH_MODE")
+    os.environ["RAY_AUTH_MODE"] = "disabled"  # a throw-away cluster on 127.0.0.1: no token to hand around
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
+    common = ["--block", "--disable-usage-stats", f"--temp-dir={tmp}"]
+    procs = [subprocess.Popen([RAY, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}",
+                               "--num-cpus=1", "--include-dashboard=false", *common], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
+    address = f"127.0.0.1:{port}"
+    try:
+        _wait_for_head(address, tmp)
+        procs.append(subprocess.Popen([RAY, "start", f"--address={address}", "--node-ip-address=127.0.0.1",
+                                       "--num-cpus=1", *common], env=env, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL, start_new_session=True))
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        deadline = time.time() + 90
+        while len([n for n in ray.nodes() if n["Alive"]]) < 2 and time.time() < deadline:
+            time.sleep(0.5)
+        yield address
+    finally:
+        ray.shutdown()
+        if saved is None:
+            os.environ.pop("RAY_AUTH_MODE", None)
+        else:
+            os.environ["RAY_AUTH_MODE"] = saved
+        for p in reversed(procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=8)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def _wait_for_head(address: str, tmp: Path) -> None:
+    host, port = address.split(":")
+    deadline = time.time() + 90
+    while time.time() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex((host, int(port))) == 0:
+                return
+        time.sleep(0.5)
+    raise RuntimeError(f"ray head on {address} did not come up (logs in {tmp})")
+
+
+def test_episodes_split_as_drfc_serves_them():
+    # episode k goes to worker k mod W
+    assert split_episodes(20, 3) == [7, 7, 6]
+    assert split_episodes(2, 3) == [1, 1, 0]
+    assert sum(split_episodes(13, 4)) == 13
+
+
+def test_train_without_workers_never_imports_ray(tmp_path):
+    model = _small_model(tmp_path / "m", episodes=2)
+    code = ("import sys; from racerlab.cli import main; "
+            f"rc = main(['train', {str(model)!r}, '--iterations', '1']); "
+            "assert rc == 0; print('RAY' if 'ray' in sys.modules else 'NO-RAY')")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=240)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("NO-RAY")
+    assert (model / "training-simtrace" / "0-iteration.csv").is_file()
+    assert not (model / "0").exists()
+
+
+def test_two_workers_one_iteration_writes_drfc_multi_worker_logs(cluster, tmp_path):
+    model = _small_model(tmp_path / "m")
+    r = train_on_cluster(model, 2, cluster, progress=False, iterations=1)
+    assert r.iterations == 1 and r.episodes == 4
+    assert not (model / "training-simtrace").exists()  # deepracer-utils takes that for a one-worker folder
+    for k in (0, 1):
+        assert (model / str(k) / "training-simtrace" / "0-iteration.csv").is_file()
+    m0 = json.loads((model / "metrics" / "TrainingMetrics.json").read_text())["metrics"]
+    m1 = json.loads((model / "metrics" / "TrainingMetrics_1.json").read_text())["metrics"]
+    assert [m["episode"] for m in m1] == [1, 2] and sum(m["phase"] == "training" for m in m0) == 2
+    assert sum(m["phase"] == "evaluation" for m in m0) == 1
+    entry = json.loads((model / "metrics" / "metrics.jsonl").read_text().splitlines()[-1])
+    assert entry["cluster/workers"] == 2 and entry["cluster/failed_workers"] == 0
+    assert entry["cluster/weights_bytes"] > 0 and entry["cluster/rollout_bytes"] > 0
+
+    from deepracer.logs import DeepRacerLog
+
+    log = DeepRacerLog(str(model))
+    log.load_training_trace()
+    df = log.dataframe()
+    assert sorted(df["worker"].unique()) == [0, 1]
+    assert df["unique_episode"].nunique() == 4
+    # the learner trained on exactly the learning steps the workers logged (prepare rows excluded)
+    step = int(r.best_checkpoint.split("Step-")[1].split(".")[0]) if "Step-" in r.best_checkpoint else None
+    assert step == int((df["episode_status"] != "prepare").sum())
+
+
+def test_a_worker_killed_mid_run_costs_its_episodes_only_and_resume_continues(cluster, tmp_path, capsys):
+    model = _small_model(tmp_path / "m")
+    trainer = ClusterTrainer(model, 2, cluster, progress=True, iterations=2)
+    pids = [i["pid"] for i in trainer.collector.info]
+    os.kill(pids[1], signal.SIGKILL)
+    r = trainer.run()
+    assert r.iterations == 2
+    assert trainer.failures == [{"iteration": 1, "workers": [1]}]
+    assert "worker 1 (" in capsys.readouterr().out
+    lines = [json.loads(x) for x in (model / "metrics" / "metrics.jsonl").read_text().splitlines()]
+    assert [e["cluster/workers"] for e in lines] == [1, 2]
+    assert r.episodes == 2 + 4  # iteration 1 kept worker 0's two episodes only
+    assert not (model / "1" / "training-simtrace" / "0-iteration.csv").exists()
+    assert (model / "1" / "training-simtrace" / "1-iteration.csv").is_file()
+    # the driver stopped: a new run resumes from the checkpoint, each worker counting on
+    r2 = train_on_cluster(model, 2, cluster, progress=False, iterations=1)
+    assert r2.iterations == 3
+    m1 = json.loads((model / "metrics" / "TrainingMetrics_1.json").read_text())["metrics"]
+    assert [m["episode"] for m in m1] == [1, 2, 3, 4]
+
+
+def test_merge_keeps_episodes_whole_and_renumbers(tmp_path):
+    from racerlab.train.rollout import Episode, Rollout
+
+    def part(n_eps, steps):
+        eps = [Episode(k, 0, k) for k in range(n_eps)]
+        episode = np.repeat(np.arange(n_eps) + 7, steps)
+        n = n_eps * steps
+        return Rollout(np.ones((n, 3), np.float32), np.zeros(n), {"v": np.arange(n)},
+                       np.ones(n_eps * steps, np.float32), np.tile([False] * (steps - 1) + [True], n_eps),
+                       np.zeros(n_eps * steps, bool), eps, {"episode": episode}, n_eps * steps, 0.1)
+
+    ro = merge_rollouts([part(2, 3), part(1, 4)], 10, 1.0)
+    assert ro.obs.shape == (10, 3) and ro.rewards.size == 10 and ro.env_steps == 10
+    assert ro.trace["episode"].tolist() == [10, 10, 10, 11, 11, 11, 12, 12, 12, 12]
+    assert ro.record["v"].tolist() == [0, 1, 2, 3, 4, 5, 0, 1, 2, 3]
+    assert len(ro.episodes) == 3
+
+
+def test_sweep_trains_in_parallel_and_ranks_under_one_rule_set(cluster, tmp_path):
+    (tmp_path / "centre.py").write_text(
+        "def reward_function(params):\n"
+        "    return float(max(1e-3, 1 - params['distance_from_center'] / (0.5 * params['track_width'])))\n")
+    spec = tmp_path / "sweep.toml"
+    spec.write_text('out = "runs"\niterations = 1\ncars = 2\n[race]\ntrials = 1\n'
+                    '[[model]]\nname = "disc"\n'
+                    'hyperparameters = { num_episodes_between_training = 2, num_epochs = 1 }\n'
+                    '[[model]]\nname = "cont-centre"\naction_space = "continuous"\nreward = "centre.py"\n'
+                    'hyperparameters = { num_episodes_between_training = 2, num_epochs = 1, lr = 0.001 }\n')
+    board = run_sweep(spec, address=cluster)
+    data = json.loads(board.json_path.read_text())
+    assert sorted(r["model"] for r in data["leaderboard"]) == ["cont-centre", "disc"]
+    assert all(r["training"]["iterations"] == 1 for r in data["leaderboard"])
+    assert board.png_path.stat().st_size > 5000
+    assert (tmp_path / "runs" / "cont-centre" / "reward_function.py").read_text().startswith("def reward_function")
+    hp = json.loads((tmp_path / "runs" / "cont-centre" / "hyperparameters.json").read_text())
+    assert hp["lr"] == 0.001
+    assert "disc" in board.table() and "cont-centre" in board.table()
+
+
+def test_a_worker_drives_with_the_learners_weights_but_its_own_random_stream(tmp_path):
+    import torch
+
+    from racerlab.cluster.worker import RolloutWorker, broadcast_state, worker_cars, worker_tracks
+    from racerlab.train.loop import Trainer
+
+    model = _small_model(tmp_path / "m")
+    learner = Trainer(model, progress=False)
+    with torch.no_grad():
+        for p in learner.agent.policy_net.parameters():
+            p.add_(0.05)  # the learner has moved on from the initial weights
+    weights = broadcast_state(learner.agent)
+    assert not any("optimizer" in k or k == "generator" for k in weights)
+    w = RolloutWorker(str(model), 1, 2, {})
+    assert w.describe()["start_offset"] == 0.5 and w.describe()["cars"] == 1
+    ro, starts = w.collect(weights, 2, 10_000, 0)
+    assert len(ro.episodes) == 2 and len(starts) == 1 and starts[0] >= 2  # one world, its round-robin counter
+    obs = learner.worlds[0].observe(np.arange(2))
+    assert np.array_equal(w.agent.policy(obs), learner.agent.policy(obs))
+    assert w.agent.generator.initial_seed() != learner.agent.generator.initial_seed()
+    assert worker_tracks(("a", "b", "c"), 1, 2) == ("b",) and worker_tracks(("a",), 1, 2) == ("a",)
+    assert [worker_cars(5, k, 2) for k in (0, 1)] == [3, 2]
