@@ -9,6 +9,7 @@ then rename), so a kill at any moment leaves the previous complete state.
 from __future__ import annotations
 
 import json
+import pickle
 import re
 import time
 from dataclasses import dataclass
@@ -151,9 +152,16 @@ class ModelFolder:
 
         path = self.checkpoint_path(info)
         try:
-            return torch.load(path, map_location="cpu", weights_only=False)
+            # weights_only: tensors, numbers, strings, lists and dicts — all racerlab writes — and nothing that
+            # can run code while it loads (a shared model's checkpoint is someone else's file)
+            return torch.load(path, map_location="cpu", weights_only=True)
+        except pickle.UnpicklingError as exc:
+            what = _first_line(exc)
+            raise RacerlabError(f"{path}: refused: the checkpoint holds more than racerlab writes (tensors, numbers, "
+                                f"strings, lists, dicts): {what}; only load checkpoints racerlab saved") from None
         except Exception as exc:  # noqa: BLE001 - a damaged file is reported, not a traceback
-            raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {exc})") from None
+            raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {_first_line(exc)})"
+                                ) from None
 
     def save_checkpoint(self, state: dict, iteration: int, steps: int) -> CheckpointInfo:
         import io
@@ -192,6 +200,12 @@ class ModelFolder:
         for c in self.checkpoints():
             if c.iteration > iteration:
                 self.checkpoint_path(c).unlink(missing_ok=True)
+
+
+def _first_line(exc: Exception) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    found = next((ln for ln in lines if "GLOBAL" in ln or "Unsupported" in ln), lines[0] if lines else "")
+    return found or type(exc).__name__
 
 
 def resolve_track(folder, track=None, *, default: bool = True):
