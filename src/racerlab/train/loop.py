@@ -276,6 +276,10 @@ class Trainer:
         return ""
 
     def run(self) -> TrainResult:
+        with self.folder.lock():
+            return self._run()
+
+    def _run(self) -> TrainResult:
         t_start = time.perf_counter()
         resumed = self._resume_or_start()
         s = self.state

@@ -1,0 +1,58 @@
+"""Training a folder unattended: one trainer per folder, bad settings refused in one line, edits honoured on
+resume, faults rolled back, watchdogs, bounded logs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from racerlab.errors import RacerlabError
+from racerlab.model import ModelFolder, init_model
+from racerlab.train import train
+from tests.conftest import aws_track_path
+
+FAST = dict(progress=False, num_cars=8)
+SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
+
+
+@pytest.fixture
+def model(tmp_path):
+    return init_model(tmp_path / "model", track=str(aws_track_path("reInvent2019_track")), max_speed=2.0)
+
+
+# ---- the lock ------------------------------------------------------------------------------------------------
+def _holder(folder: ModelFolder) -> subprocess.Popen:
+    code = ("import sys, time\nfrom racerlab.model import ModelFolder\n"
+            f"ModelFolder({str(folder.path)!r}).lock().acquire()\nprint('held', flush=True)\ntime.sleep(60)\n")
+    env = {**os.environ, "PYTHONPATH": os.path.abspath(SRC)}
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_trainer_is_refused_with_the_first_ones_pid(model):
+    proc = _holder(model)
+    try:
+        with pytest.raises(RacerlabError) as err:
+            train(model.path, iterations=1, **FAST)
+        msg = str(err.value)
+        assert f"process {proc.pid}" in msg and str(model.lock_path) in msg and "\n" not in msg
+        assert not model.checkpoints()  # refused before touching anything
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_stale_lock_is_taken_over_and_released(model):
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    model.lock_path.write_text(f"{gone.pid}\n")  # a trainer that was killed -9
+    r = train(model.path, iterations=1, **FAST)
+    assert r.iterations == 1
+    assert not model.lock_path.exists()  # released at the end
+    with model.lock():
+        assert model.lock().holder() == os.getpid()
+    assert not model.lock_path.exists()
