@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ConfigError, RacerlabError, TrackError
 from racerlab.model import ModelFolder, init_model
 from racerlab.train import train
 from tests.conftest import aws_track_path
@@ -56,3 +56,24 @@ def test_a_stale_lock_is_taken_over_and_released(model):
     with model.lock():
         assert model.lock().holder() == os.getpid()
     assert not model.lock_path.exists()
+
+
+# ---- validation ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("flags", "expected"), [
+    ({"minutes": -3}, "--minutes must be a number >= 0 (0 = no limit), got -3"),
+    ({"num_cars": 0}, "--cars must be at least 1, got 0"),
+    ({"iterations": -1}, "--iterations must be a number >= 0 (0 = no limit), got -1"),
+])
+def test_bad_flags_are_refused_before_training(model, flags, expected):
+    with pytest.raises(ConfigError) as err:
+        train(model.path, progress=False, **flags)
+    assert str(err.value) == expected
+    assert not model.checkpoints()
+
+
+def test_an_unknown_track_in_training_toml_names_the_file_and_key(model):
+    model.config_path.write_text('[track]\nnames = ["no_such_track_anywhere"]\n')
+    with pytest.raises(TrackError) as err:
+        train(model.path, iterations=1, **FAST)
+    msg = str(err.value)
+    assert msg.startswith(f"{model.config_path}: track.names: ") and "no_such_track_anywhere" in msg

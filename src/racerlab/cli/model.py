@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 
@@ -52,7 +53,7 @@ def run_init(args) -> int:
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force)
     print(f"created {folder.path}: reward_function.py, model_metadata.json, hyperparameters.json, training.toml")
-    print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
+    print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes 5`")
     return 0
 
 
@@ -61,8 +62,9 @@ def run_train(args) -> int:
 
     result = train(args.model, minutes=args.minutes, episodes=args.episodes, iterations=args.iterations,
                    num_cars=args.cars, device=args.device, seed=args.seed, tracks=args.track)
+    where = shlex.quote(str(result.model_dir))
     print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/); next: "
-          f"`racerlab evaluate {result.model_dir}` or `racerlab report {result.model_dir}`")
+          f"`racerlab evaluate {where}` or `racerlab report {where}`")
     return 0
 
 
@@ -72,5 +74,5 @@ def run_clone(args) -> int:
     folder = clone_model(args.src, args.dst, args.checkpoint, args.reward, args.model_metadata, args.hyperparameters,
                          args.track)
     print(f"cloned {args.src} ({args.checkpoint} checkpoint) into {folder.path}; train it with "
-          f"`racerlab train {folder.path}`")
+          f"`racerlab train {shlex.quote(str(folder.path))}`")
     return 0

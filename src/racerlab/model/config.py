@@ -159,8 +159,9 @@ def _validate(c: TrainingConfig) -> None:
     _check(c.run.reward_order in REWARD_ORDERS, s, f"run.reward_order must be one of {REWARD_ORDERS}")
     _check(c.run.max_steps_per_iteration >= 100, s, "run.max_steps_per_iteration must be >= 100")
     _check(c.run.max_episode_steps >= 10, s, "run.max_episode_steps must be >= 10")
-    _check(c.stop.minutes >= 0 and c.stop.episodes >= 0 and c.stop.iterations >= 0, s,
-           "stop values must be >= 0")
+    for key in ("minutes", "episodes", "iterations"):
+        value = getattr(c.stop, key)
+        _check(value >= 0, s, f"stop.{key} must be >= 0 (0 = no limit), got {value:g}")
     _check(c.evaluation.episodes >= 0, s, "evaluation.episodes must be >= 0")
     _check(c.evaluation.best_model_metric in BEST_MODEL_METRICS, s,
            f"evaluation.best_model_metric must be one of {BEST_MODEL_METRICS}")

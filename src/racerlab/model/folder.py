@@ -12,6 +12,7 @@ import json
 import os
 import pickle
 import re
+import shlex
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,7 +90,8 @@ class ModelFolder:
     # ---- loading -----------------------------------------------------------------------------
     def require(self) -> None:
         if not self.path.is_dir():
-            raise RacerlabError(f"{self.path}: no such model folder; create one with `racerlab init {self.path}`")
+            raise RacerlabError(f"{self.path}: no such model folder; create one with "
+                                f"`racerlab init {shlex.quote(str(self.path))}`")
         for p in (self.reward_path, self.metadata_path):
             if not p.is_file():
                 raise RacerlabError(f"{p}: missing; a model folder needs reward_function.py and "
@@ -140,7 +142,8 @@ class ModelFolder:
         """`best`, `last` or an iteration number; a clear error when there is none."""
         cps = self.checkpoints()
         if not cps:
-            raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with `racerlab train {self.path}`")
+            raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with "
+                                f"`racerlab train {shlex.quote(str(self.path))}`")
         if str(which) == "last":
             return cps[-1]  # files are written atomically: the newest one is complete even if the index lags
         if str(which) == "best":

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ConfigError, RacerlabError, TrackError
 from racerlab.model import ModelFolder, TrainingConfig, check_compatible
 from racerlab.sim import StartRules, World
 from racerlab.sim.reward import RewardCaller
@@ -65,8 +65,20 @@ class _State:
     first_lap: dict | None = None
 
 
+def _check_flags(minutes, episodes, iterations, num_cars) -> None:
+    """Command-line values the training cannot use: one line naming the flag."""
+    for flag, value, least in (("--minutes", minutes, 0), ("--episodes", episodes, 0), ("--iterations", iterations, 0),
+                               ("--cars", num_cars, 1)):
+        if value is None:
+            continue
+        if not (isinstance(value, int | float) and math.isfinite(value)) or value < least:
+            what = "a number >= 0 (0 = no limit)" if least == 0 else "at least 1"
+            raise ConfigError(f"{flag} must be {what}, got {value!r}")
+
+
 def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterations=None, num_cars=None,
                     device=None, seed=None, tracks=None) -> TrainingConfig:
+    _check_flags(minutes, episodes, iterations, num_cars)
     stop = cfg.stop
     stop = replace(stop, minutes=stop.minutes if minutes is None else float(minutes),
                    episodes=stop.episodes if episodes is None else int(episodes),
@@ -88,6 +100,7 @@ class Trainer:
         self.metadata = self.folder.metadata()
         self.hp = self.folder.hyperparameters()
         self.cfg = apply_overrides(self.folder.config(), **overrides)
+        self._track_flag = bool(overrides.get("tracks"))
         self.reward = RewardCaller(self.folder.reward_function())
         self._set_threads()
         self.worlds = self._make_worlds()
@@ -109,13 +122,20 @@ class Trainer:
         n = self.cfg.run.threads or os.cpu_count() or 1
         torch.set_num_threads(n)
 
+    def _load_track(self, name):
+        try:
+            return load_track(name)
+        except TrackError as exc:
+            where = "--track" if self._track_flag else f"{self.cfg.source}: track.names"
+            raise TrackError(f"{where}: {exc}") from None
+
     def _make_world(self, track_name, cars, seed):
         r = self.cfg.track
         start = StartRules(change_start=r.change_start, advance=r.round_robin_advance, offset=r.start_offset,
                            reverse=r.reverse, alternate_direction=r.alternate_direction)
-        return World(load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation, start=start,
-                     max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
-                     seed=seed)
+        return World(self._load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation,
+                     start=start, max_episode_steps=self.cfg.run.max_episode_steps,
+                     reward_order=self.cfg.run.reward_order, seed=seed)
 
     def _make_worlds(self):
         names = self.cfg.track.names
