@@ -3,6 +3,7 @@ resume, faults rolled back, watchdogs, bounded logs."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -77,3 +78,29 @@ def test_an_unknown_track_in_training_toml_names_the_file_and_key(model):
         train(model.path, iterations=1, **FAST)
     msg = str(err.value)
     assert msg.startswith(f"{model.config_path}: track.names: ") and "no_such_track_anywhere" in msg
+
+
+# ---- edits on resume -----------------------------------------------------------------------------------------
+def _set_hp(folder: ModelFolder, **changes) -> None:
+    hp = json.loads(folder.hyperparameters_path.read_text())
+    folder.hyperparameters_path.write_text(json.dumps({**hp, **changes}))
+
+
+def test_an_edited_learning_rate_takes_effect_on_resume_and_is_reported(model):
+    train(model.path, iterations=1, **FAST)
+    _set_hp(model, lr=0.0001, num_epochs=3)
+    r = train(model.path, iterations=1, **FAST)
+    assert r.history[-1]["lr"] == pytest.approx(0.0001)
+    assert any("lr 0.0003 → 0.0001" in n and "num_epochs 10 → 3" in n and str(model.hyperparameters_path) in n
+               for n in r.notes)
+    r = train(model.path, iterations=1, **FAST)  # unchanged since: nothing to report, the lr stays
+    assert r.history[-1]["lr"] == pytest.approx(0.0001) and not any("changed since" in n for n in r.notes)
+
+
+def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
+    train(model.path, iterations=1, **FAST)
+    meta = json.loads(model.metadata_path.read_text())
+    meta["action_space"] = meta["action_space"][:3]
+    model.metadata_path.write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match="number of actions"):
+        train(model.path, iterations=1, **FAST)

@@ -49,6 +49,7 @@ class TrainResult:
     first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
     stopped: str = ""
     history: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
 
 @dataclass
@@ -113,6 +114,7 @@ class Trainer:
         self.logs = TrainingLogs(self.folder.path, self.cfg)
         self.progress = Progress(enabled=progress)
         self.state = _State()
+        self.notes: list[str] = []
         self.last_good = None
 
     # ---- set-up ------------------------------------------------------------------------------
@@ -148,6 +150,7 @@ class Trainer:
     def _checkpoint_state(self) -> dict:
         s = self.state
         return {"format": STATE_FORMAT, "agent": self.agent.state_dict(), "metadata": self.metadata.to_json(),
+                "hyperparameters": self.hp.to_json(), "observation": self.worlds[0].observation.name,
                 "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps,
                 "train_steps": s.train_steps, "best_name": s.best_name, "best_metric": s.best_metric,
                 "best_lap_time": s.best_lap_time, "rollbacks": s.rollbacks,
@@ -166,8 +169,9 @@ class Trainer:
 
         check_compatible(parse_model_metadata(ck["metadata"], f"{info.name} (checkpoint)"), self.metadata,
                          str(self.folder.metadata_path))
+        self._check_observation(ck, info)
         self.agent.load_state_dict(ck["agent"])
-        self.agent.lr = self.hp.lr if ck.get("cloned") else self.agent.lr
+        self._apply_edits(ck, info)
         s = self.state
         s.iteration, s.episodes, s.env_steps = ck["iteration"], ck["episodes"], ck["env_steps"]
         s.train_steps = ck.get("train_steps", info.steps)
@@ -181,13 +185,38 @@ class Trainer:
         self.last_good = self.agent.state_dict()
         return not ck.get("cloned", False)
 
+    def _check_observation(self, ck, info):
+        trained, now = ck.get("observation"), self.worlds[0].observation.name
+        if trained and trained != now:
+            raise ConfigError(f"{self.cfg.source}: run.observation is '{now}' but {info.name} was trained with "
+                              f"'{trained}'; the network's inputs cannot change: set it back or clone into a new model")
+
+    def _apply_edits(self, ck, info):
+        """Hyperparameters edited since the checkpoint take effect, and the run says which. The agent is built
+        from the current hyperparameters.json; only lr is also in the saved agent state, so the edited value is
+        put back. A checkpoint that records none (older racerlab, or a clone) takes the file's lr."""
+        saved = ck.get("hyperparameters")
+        now = self.hp.to_json()
+        if saved is None:
+            saved = {**now, "lr": self.agent.lr} if not ck.get("cloned") and ck.get("rollbacks", 0) == 0 else now
+        changed = [k for k in now if k in saved and saved[k] != now[k]]
+        if "lr" in changed or ck.get("cloned"):
+            self.agent.lr = self.hp.lr
+        if changed:
+            edits = ", ".join(f"{k} {saved[k]!r} → {now[k]!r}" for k in changed)
+            self._note(f"{self.hp.source}: changed since checkpoint {info.name}, now in effect: {edits}")
+
+    def _note(self, text: str) -> None:
+        self.notes.append(text)
+        self.progress.note(text)
+
     def _newest_readable(self, cps):
         """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
         for info in reversed(cps):
             try:
                 return info, self.folder.load_checkpoint(info)
             except RacerlabError as exc:
-                self.progress.note(f"skipping {info.name}: {exc}")
+                self._note(f"skipping {info.name}: {exc}")
         raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint; remove the folder's "
                             "checkpoints/ to start over")
 
@@ -203,7 +232,7 @@ class Trainer:
         lr = self.agent.lr
         self.agent.load_state_dict(self.last_good)
         self.agent.lr = lr / 2
-        self.progress.note(f"non-finite loss or weights in iteration {s.iteration + 1}: rolled back to the last good "
+        self._note(f"non-finite loss or weights in iteration {s.iteration + 1}: rolled back to the last good "
                            f"checkpoint, learning rate {lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS})")
         if s.rollbacks >= MAX_ROLLBACKS:
             raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks after non-finite "
@@ -321,6 +350,7 @@ class Trainer:
         result.wall_seconds = time.perf_counter() - t_start
         result.best_checkpoint, result.best_metric = s.best_name, s.best_metric
         result.best_lap_time, result.first_lap = s.best_lap_time, s.first_lap
+        result.notes = self.notes
         self.progress.finish(result)
         return result
 
