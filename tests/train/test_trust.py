@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 
 import pytest
+import torch
 
 from racerlab.errors import ConfigError, RacerlabError, TrackError
-from racerlab.model import ModelFolder, init_model
-from racerlab.train import train
+from racerlab.logs import read_metrics_jsonl
+from racerlab.model import ModelFolder, init_model, nonfinite_tensors
+from racerlab.train import TrainingDiverged, train
 from tests.conftest import aws_track_path
 
 FAST = dict(progress=False, num_cars=8)
@@ -104,3 +107,74 @@ def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
     model.metadata_path.write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match="number of actions"):
         train(model.path, iterations=1, **FAST)
+
+
+# ---- rollback, by injection ----------------------------------------------------------------------------------
+def _small(folder: ModelFolder, **hp) -> None:
+    """Short iterations: 2 cars, 2 episodes of at most 150 steps."""
+    _set_hp(folder, num_episodes_between_training=2, **hp)
+    text = folder.config_path.read_text()
+    folder.config_path.write_text(re.sub(r"(?m)^max_episode_steps = .*$", "max_episode_steps = 150", text))
+
+
+SMALL = dict(progress=False, num_cars=2)
+
+
+def test_a_checkpoint_with_nan_weights_is_skipped_on_resume_and_refused_by_evaluate(model):
+    from racerlab.evaluate import evaluate
+
+    _small(model)
+    train(model.path, iterations=2, **SMALL)
+    last = model.resolve_checkpoint("last")
+    ck = model.load_checkpoint(last)
+    next(iter(ck["agent"]["policy"].values())).fill_(float("nan"))
+    torch.save(ck, model.checkpoint_path(last))
+    with pytest.raises(RacerlabError) as err:
+        evaluate(model.path, checkpoint="last", trials=1, write=False)
+    assert str(model.checkpoint_path(last)) in str(err.value) and "non-finite weights" in str(err.value)
+    assert "--checkpoint 1" in str(err.value)
+    r = train(model.path, iterations=1, **SMALL)
+    assert any(f"skipping {model.checkpoint_path(last)}: non-finite weights" in n for n in r.notes)
+    assert r.iterations == 2  # resumed from iteration 1, the newest finite one, and trained one more
+    assert model.resolve_checkpoint("last").iteration == 2
+    assert not nonfinite_tensors(model.load_checkpoint(model.resolve_checkpoint("last"))["agent"])
+
+
+def test_a_non_finite_loss_is_rolled_back_recorded_and_said(model, monkeypatch):
+    from racerlab.agent.ppo import PPO
+
+    _small(model)
+    real_update, calls = PPO.update, []
+
+    def once_poisoned(self, batch):
+        metrics = real_update(self, batch)
+        calls.append(self.lr)
+        if len(calls) == 1:
+            next(self.policy_net.parameters()).data.fill_(float("inf"))
+            metrics["nonfinite"] = 1.0
+        return metrics
+
+    monkeypatch.setattr(PPO, "update", once_poisoned)
+    r = train(model.path, iterations=1, **SMALL)
+    assert calls == [0.0003, 0.00015]  # the second try runs with the lowered lr
+    assert r.iterations == 1 and any("rolled back" in n and "0.0003 → 0.00015" in n for n in r.notes)
+    entry = read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")[-1]
+    assert entry["rollbacks"] == 1 and "rolled back" in entry["events"][0] and entry["lr"] == 0.00015
+
+
+def test_a_constant_huge_reward_is_caught_as_an_exploding_value_loss(model):
+    _small(model)
+    model.reward_path.write_text("def reward_function(params):\n    return 1e5\n")
+    with pytest.raises(TrainingDiverged) as err:
+        train(model.path, iterations=3, **SMALL)
+    msg = str(err.value)
+    assert "value loss" in msg and "reward scale" in msg and str(model.reward_path) in msg
+
+
+def test_a_learning_rate_of_10_is_caught_and_named(model):
+    _small(model, lr=10)
+    with pytest.raises(TrainingDiverged) as err:
+        train(model.path, iterations=3, **SMALL)
+    msg = str(err.value)
+    assert "learning rate" in msg and "lr" in msg and str(model.hyperparameters_path) in msg
+    assert model.resolve_checkpoint("last").iteration == 0  # nothing collapsed reached a checkpoint

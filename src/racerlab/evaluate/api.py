@@ -24,7 +24,7 @@ from racerlab.errors import RacerlabError
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation
-from racerlab.model import ModelFolder, parse_model_metadata, resolve_track
+from racerlab.model import ModelFolder, nonfinite_tensors, parse_model_metadata, resolve_track
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -100,6 +100,11 @@ def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
     where = folder.checkpoint_path(info)
     if not isinstance(ck, dict) or "agent" not in ck:
         raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+    bad = nonfinite_tensors(ck["agent"])
+    if bad:
+        older = [c.iteration for c in folder.checkpoints() if c.iteration != info.iteration]
+        hint = f"pick an older one with --checkpoint {older[-1]}" if older else "train it again"
+        raise RacerlabError(f"{where}: non-finite weights ({bad[0]}); the training diverged there: {hint}")
     if ck.get("metadata") is not None:
         _check_same_model(ck["metadata"], meta, where, folder.metadata_path)
     return LoadedModel(folder, meta, info.name, ck, cfg.run.observation)

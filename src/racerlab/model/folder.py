@@ -215,6 +215,17 @@ class ModelFolder:
                 self.checkpoint_path(c).unlink(missing_ok=True)
 
 
+def nonfinite_tensors(state, prefix: str = "") -> list[str]:
+    """Names (dotted paths) of the floating-point tensors in a checkpoint that hold NaN or infinity."""
+    import torch
+
+    if isinstance(state, torch.Tensor):
+        bad = state.is_floating_point() and not bool(torch.isfinite(state).all())
+        return [prefix] if bad else []
+    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, list | tuple) else ()
+    return [name for k, v in items for name in nonfinite_tensors(v, f"{prefix}.{k}" if prefix else str(k))]
+
+
 def _pid_alive(pid: int) -> bool:
     if pid <= 0:
         return False

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import ConfigError, RacerlabError, TrackError
-from racerlab.model import ModelFolder, TrainingConfig, check_compatible
+from racerlab.model import ModelFolder, TrainingConfig, check_compatible, nonfinite_tensors
 from racerlab.sim import StartRules, World
 from racerlab.sim.reward import RewardCaller
 from racerlab.track import load as load_track
@@ -29,6 +29,9 @@ from racerlab.train.records import TrainingLogs
 from racerlab.train.rollout import Collector
 
 MAX_ROLLBACKS = 3
+VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
+MAX_SENSIBLE_REWARD = 1e3
+COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
 STATE_FORMAT = "racerlab.checkpoint/1"
 
 
@@ -115,6 +118,8 @@ class Trainer:
         self.progress = Progress(enabled=progress)
         self.state = _State()
         self.notes: list[str] = []
+        self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
+        self.last_eval: float | None = None
         self.last_good = None
 
     # ---- set-up ------------------------------------------------------------------------------
@@ -214,30 +219,67 @@ class Trainer:
         """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
         for info in reversed(cps):
             try:
-                return info, self.folder.load_checkpoint(info)
+                ck = self.folder.load_checkpoint(info)
             except RacerlabError as exc:
                 self._note(f"skipping {info.name}: {exc}")
-        raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint; remove the folder's "
-                            "checkpoints/ to start over")
+                continue
+            bad = nonfinite_tensors(ck.get("agent", {}))
+            if not bad:
+                return info, ck
+            self._note(f"skipping {self.folder.checkpoint_path(info)}: non-finite weights ({bad[0]}"
+                       f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}); resuming from an older checkpoint")
+        raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint with finite weights; remove the "
+                            "folder's checkpoints/ to start over")
 
     # ---- one iteration -----------------------------------------------------------------------
     def _guard(self, metrics) -> bool:
         """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
         bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
             isinstance(v, float) and not math.isfinite(v) for k, v in metrics.items() if k.startswith("losses/"))
-        if not bad:
-            return True
+        if bad:
+            self._rollback("non-finite loss or weights", "lower lr in hyperparameters.json or check the reward "
+                           "function's scale")
+        return not bad
+
+    def _collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
+        """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
+        the value loss exploded (rewards far too large), or a discrete policy's entropy fell to near zero while
+        its evaluation progress fell (a learning rate far too high)."""
+        v = metrics.get("losses/value")
+        if v is not None and v > VALUE_LOSS_LIMIT:
+            top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
+            if top > MAX_SENSIBLE_REWARD:
+                return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g})",
+                        f"the reward scale: {self.folder.reward_path} returned rewards up to {top:.3g}; keep them "
+                        f"within about 0..{MAX_SENSIBLE_REWARD:g} per step")
+            return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
+                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+        ent = metrics.get("losses/entropy")
+        ev = float(np.mean([e.progress for e in evals])) if evals else None
+        prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
+        if self.metadata.action_space_type != "discrete" or ent is None or ev is None:
+            return None
+        falling = ev < prev if prev is not None else ev < 10.0
+        if ent < COLLAPSED_ENTROPY and falling:
+            return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %",
+                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+        return None
+
+    def _rollback(self, what: str, cause: str) -> None:
+        """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
+        after MAX_ROLLBACKS stop with TrainingDiverged."""
         s = self.state
         s.rollbacks += 1
         lr = self.agent.lr
         self.agent.load_state_dict(self.last_good)
         self.agent.lr = lr / 2
-        self._note(f"non-finite loss or weights in iteration {s.iteration + 1}: rolled back to the last good "
-                           f"checkpoint, learning rate {lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS})")
+        text = (f"{what} in iteration {s.iteration + 1}: rolled back to the last good weights, learning rate "
+                f"{lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS}); likely cause: {cause}")
+        self._note(text)
+        self.events.append(text)
         if s.rollbacks >= MAX_ROLLBACKS:
-            raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks after non-finite "
-                                   "losses; lower lr in hyperparameters.json or check the reward function's scale")
-        return False
+            raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks, the last after "
+                                   f"{what}; likely cause: {cause}")
 
     def _evaluate(self):
         n = self.cfg.evaluation.episodes
@@ -272,10 +314,14 @@ class Trainer:
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
             return {}
+        evals = self._evaluate()
+        collapsed = self._collapse(metrics, evals, ro.rewards)
+        if collapsed:
+            self._rollback(*collapsed)
+            return {}
         s.iteration += 1
         s.episodes += len(ro.episodes)
         s.train_steps += int(ro.rewards.size)
-        evals = self._evaluate()
         from racerlab.model import CheckpointInfo
 
         info = CheckpointInfo(f"{s.iteration}_Step-{s.train_steps}.pt", s.iteration, s.train_steps)
@@ -306,8 +352,13 @@ class Trainer:
             "eval/best_lap": min((e.lap_time for e in evals if e.status == "lap_complete"), default=None),
             "eval/metric": value, "best/lap_time": None if math.isnan(s.best_lap_time) else s.best_lap_time,
             "best/checkpoint": s.best_name, "lr": self.agent.lr, "logs/disk_bytes": self.logs.disk_bytes(),
+            "rollbacks": s.rollbacks, "events": self._take_events(),
             **{k: float(v) for k, v in metrics.items()},
         }
+
+    def _take_events(self) -> list[str]:
+        events, self.events = self.events, []
+        return events
 
     # ---- the loop ----------------------------------------------------------------------------
     def _limit_reached(self, t_start: float, start_iteration: int, start_episodes: int) -> str:
