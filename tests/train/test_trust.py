@@ -8,11 +8,12 @@ import os
 import re
 import subprocess
 import sys
+import time
 
 import pytest
 import torch
 
-from racerlab.errors import ConfigError, RacerlabError, TrackError
+from racerlab.errors import ConfigError, RacerlabError, RewardFunctionError, TrackError
 from racerlab.logs import read_metrics_jsonl
 from racerlab.model import ModelFolder, init_model, nonfinite_tensors
 from racerlab.train import TrainingDiverged, train
@@ -178,3 +179,29 @@ def test_a_learning_rate_of_10_is_caught_and_named(model):
     msg = str(err.value)
     assert "learning rate" in msg and "lr" in msg and str(model.hyperparameters_path) in msg
     assert model.resolve_checkpoint("last").iteration == 0  # nothing collapsed reached a checkpoint
+
+
+# ---- watchdogs -----------------------------------------------------------------------------------------------
+def test_an_endless_reward_stops_training_with_file_line_params_and_time(model):
+    _small(model)
+    text = model.config_path.read_text()
+    model.config_path.write_text(re.sub(r"(?m)^reward_budget_s = .*$", "reward_budget_s = 0.5", text))
+    model.reward_path.write_text("def reward_function(params):\n    while True:\n        pass\n")
+    t0 = time.perf_counter()
+    with pytest.raises(RewardFunctionError) as err:
+        train(model.path, iterations=1, **SMALL)
+    assert time.perf_counter() - t0 < 30
+    msg = str(err.value)
+    assert f"{model.reward_path}:3" in msg or f"{model.reward_path}:2" in msg
+    assert "time budget of 0.5 s" in msg and "params:" in msg and "x" in msg
+    assert not model.lock_path.exists()  # the lock is released on the way out
+
+
+def test_a_slow_reward_is_reported_once_with_its_cost(model):
+    _small(model)
+    model.reward_path.write_text("import time\ndef reward_function(params):\n    time.sleep(0.006)\n    return 1.0\n")
+    r = train(model.path, iterations=1, **SMALL)
+    slow = [n for n in r.notes if "slow" in n]
+    assert len(slow) == 1 and str(model.reward_path) in slow[0]
+    ms = float(re.search(r"([0-9.]+) ms a call", slow[0]).group(1))
+    assert 6.0 <= ms < 30.0

@@ -27,6 +27,7 @@ from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episode
 from racerlab.train.progress import Progress
 from racerlab.train.records import TrainingLogs
 from racerlab.train.rollout import Collector
+from racerlab.train.watchdog import RewardWatchdog
 
 MAX_ROLLBACKS = 3
 VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
@@ -105,7 +106,10 @@ class Trainer:
         self.hp = self.folder.hyperparameters()
         self.cfg = apply_overrides(self.folder.config(), **overrides)
         self._track_flag = bool(overrides.get("tracks"))
-        self.reward = RewardCaller(self.folder.reward_function())
+        self.notes: list[str] = []
+        self.progress = Progress(enabled=progress)
+        self.watchdog = RewardWatchdog(self.folder.reward_function(), self.cfg.run.reward_budget_s, self._note)
+        self.reward = RewardCaller(self.watchdog)
         self._set_threads()
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
@@ -115,9 +119,7 @@ class Trainer:
         self.agent = make_agent(self.worlds[0].observation.space, self.metadata, self.hp, device=self.cfg.run.device,
                                 seed=self.cfg.run.seed)
         self.logs = TrainingLogs(self.folder.path, self.cfg)
-        self.progress = Progress(enabled=progress)
         self.state = _State()
-        self.notes: list[str] = []
         self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
         self.last_eval: float | None = None
         self.last_good = None
@@ -376,7 +378,7 @@ class Trainer:
         return ""
 
     def run(self) -> TrainResult:
-        with self.folder.lock():
+        with self.folder.lock(), self.watchdog:
             return self._run()
 
     def _run(self) -> TrainResult:
