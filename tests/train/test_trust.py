@@ -113,7 +113,7 @@ def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
 # ---- rollback, by injection ----------------------------------------------------------------------------------
 def _small(folder: ModelFolder, **hp) -> None:
     """Short iterations: 2 cars, 2 episodes of at most 150 steps."""
-    _set_hp(folder, num_episodes_between_training=2, **hp)
+    _set_hp(folder, **{"num_episodes_between_training": 2, **hp})
     text = folder.config_path.read_text()
     folder.config_path.write_text(re.sub(r"(?m)^max_episode_steps = .*$", "max_episode_steps = 150", text))
 
@@ -205,3 +205,29 @@ def test_a_slow_reward_is_reported_once_with_its_cost(model):
     assert len(slow) == 1 and str(model.reward_path) in slow[0]
     ms = float(re.search(r"([0-9.]+) ms a call", slow[0]).group(1))
     assert 6.0 <= ms < 30.0
+
+
+def test_collection_stops_at_the_deadline_with_a_heartbeat(model):
+    from racerlab.train.loop import Trainer
+
+    _small(model)
+    t = Trainer(model.path, progress=False, num_cars=2)
+    ticks = []
+    t0 = time.perf_counter()
+    ro = t.collector.collect(t.agent, 10_000, 10**9, deadline=t0 + 3.0, tick=lambda *a: ticks.append(a),
+                             tick_s=0.5)
+    took = time.perf_counter() - t0
+    assert ro.cut and 3.0 <= took < 3.5  # stops at the deadline, not when 10 000 episodes have ended
+    assert len(ticks) >= 4 and ticks[-1][0] <= len(ro.episodes) and ticks[-1][1] == 10_000
+    # the cut keeps only whole episodes: every kept one has an end status, the running ones are dropped
+    assert ro.episodes and all(ep.status for ep in ro.episodes)
+    assert len(set(ro.trace["episode"].tolist())) == len(ro.episodes)
+    assert len(ro.rewards) == sum(ep.steps - 1 for ep in ro.episodes)  # each episode's prepare row is not learned
+
+
+def test_minutes_stops_the_run_at_the_limit(model):
+    _small(model, num_episodes_between_training=500)  # one iteration would take far longer than the limit
+    t0 = time.perf_counter()
+    r = train(model.path, minutes=0.2, **SMALL)
+    assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 500
+    assert time.perf_counter() - t0 >= 12

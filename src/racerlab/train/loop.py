@@ -120,6 +120,7 @@ class Trainer:
                                 seed=self.cfg.run.seed)
         self.logs = TrainingLogs(self.folder.path, self.cfg)
         self.state = _State()
+        self.deadline: float | None = None  # perf_counter time of --minutes' end
         self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
         self.last_eval: float | None = None
         self.last_good = None
@@ -309,14 +310,19 @@ class Trainer:
         s = self.state
         target = max(self.hp.num_episodes_between_training, self.cfg.run.num_cars)
         ro = self.collector.collect(self.agent, target, self.cfg.run.max_steps_per_iteration,
-                                    first_episode_number=s.episodes)
+                                    first_episode_number=s.episodes, deadline=self.deadline, tick=self.progress.tick)
+        if ro.cut and not ro.episodes:
+            s.env_steps += ro.env_steps
+            self._note("time limit reached while collecting: no episode had ended, so this partial iteration is "
+                       "dropped; the last complete iteration is kept")
+            return {}
         t_learn = time.perf_counter()
         metrics = self.agent.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
             return {}
-        evals = self._evaluate()
+        evals = [] if ro.cut else self._evaluate()  # at the time limit: learn and save, skip the evaluation
         collapsed = self._collapse(metrics, evals, ro.rewards)
         if collapsed:
             self._rollback(*collapsed)
@@ -383,6 +389,7 @@ class Trainer:
 
     def _run(self) -> TrainResult:
         t_start = time.perf_counter()
+        self.deadline = t_start + self.cfg.stop.minutes * 60 if self.cfg.stop.minutes else None
         resumed = self._resume_or_start()
         s = self.state
         start_iteration, start_episodes = s.iteration, s.episodes
