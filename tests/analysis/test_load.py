@@ -233,3 +233,18 @@ def test_load_metrics_training_workers_and_evaluations(tmp_path):
     assert evals["stream"].tolist() == ["20260101000000"] * 3 and evals["trial"].tolist() == [1, 2, 3]
     with pytest.raises(LogFileError, match="no EvalMetrics.json"):
         load_metrics(tmp_path / "metrics", "evaluation")
+
+
+def test_rows_with_absurd_coordinates_are_dropped_with_one_warning(tmp_path, cache):
+    rng = np.random.default_rng(1)
+    cols = episode_columns(np.arange(3), np.array([6, 4, 5]), rng)
+    cols["X"] = np.asarray(cols["X"], dtype=np.float64).copy()
+    cols["X"][2] = 1e308  # a forged or damaged row
+    with SimtraceWriter(training_simtrace_path(tmp_path, 0)) as w, np.errstate(over="ignore"):
+        w.write(cols)
+    with pytest.warns(UserWarning) as caught:
+        df = load(tmp_path, cache_dir=cache)
+    assert len(caught) == 1
+    msg = str(caught[0].message)
+    assert str(tmp_path) in msg and "dropped 1 simtrace row" in msg and "x=1e+308" in msg
+    assert len(df) == 14 and df.attrs["dropped_rows"] == 1 and df["x"].abs().max() < 1e4

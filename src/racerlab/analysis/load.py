@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,31 @@ def load(path: str | os.PathLike, kind: str = "auto", *, cache: bool = True,
     finally:
         if hasattr(store, "close"):
             store.close()
-    return _frame(tables, kind, info)
+    return drop_absurd_rows(_frame(tables, kind, info), path)
+
+
+MAX_COORDINATE_M = 1e4  # the largest AWS track spans about 60 m; a position past 10 km is a corrupt row
+
+
+def drop_absurd_rows(df: pd.DataFrame, path) -> pd.DataFrame:
+    """Drop rows whose x or y is not finite or lies past MAX_COORDINATE_M (a damaged or forged simtrace): they
+    would stretch every plot. One warning says how many and where; `df.attrs["dropped_rows"]` counts them."""
+    if df.empty or "x" not in df.columns or "y" not in df.columns:
+        return df
+    xy = df[["x", "y"]].to_numpy(dtype=np.float64)
+    bad = ~(np.abs(xy) <= MAX_COORDINATE_M).all(axis=1)
+    n = int(bad.sum())
+    df.attrs["dropped_rows"] = n
+    if not n:
+        return df
+    first = df.loc[bad].iloc[0]
+    warnings.warn(f"{path}: dropped {n} simtrace row(s) with x or y not finite or beyond {MAX_COORDINATE_M:g} m "
+                  f"(first: episode {first.get('episode')}, step {first.get('steps')}, x={first['x']:g}, "
+                  f"y={first['y']:g}); the file is damaged there", stacklevel=3)
+    attrs = dict(df.attrs)
+    out = df.loc[~bad].reset_index(drop=True)
+    out.attrs.update(attrs)
+    return out
 
 
 def _choose(sources: list[Source], kind: str, path) -> tuple[str, list[Source]]:

@@ -39,7 +39,8 @@ def register(sub) -> None:
                                    "leaderboard ranked as DeepRacer ranks (best average of consecutive laps).")
     p.add_argument("models", type=Path, nargs="+", help="model folders")
     _rule_flags(p)
-    p.add_argument("--out", type=Path, help="leaderboard JSON file (default race-<stamp>.json here)")
+    p.add_argument("--out", type=Path,
+                   help="leaderboard JSON file (default race-<stamp>.json in the first model's folder)")
     p.set_defaults(func=run_race)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 from pathlib import Path
 
 from racerlab.errors import RacerlabError
@@ -68,7 +69,7 @@ def run_init(args) -> int:
           "training.toml")
     if args.sensor == "features":
         print(FEATURES_NOTE)
-    print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
+    print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes 5`")
     return 0
 
 
@@ -92,8 +93,9 @@ def run_train(args) -> int:
         from racerlab.train import train
 
         result = train(args.model, **overrides)
+    where = shlex.quote(str(result.model_dir))
     print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/); next: "
-          f"`racerlab evaluate {result.model_dir}` or `racerlab report {result.model_dir}`")
+          f"`racerlab evaluate {where}` or `racerlab report {where}`")
     return 0
 
 
@@ -103,5 +105,5 @@ def run_clone(args) -> int:
     folder = clone_model(args.src, args.dst, args.checkpoint, args.reward, args.model_metadata, args.hyperparameters,
                          args.track)
     print(f"cloned {args.src} ({args.checkpoint} checkpoint) into {folder.path}; train it with "
-          f"`racerlab train {folder.path}`")
+          f"`racerlab train {shlex.quote(str(folder.path))}`")
     return 0

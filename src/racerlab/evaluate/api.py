@@ -24,7 +24,7 @@ from racerlab.errors import RacerlabError
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation
-from racerlab.model import ModelFolder, parse_model_metadata, resolve_track
+from racerlab.model import ModelFolder, nonfinite_tensors, parse_model_metadata, resolve_track
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -87,7 +87,6 @@ class LoadedModel:
     checkpoint: str
     state: dict
     observation: str
-    reward_path: Path
 
 
 def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
@@ -101,9 +100,14 @@ def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
     where = folder.checkpoint_path(info)
     if not isinstance(ck, dict) or "agent" not in ck:
         raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+    bad = nonfinite_tensors(ck["agent"])
+    if bad:
+        older = [c.iteration for c in folder.checkpoints() if c.iteration != info.iteration]
+        hint = f"pick an older one with --checkpoint {older[-1]}" if older else "train it again"
+        raise RacerlabError(f"{where}: non-finite weights ({bad[0]}); the training diverged there: {hint}")
     if ck.get("metadata") is not None:
         _check_same_model(ck["metadata"], meta, where, folder.metadata_path)
-    return LoadedModel(folder, meta, info.name, ck, cfg.run.observation, folder.reward_path)
+    return LoadedModel(folder, meta, info.name, ck, cfg.run.observation)
 
 
 def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
@@ -140,12 +144,15 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
     return agent.policy
 
 
-def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0):
+def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None):
+    """The race world. The model folder's reward_function.py is never imported (racing someone's model must
+    not run their code): the reward column is 0, as AWS's evaluation logs it, unless `reward` (a callable or
+    a path the user chose) is given."""
     from racerlab.sim import StartRules, World
 
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
-    return World(track, 1, model.metadata, model.reward_path, model.observation, start=start,
+    return World(track, 1, model.metadata, reward, model.observation, start=start,
                  max_episode_steps=rules.max_episode_steps, seed=seed)
 
 
@@ -156,19 +163,20 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
              collision_penalty: float = 5.0, max_resets: int = 100, checkpoint: str | int = "best",
              reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
              ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
-             progress: bool = False, on_lap=None) -> EvaluationResult:
+             progress: bool = False, on_lap=None, reward=None) -> EvaluationResult:
     """Evaluate the model in `model_dir` under race rules (DRfC defaults) and write its evaluation folder.
 
     `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
     or an iteration number. `rules` replaces the individual rule arguments. With `video` an MP4 of
     the run is written too (`progress` shows rendering progress on stderr). `write=False` keeps
-    everything in memory. `on_lap(lap)` is called as each lap ends.
+    everything in memory. `on_lap(lap)` is called as each lap ends. The folder's reward_function.py is not
+    run: the reward column is 0 (as AWS logs evaluations) unless `reward` (a callable or a file) is given.
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
     track_obj = resolve_track(model.folder, track)
-    world = make_world(model, track_obj, rules)
+    world = make_world(model, track_obj, rules, reward=reward)
     policy = make_policy(model, world, device)
     image_of = None
     if video:

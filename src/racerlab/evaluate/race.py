@@ -64,8 +64,9 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
          ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
          on_result=None, device: str = "cpu") -> Leaderboard:
     """Evaluate every model on `track` (default: the first model's training track) under `rules` and
-    rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the current
-    folder; `out=False` writes nothing). `on_result(result)` is called after each model."""
+    rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the first model's
+    folder, never the current directory; `out=False` writes nothing). No model's reward_function.py is run.
+    `on_result(result)` is called after each model."""
     model_dirs = [Path(m) for m in model_dirs]
     if not model_dirs:
         raise RacerlabError("race needs at least one model folder")
@@ -83,7 +84,7 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
     board = Leaderboard(results[0].track, rules, results[0].result.ranking_laps,
                         sorted(results, key=lambda r: rank_key(r.result)))
     if out is not False:
-        path = Path(out) if out else Path(f"race-{datetime.now().strftime(STAMP_FORMAT)}.json")
+        path = Path(out) if out else model_dirs[0] / f"race-{datetime.now().strftime(STAMP_FORMAT)}.json"
         board.path = logs.atomic_write_json(path, logs.finite_json(board.to_json()), indent=2)
     return board
 

@@ -14,7 +14,7 @@
 
 from racerlab.model.clone import check_compatible, clone_model
 from racerlab.model.config import TrainingConfig, load_training_config, parse_training_config
-from racerlab.model.folder import CheckpointInfo, ModelFolder, resolve_track
+from racerlab.model.folder import CheckpointInfo, ModelFolder, nonfinite_tensors, resolve_track
 from racerlab.model.hyperparameters import Hyperparameters, load_hyperparameters, parse_hyperparameters
 from racerlab.model.init import EXAMPLE_REWARD, init_model, make_metadata
 from racerlab.model.metadata import (
@@ -34,6 +34,6 @@ __all__ = [
     "DEFAULT_CONTINUOUS", "EXAMPLE_REWARD", "CheckpointInfo", "ContinuousActions", "DiscreteActions",
     "Hyperparameters", "ModelFolder", "ModelMetadata", "TrainingConfig", "as_model_metadata", "check_compatible",
     "clone_model", "default_discrete_actions", "init_model", "load_hyperparameters", "load_model_metadata",
-    "load_reward_function", "load_training_config", "make_metadata", "parse_hyperparameters",
+    "load_reward_function", "load_training_config", "make_metadata", "nonfinite_tensors", "parse_hyperparameters",
     "parse_model_metadata", "parse_training_config", "read_json_file", "resolve_track",
 ]

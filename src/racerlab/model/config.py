@@ -37,6 +37,7 @@ class RunSettings:
     reward_order: str = "aws"  # aws | after_action (see racerlab.sim)
     max_steps_per_iteration: int = 10_000  # AWS MAX_MEMORY_STEPS: whole episodes beyond it are dropped
     max_episode_steps: int = 10_000
+    reward_budget_s: float = 3.0  # a reward call longer than this stops training (0 = no limit)
 
 
 @dataclass(frozen=True)
@@ -159,8 +160,10 @@ def _validate(c: TrainingConfig) -> None:
     _check(c.run.reward_order in REWARD_ORDERS, s, f"run.reward_order must be one of {REWARD_ORDERS}")
     _check(c.run.max_steps_per_iteration >= 100, s, "run.max_steps_per_iteration must be >= 100")
     _check(c.run.max_episode_steps >= 10, s, "run.max_episode_steps must be >= 10")
-    _check(c.stop.minutes >= 0 and c.stop.episodes >= 0 and c.stop.iterations >= 0, s,
-           "stop values must be >= 0")
+    _check(c.run.reward_budget_s >= 0, s, "run.reward_budget_s must be >= 0 (0 = no limit)")
+    for key in ("minutes", "episodes", "iterations"):
+        value = getattr(c.stop, key)
+        _check(value >= 0, s, f"stop.{key} must be >= 0 (0 = no limit), got {value:g}")
     _check(c.evaluation.episodes >= 0, s, "evaluation.episodes must be >= 0")
     _check(c.evaluation.best_model_metric in BEST_MODEL_METRICS, s,
            f"evaluation.best_model_metric must be one of {BEST_MODEL_METRICS}")

@@ -9,7 +9,10 @@ then rename), so a kill at any moment leaves the previous complete state.
 from __future__ import annotations
 
 import json
+import os
+import pickle
 import re
+import shlex
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,6 +72,10 @@ class ModelFolder:
         return self.checkpoints_dir / "deepracer_checkpoints.json"
 
     @property
+    def lock_path(self) -> Path:
+        return self.path / "training.lock"
+
+    @property
     def lineage_path(self) -> Path:
         return self.path / "lineage.json"
 
@@ -83,7 +90,8 @@ class ModelFolder:
     # ---- loading -----------------------------------------------------------------------------
     def require(self) -> None:
         if not self.path.is_dir():
-            raise RacerlabError(f"{self.path}: no such model folder; create one with `racerlab init {self.path}`")
+            raise RacerlabError(f"{self.path}: no such model folder; create one with "
+                                f"`racerlab init {shlex.quote(str(self.path))}`")
         for p in (self.reward_path, self.metadata_path):
             if not p.is_file():
                 raise RacerlabError(f"{p}: missing; a model folder needs reward_function.py and "
@@ -110,6 +118,11 @@ class ModelFolder:
             return ()
         return self.config().track.names
 
+    # ---- the training lock ---------------------------------------------------------------------
+    def lock(self) -> TrainingLock:
+        """The folder's training lock (`with folder.lock(): ...`): one trainer per folder at a time."""
+        return TrainingLock(self.lock_path)
+
     # ---- checkpoints -------------------------------------------------------------------------
     def checkpoints(self) -> list[CheckpointInfo]:
         if not self.checkpoints_dir.is_dir():
@@ -129,7 +142,8 @@ class ModelFolder:
         """`best`, `last` or an iteration number; a clear error when there is none."""
         cps = self.checkpoints()
         if not cps:
-            raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with `racerlab train {self.path}`")
+            raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with "
+                                f"`racerlab train {shlex.quote(str(self.path))}`")
         if str(which) == "last":
             return cps[-1]  # files are written atomically: the newest one is complete even if the index lags
         if str(which) == "best":
@@ -151,9 +165,16 @@ class ModelFolder:
 
         path = self.checkpoint_path(info)
         try:
-            return torch.load(path, map_location="cpu", weights_only=False)
+            # weights_only: tensors, numbers, strings, lists and dicts — all racerlab writes — and nothing that
+            # can run code while it loads (a shared model's checkpoint is someone else's file)
+            return torch.load(path, map_location="cpu", weights_only=True)
+        except pickle.UnpicklingError as exc:
+            what = _first_line(exc)
+            raise RacerlabError(f"{path}: refused: the checkpoint holds more than racerlab writes (tensors, numbers, "
+                                f"strings, lists, dicts): {what}; only load checkpoints racerlab saved") from None
         except Exception as exc:  # noqa: BLE001 - a damaged file is reported, not a traceback
-            raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {exc})") from None
+            raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {_first_line(exc)})"
+                                ) from None
 
     def save_checkpoint(self, state: dict, iteration: int, steps: int) -> CheckpointInfo:
         import io
@@ -192,6 +213,80 @@ class ModelFolder:
         for c in self.checkpoints():
             if c.iteration > iteration:
                 self.checkpoint_path(c).unlink(missing_ok=True)
+
+
+def nonfinite_tensors(state, prefix: str = "") -> list[str]:
+    """Names (dotted paths) of the floating-point tensors in a checkpoint that hold NaN or infinity."""
+    import torch
+
+    if isinstance(state, torch.Tensor):
+        bad = state.is_floating_point() and not bool(torch.isfinite(state).all())
+        return [prefix] if bad else []
+    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, list | tuple) else ()
+    return [name for k, v in items for name in nonfinite_tensors(v, f"{prefix}.{k}" if prefix else str(k))]
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, under another user
+        return True
+    return True
+
+
+class TrainingLock:
+    """`training.lock` holds the PID of the trainer using the folder. A second trainer is refused with that PID;
+    a lock whose process is gone (killed, machine restarted) is taken over without anyone removing it."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.held = False
+
+    def holder(self) -> int | None:
+        """The PID written in the lock file, or None (no lock, or an unreadable one)."""
+        try:
+            return int(self.path.read_text().split()[0])
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def acquire(self) -> None:
+        for _ in range(3):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                pid = self.holder()
+                if pid is not None and _pid_alive(pid):
+                    raise RacerlabError(f"{self.path}: the model is being trained by process {pid}; stop it first "
+                                        f"(kill {pid}) or train a clone (`racerlab clone`)") from None
+                self.path.unlink(missing_ok=True)  # stale: its process is gone
+                continue
+            with os.fdopen(fd, "w") as f:
+                f.write(f"{os.getpid()}\n")
+            self.held = True
+            return
+        raise RacerlabError(f"{self.path}: could not take the training lock; another trainer keeps taking it")
+
+    def release(self) -> None:
+        if self.held and self.holder() == os.getpid():
+            self.path.unlink(missing_ok=True)
+        self.held = False
+
+    def __enter__(self) -> TrainingLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def _first_line(exc: Exception) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    found = next((ln for ln in lines if "GLOBAL" in ln or "Unsupported" in ln), lines[0] if lines else "")
+    return found or type(exc).__name__
 
 
 def resolve_track(folder, track=None, *, default: bool = True):

@@ -139,6 +139,15 @@ def parse_number(src: str, key: str, value) -> float:
     return x
 
 
+def _steering(src: str, key: str, value) -> float:
+    """A steering angle in degrees; AWS refuses more than ±30° (the car's steering limit)."""
+    v = parse_number(src, key, value)
+    if abs(v) > MAX_STEERING_DEG:
+        raise ConfigError(f"{src}: {key} is {v:g}°; the car steers at most ±{MAX_STEERING_DEG:g}° (AWS refuses "
+                          f"more): use a value between -{MAX_STEERING_DEG:g} and {MAX_STEERING_DEG:g}")
+    return v
+
+
 def _parse_discrete(src: str, space) -> DiscreteActions:
     if not isinstance(space, list) or not space:
         raise ConfigError(f"{src}: action_space must be a non-empty list of "
@@ -151,7 +160,7 @@ def _parse_discrete(src: str, space) -> DiscreteActions:
         if extra:
             raise ConfigError(f"{src}: action_space[{i}] has unknown keys {sorted(extra)}; "
                               "allowed: steering_angle, speed, index")
-        steers.append(parse_number(src, f"action_space[{i}].steering_angle", a["steering_angle"]))
+        steers.append(_steering(src, f"action_space[{i}].steering_angle", a["steering_angle"]))
         v = parse_number(src, f"action_space[{i}].speed", a["speed"])
         if v <= 0:
             raise ConfigError(f"{src}: action_space[{i}].speed must be > 0 m/s, got {v}")
@@ -168,8 +177,9 @@ def _parse_continuous(src: str, space) -> ContinuousActions:
         rng = space[dim]
         if not isinstance(rng, dict) or set(rng) != {"low", "high"}:
             raise ConfigError(f"{src}: action_space.{dim} must be {{\"low\": .., \"high\": ..}}, got {rng!r}")
-        lo = parse_number(src, f"action_space.{dim}.low", rng["low"])
-        hi = parse_number(src, f"action_space.{dim}.high", rng["high"])
+        number = _steering if dim == "steering_angle" else parse_number
+        lo = number(src, f"action_space.{dim}.low", rng["low"])
+        hi = number(src, f"action_space.{dim}.high", rng["high"])
         if not lo < hi:
             raise ConfigError(f"{src}: action_space.{dim}: low ({lo}) must be smaller than high ({hi})")
         vals[dim] = (lo, hi)

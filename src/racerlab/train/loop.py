@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from racerlab.errors import RacerlabError
-from racerlab.model import ModelFolder, TrainingConfig, check_compatible
+from racerlab.errors import ConfigError, RacerlabError, TrackError
+from racerlab.model import ModelFolder, TrainingConfig, check_compatible, nonfinite_tensors
 from racerlab.sim import StartRules, World
 from racerlab.sim.reward import RewardCaller
 from racerlab.track import load as load_track
@@ -26,8 +26,12 @@ from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episode
 from racerlab.train.progress import Progress
 from racerlab.train.records import TrainingLogs
 from racerlab.train.rollout import Collector
+from racerlab.train.watchdog import RewardWatchdog
 
 MAX_ROLLBACKS = 3
+VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
+MAX_SENSIBLE_REWARD = 1e3
+COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
 STATE_FORMAT = "racerlab.checkpoint/1"
 
 
@@ -48,6 +52,7 @@ class TrainResult:
     first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
     stopped: str = ""
     history: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
 
 @dataclass
@@ -64,8 +69,20 @@ class _State:
     first_lap: dict | None = None
 
 
+def _check_flags(minutes, episodes, iterations, num_cars) -> None:
+    """Command-line values the training cannot use: one line naming the flag."""
+    for flag, value, least in (("--minutes", minutes, 0), ("--episodes", episodes, 0), ("--iterations", iterations, 0),
+                               ("--cars", num_cars, 1)):
+        if value is None:
+            continue
+        if not (isinstance(value, int | float) and math.isfinite(value)) or value < least:
+            what = "a number >= 0 (0 = no limit)" if least == 0 else "at least 1"
+            raise ConfigError(f"{flag} must be {what}, got {value!r}")
+
+
 def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterations=None, num_cars=None,
                     device=None, seed=None, tracks=None) -> TrainingConfig:
+    _check_flags(minutes, episodes, iterations, num_cars)
     stop = cfg.stop
     stop = replace(stop, minutes=stop.minutes if minutes is None else float(minutes),
                    episodes=stop.episodes if episodes is None else int(episodes),
@@ -87,7 +104,11 @@ class Trainer:
         self.metadata = self.folder.metadata()
         self.hp = self.folder.hyperparameters()
         self.cfg = apply_overrides(self.folder.config(), **overrides)
-        self.reward = RewardCaller(self.folder.reward_function())
+        self._track_flag = bool(overrides.get("tracks"))
+        self.notes: list[str] = []
+        self.progress = Progress(enabled=progress)
+        self.watchdog = RewardWatchdog(self.folder.reward_function(), self.cfg.run.reward_budget_s, self._note)
+        self.reward = RewardCaller(self.watchdog)
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
         self.eval_world = self._make_world(self.cfg.track.names[0], max(self.cfg.evaluation.episodes, 1), seed=10_007)
@@ -97,8 +118,10 @@ class Trainer:
                                 seed=self.cfg.run.seed)
         self._set_threads()  # after the agent is built: the thread count depends on its networks
         self.logs = TrainingLogs(self.folder.path, self.cfg)
-        self.progress = Progress(enabled=progress)
         self.state = _State()
+        self.deadline: float | None = None  # perf_counter time of --minutes' end
+        self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
+        self.last_eval: float | None = None
         self.last_good = None
 
     # ---- set-up ------------------------------------------------------------------------------
@@ -109,13 +132,20 @@ class Trainer:
 
         torch.set_num_threads(learner_threads(self.agent.networks(), self.cfg.run.threads))
 
+    def _load_track(self, name):
+        try:
+            return load_track(name)
+        except TrackError as exc:
+            where = "--track" if self._track_flag else f"{self.cfg.source}: track.names"
+            raise TrackError(f"{where}: {exc}") from None
+
     def _make_world(self, track_name, cars, seed):
         r = self.cfg.track
         start = StartRules(change_start=r.change_start, advance=r.round_robin_advance, offset=r.start_offset,
                            reverse=r.reverse, alternate_direction=r.alternate_direction)
-        return World(load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation, start=start,
-                     max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
-                     seed=seed)
+        return World(self._load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation,
+                     start=start, max_episode_steps=self.cfg.run.max_episode_steps,
+                     reward_order=self.cfg.run.reward_order, seed=seed)
 
     def _make_worlds(self):
         names = self.cfg.track.names
@@ -128,6 +158,7 @@ class Trainer:
     def _checkpoint_state(self) -> dict:
         s = self.state
         return {"format": STATE_FORMAT, "agent": self.agent.state_dict(), "metadata": self.metadata.to_json(),
+                "hyperparameters": self.hp.to_json(), "observation": self.worlds[0].observation.name,
                 "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps,
                 "train_steps": s.train_steps, "best_name": s.best_name, "best_metric": s.best_metric,
                 "best_lap_time": s.best_lap_time, "rollbacks": s.rollbacks,
@@ -146,8 +177,9 @@ class Trainer:
 
         check_compatible(parse_model_metadata(ck["metadata"], f"{info.name} (checkpoint)"), self.metadata,
                          str(self.folder.metadata_path))
+        self._check_observation(ck, info)
         self.agent.load_state_dict(ck["agent"])
-        self.agent.lr = self.hp.lr if ck.get("cloned") else self.agent.lr
+        self._apply_edits(ck, info)
         s = self.state
         s.iteration, s.episodes, s.env_steps = ck["iteration"], ck["episodes"], ck["env_steps"]
         s.train_steps = ck.get("train_steps", info.steps)
@@ -161,34 +193,96 @@ class Trainer:
         self.last_good = self.agent.state_dict()
         return not ck.get("cloned", False)
 
+    def _check_observation(self, ck, info):
+        trained, now = ck.get("observation"), self.worlds[0].observation.name
+        if trained and trained != now:
+            raise ConfigError(f"{self.cfg.source}: run.observation is '{now}' but {info.name} was trained with "
+                              f"'{trained}'; the network's inputs cannot change: set it back or clone into a new model")
+
+    def _apply_edits(self, ck, info):
+        """Hyperparameters edited since the checkpoint take effect, and the run says which. The agent is built
+        from the current hyperparameters.json; only lr is also in the saved agent state, so the edited value is
+        put back. A checkpoint that records none (older racerlab, or a clone) takes the file's lr."""
+        saved = ck.get("hyperparameters")
+        now = self.hp.to_json()
+        if saved is None:
+            saved = {**now, "lr": self.agent.lr} if not ck.get("cloned") and ck.get("rollbacks", 0) == 0 else now
+        changed = [k for k in now if k in saved and saved[k] != now[k]]
+        if "lr" in changed or ck.get("cloned"):
+            self.agent.lr = self.hp.lr
+        if changed:
+            edits = ", ".join(f"{k} {saved[k]!r} → {now[k]!r}" for k in changed)
+            self._note(f"{self.hp.source}: changed since checkpoint {info.name}, now in effect: {edits}")
+
+    def _note(self, text: str) -> None:
+        self.notes.append(text)
+        self.progress.note(text)
+
     def _newest_readable(self, cps):
         """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
         for info in reversed(cps):
             try:
-                return info, self.folder.load_checkpoint(info)
+                ck = self.folder.load_checkpoint(info)
             except RacerlabError as exc:
-                self.progress.note(f"skipping {info.name}: {exc}")
-        raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint; remove the folder's "
-                            "checkpoints/ to start over")
+                self._note(f"skipping {info.name}: {exc}")
+                continue
+            bad = nonfinite_tensors(ck.get("agent", {}))
+            if not bad:
+                return info, ck
+            self._note(f"skipping {self.folder.checkpoint_path(info)}: non-finite weights ({bad[0]}"
+                       f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}); resuming from an older checkpoint")
+        raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint with finite weights; remove the "
+                            "folder's checkpoints/ to start over")
 
     # ---- one iteration -----------------------------------------------------------------------
     def _guard(self, metrics) -> bool:
         """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
         bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
             isinstance(v, float) and not math.isfinite(v) for k, v in metrics.items() if k.startswith("losses/"))
-        if not bad:
-            return True
+        if bad:
+            self._rollback("non-finite loss or weights", "lower lr in hyperparameters.json or check the reward "
+                           "function's scale")
+        return not bad
+
+    def _collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
+        """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
+        the value loss exploded (rewards far too large), or a discrete policy's entropy fell to near zero while
+        its evaluation progress fell (a learning rate far too high)."""
+        v = metrics.get("losses/value")
+        if v is not None and v > VALUE_LOSS_LIMIT:
+            top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
+            if top > MAX_SENSIBLE_REWARD:
+                return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g})",
+                        f"the reward scale: {self.folder.reward_path} returned rewards up to {top:.3g}; keep them "
+                        f"within about 0..{MAX_SENSIBLE_REWARD:g} per step")
+            return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
+                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+        ent = metrics.get("losses/entropy")
+        ev = float(np.mean([e.progress for e in evals])) if evals else None
+        prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
+        if self.metadata.action_space_type != "discrete" or ent is None or ev is None:
+            return None
+        falling = ev < prev if prev is not None else ev < 10.0
+        if ent < COLLAPSED_ENTROPY and falling:
+            return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %",
+                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+        return None
+
+    def _rollback(self, what: str, cause: str) -> None:
+        """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
+        after MAX_ROLLBACKS stop with TrainingDiverged."""
         s = self.state
         s.rollbacks += 1
         lr = self.agent.lr
         self.agent.load_state_dict(self.last_good)
         self.agent.lr = lr / 2
-        self.progress.note(f"non-finite loss or weights in iteration {s.iteration + 1}: rolled back to the last good "
-                           f"checkpoint, learning rate {lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS})")
+        text = (f"{what} in iteration {s.iteration + 1}: rolled back to the last good weights, learning rate "
+                f"{lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS}); likely cause: {cause}")
+        self._note(text)
+        self.events.append(text)
         if s.rollbacks >= MAX_ROLLBACKS:
-            raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks after non-finite "
-                                   "losses; lower lr in hyperparameters.json or check the reward function's scale")
-        return False
+            raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks, the last after "
+                                   f"{what}; likely cause: {cause}")
 
     def _evaluate(self):
         n = self.cfg.evaluation.episodes
@@ -216,17 +310,26 @@ class Trainer:
         s = self.state
         target = max(self.hp.num_episodes_between_training, self.cfg.run.num_cars)
         ro = self.collector.collect(self.agent, target, self.cfg.run.max_steps_per_iteration,
-                                    first_episode_number=s.episodes)
+                                    first_episode_number=s.episodes, deadline=self.deadline, tick=self.progress.tick)
+        if ro.cut and not ro.episodes:
+            s.env_steps += ro.env_steps
+            self._note("time limit reached while collecting: no episode had ended, so this partial iteration is "
+                       "dropped; the last complete iteration is kept")
+            return {}
         t_learn = time.perf_counter()
         metrics = self.agent.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
             return {}
+        evals = [] if ro.cut else self._evaluate()  # at the time limit: learn and save, skip the evaluation
+        collapsed = self._collapse(metrics, evals, ro.rewards)
+        if collapsed:
+            self._rollback(*collapsed)
+            return {}
         s.iteration += 1
         s.episodes += len(ro.episodes)
         s.train_steps += int(ro.rewards.size)
-        evals = self._evaluate()
         from racerlab.model import CheckpointInfo
 
         info = CheckpointInfo(f"{s.iteration}_Step-{s.train_steps}.pt", s.iteration, s.train_steps)
@@ -257,8 +360,13 @@ class Trainer:
             "eval/best_lap": min((e.lap_time for e in evals if e.status == "lap_complete"), default=None),
             "eval/metric": value, "best/lap_time": None if math.isnan(s.best_lap_time) else s.best_lap_time,
             "best/checkpoint": s.best_name, "lr": self.agent.lr, "logs/disk_bytes": self.logs.disk_bytes(),
+            "rollbacks": s.rollbacks, "events": self._take_events(),
             **{k: float(v) for k, v in metrics.items()},
         }
+
+    def _take_events(self) -> list[str]:
+        events, self.events = self.events, []
+        return events
 
     # ---- the loop ----------------------------------------------------------------------------
     def _limit_reached(self, t_start: float, start_iteration: int, start_episodes: int) -> str:
@@ -276,7 +384,12 @@ class Trainer:
         return ""
 
     def run(self) -> TrainResult:
+        with self.folder.lock(), self.watchdog:
+            return self._run()
+
+    def _run(self) -> TrainResult:
         t_start = time.perf_counter()
+        self.deadline = t_start + self.cfg.stop.minutes * 60 if self.cfg.stop.minutes else None
         resumed = self._resume_or_start()
         s = self.state
         start_iteration, start_episodes = s.iteration, s.episodes
@@ -297,6 +410,7 @@ class Trainer:
         result.wall_seconds = time.perf_counter() - t_start
         result.best_checkpoint, result.best_metric = s.best_name, s.best_metric
         result.best_lap_time, result.first_lap = s.best_lap_time, s.first_lap
+        result.notes = self.notes
         self.progress.finish(result)
         return result
 

@@ -52,6 +52,7 @@ class Rollout:
     trace: dict  # simtrace columns of every step of the kept episodes (prepare steps included)
     env_steps: int  # all car-steps simulated, kept or not
     seconds: float
+    cut: bool = False  # collection stopped at the time limit; running episodes were dropped
     final_obs: object = None  # set after construction: the observation after each truncated episode
 
 
@@ -64,17 +65,31 @@ class Collector:
         self.num_cars = int(self.offsets[-1])
         self.next_uid = 0
 
-    def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0) -> Rollout:
+    def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0, *,
+                deadline: float | None = None, tick=None, tick_s: float = 10.0) -> Rollout:
         """Whole episodes driven with `agent.explore(obs) -> (actions, record)` until `target_episodes` have
-        ended or their kept steps reach `max_steps`."""
-        t0 = time.perf_counter()
+        ended or their kept steps reach `max_steps`. At `deadline` (a `time.perf_counter()` value) collection
+        stops: the episodes still running are dropped, as AWS drops those past its step cap, and the rollout
+        holds the complete ones (`cut` is set). `tick(episodes_done, target, env_steps, seconds)` is called at
+        least every `tick_s` seconds while collecting."""
+        t0 = last = time.perf_counter()
         state = _IterationState(self, target_episodes, max_steps)
         for w in self.worlds:
             w.sim.reset()
         state.start_all()
+        cut = False
         while state.active.any():
             self._step(agent, state)
-        return state.finish(first_episode_number, time.perf_counter() - t0)
+            now = time.perf_counter()
+            if deadline is not None and now >= deadline:
+                state.active[:] = False
+                cut = True
+            elif tick is not None and now - last >= tick_s:
+                last = now
+                tick(len(state.completed), state.target, state.env_steps, now - t0)
+        ro = state.finish(first_episode_number, time.perf_counter() - t0)
+        ro.cut = cut
+        return ro
 
     def _observe(self, mask):
         """Observations of the cars in `mask` (global car indices), rendered only for them."""

@@ -1,0 +1,233 @@
+"""Training a folder unattended: one trainer per folder, bad settings refused in one line, edits honoured on
+resume, faults rolled back, watchdogs, bounded logs."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from racerlab.errors import ConfigError, RacerlabError, RewardFunctionError, TrackError
+from racerlab.logs import read_metrics_jsonl
+from racerlab.model import ModelFolder, init_model, nonfinite_tensors
+from racerlab.train import TrainingDiverged, train
+from tests.conftest import aws_track_path
+
+FAST = dict(progress=False, num_cars=8)
+SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
+
+
+@pytest.fixture
+def model(tmp_path):
+    return init_model(tmp_path / "model", track=str(aws_track_path("reInvent2019_track")), max_speed=2.0)
+
+
+# ---- the lock ------------------------------------------------------------------------------------------------
+def _holder(folder: ModelFolder) -> subprocess.Popen:
+    code = ("import sys, time\nfrom racerlab.model import ModelFolder\n"
+            f"ModelFolder({str(folder.path)!r}).lock().acquire()\nprint('held', flush=True)\ntime.sleep(60)\n")
+    env = {**os.environ, "PYTHONPATH": os.path.abspath(SRC)}
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_trainer_is_refused_with_the_first_ones_pid(model):
+    proc = _holder(model)
+    try:
+        with pytest.raises(RacerlabError) as err:
+            train(model.path, iterations=1, **FAST)
+        msg = str(err.value)
+        assert f"process {proc.pid}" in msg and str(model.lock_path) in msg and "\n" not in msg
+        assert not model.checkpoints()  # refused before touching anything
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_stale_lock_is_taken_over_and_released(model):
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    model.lock_path.write_text(f"{gone.pid}\n")  # a trainer that was killed -9
+    r = train(model.path, iterations=1, **FAST)
+    assert r.iterations == 1
+    assert not model.lock_path.exists()  # released at the end
+    with model.lock():
+        assert model.lock().holder() == os.getpid()
+    assert not model.lock_path.exists()
+
+
+# ---- validation ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("flags", "expected"), [
+    ({"minutes": -3}, "--minutes must be a number >= 0 (0 = no limit), got -3"),
+    ({"num_cars": 0}, "--cars must be at least 1, got 0"),
+    ({"iterations": -1}, "--iterations must be a number >= 0 (0 = no limit), got -1"),
+])
+def test_bad_flags_are_refused_before_training(model, flags, expected):
+    with pytest.raises(ConfigError) as err:
+        train(model.path, progress=False, **flags)
+    assert str(err.value) == expected
+    assert not model.checkpoints()
+
+
+def test_an_unknown_track_in_training_toml_names_the_file_and_key(model):
+    model.config_path.write_text('[track]\nnames = ["no_such_track_anywhere"]\n')
+    with pytest.raises(TrackError) as err:
+        train(model.path, iterations=1, **FAST)
+    msg = str(err.value)
+    assert msg.startswith(f"{model.config_path}: track.names: ") and "no_such_track_anywhere" in msg
+
+
+# ---- edits on resume -----------------------------------------------------------------------------------------
+def _set_hp(folder: ModelFolder, **changes) -> None:
+    hp = json.loads(folder.hyperparameters_path.read_text())
+    folder.hyperparameters_path.write_text(json.dumps({**hp, **changes}))
+
+
+def test_an_edited_learning_rate_takes_effect_on_resume_and_is_reported(model):
+    train(model.path, iterations=1, **FAST)
+    _set_hp(model, lr=0.0001, num_epochs=3)
+    r = train(model.path, iterations=1, **FAST)
+    assert r.history[-1]["lr"] == pytest.approx(0.0001)
+    assert any("lr 0.0003 → 0.0001" in n and "num_epochs 10 → 3" in n and str(model.hyperparameters_path) in n
+               for n in r.notes)
+    r = train(model.path, iterations=1, **FAST)  # unchanged since: nothing to report, the lr stays
+    assert r.history[-1]["lr"] == pytest.approx(0.0001) and not any("changed since" in n for n in r.notes)
+
+
+def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
+    train(model.path, iterations=1, **FAST)
+    meta = json.loads(model.metadata_path.read_text())
+    meta["action_space"] = meta["action_space"][:3]
+    model.metadata_path.write_text(json.dumps(meta))
+    with pytest.raises(ConfigError, match="number of actions"):
+        train(model.path, iterations=1, **FAST)
+
+
+# ---- rollback, by injection ----------------------------------------------------------------------------------
+def _small(folder: ModelFolder, **hp) -> None:
+    """Short iterations: 2 cars, 2 episodes of at most 150 steps."""
+    _set_hp(folder, **{"num_episodes_between_training": 2, **hp})
+    text = folder.config_path.read_text()
+    folder.config_path.write_text(re.sub(r"(?m)^max_episode_steps = .*$", "max_episode_steps = 150", text))
+
+
+SMALL = dict(progress=False, num_cars=2)
+
+
+def test_a_checkpoint_with_nan_weights_is_skipped_on_resume_and_refused_by_evaluate(model):
+    from racerlab.evaluate import evaluate
+
+    _small(model)
+    train(model.path, iterations=2, **SMALL)
+    last = model.resolve_checkpoint("last")
+    ck = model.load_checkpoint(last)
+    next(iter(ck["agent"]["policy"].values())).fill_(float("nan"))
+    torch.save(ck, model.checkpoint_path(last))
+    with pytest.raises(RacerlabError) as err:
+        evaluate(model.path, checkpoint="last", trials=1, write=False)
+    assert str(model.checkpoint_path(last)) in str(err.value) and "non-finite weights" in str(err.value)
+    assert "--checkpoint 1" in str(err.value)
+    r = train(model.path, iterations=1, **SMALL)
+    assert any(f"skipping {model.checkpoint_path(last)}: non-finite weights" in n for n in r.notes)
+    assert r.iterations == 2  # resumed from iteration 1, the newest finite one, and trained one more
+    assert model.resolve_checkpoint("last").iteration == 2
+    assert not nonfinite_tensors(model.load_checkpoint(model.resolve_checkpoint("last"))["agent"])
+
+
+def test_a_non_finite_loss_is_rolled_back_recorded_and_said(model, monkeypatch):
+    from racerlab.agent.ppo import PPO
+
+    _small(model)
+    real_update, calls = PPO.update, []
+
+    def once_poisoned(self, batch):
+        metrics = real_update(self, batch)
+        calls.append(self.lr)
+        if len(calls) == 1:
+            next(self.policy_net.parameters()).data.fill_(float("inf"))
+            metrics["nonfinite"] = 1.0
+        return metrics
+
+    monkeypatch.setattr(PPO, "update", once_poisoned)
+    r = train(model.path, iterations=1, **SMALL)
+    assert calls == [0.0003, 0.00015]  # the second try runs with the lowered lr
+    assert r.iterations == 1 and any("rolled back" in n and "0.0003 → 0.00015" in n for n in r.notes)
+    entry = read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")[-1]
+    assert entry["rollbacks"] == 1 and "rolled back" in entry["events"][0] and entry["lr"] == 0.00015
+
+
+def test_a_constant_huge_reward_is_caught_as_an_exploding_value_loss(model):
+    _small(model)
+    model.reward_path.write_text("def reward_function(params):\n    return 1e5\n")
+    with pytest.raises(TrainingDiverged) as err:
+        train(model.path, iterations=3, **SMALL)
+    msg = str(err.value)
+    assert "value loss" in msg and "reward scale" in msg and str(model.reward_path) in msg
+
+
+def test_a_learning_rate_of_10_is_caught_and_named(model):
+    _small(model, lr=10)
+    with pytest.raises(TrainingDiverged) as err:
+        train(model.path, iterations=3, **SMALL)
+    msg = str(err.value)
+    assert "learning rate" in msg and "lr" in msg and str(model.hyperparameters_path) in msg
+    assert model.resolve_checkpoint("last").iteration == 0  # nothing collapsed reached a checkpoint
+
+
+# ---- watchdogs -----------------------------------------------------------------------------------------------
+def test_an_endless_reward_stops_training_with_file_line_params_and_time(model):
+    _small(model)
+    text = model.config_path.read_text()
+    model.config_path.write_text(re.sub(r"(?m)^reward_budget_s = .*$", "reward_budget_s = 0.5", text))
+    model.reward_path.write_text("def reward_function(params):\n    while True:\n        pass\n")
+    t0 = time.perf_counter()
+    with pytest.raises(RewardFunctionError) as err:
+        train(model.path, iterations=1, **SMALL)
+    assert time.perf_counter() - t0 < 30
+    msg = str(err.value)
+    assert f"{model.reward_path}:3" in msg or f"{model.reward_path}:2" in msg
+    assert "time budget of 0.5 s" in msg and "params:" in msg and "x" in msg
+    assert not model.lock_path.exists()  # the lock is released on the way out
+
+
+def test_a_slow_reward_is_reported_once_with_its_cost(model):
+    _small(model)
+    model.reward_path.write_text("import time\ndef reward_function(params):\n    time.sleep(0.006)\n    return 1.0\n")
+    r = train(model.path, iterations=1, **SMALL)
+    slow = [n for n in r.notes if "slow" in n]
+    assert len(slow) == 1 and str(model.reward_path) in slow[0]
+    ms = float(re.search(r"([0-9.]+) ms a call", slow[0]).group(1))
+    assert 6.0 <= ms < 30.0
+
+
+def test_collection_stops_at_the_deadline_with_a_heartbeat(model):
+    from racerlab.train.loop import Trainer
+
+    _small(model)
+    t = Trainer(model.path, progress=False, num_cars=2)
+    ticks = []
+    t0 = time.perf_counter()
+    ro = t.collector.collect(t.agent, 10_000, 10**9, deadline=t0 + 3.0, tick=lambda *a: ticks.append(a),
+                             tick_s=0.5)
+    took = time.perf_counter() - t0
+    assert ro.cut and 3.0 <= took < 3.5  # stops at the deadline, not when 10 000 episodes have ended
+    assert len(ticks) >= 4 and ticks[-1][0] <= len(ro.episodes) and ticks[-1][1] == 10_000
+    # the cut keeps only whole episodes: every kept one has an end status, the running ones are dropped
+    assert ro.episodes and all(ep.status for ep in ro.episodes)
+    assert len(set(ro.trace["episode"].tolist())) == len(ro.episodes)
+    assert len(ro.rewards) == sum(ep.steps - 1 for ep in ro.episodes)  # each episode's prepare row is not learned
+
+
+def test_minutes_stops_the_run_at_the_limit(model):
+    _small(model, num_episodes_between_training=500)  # one iteration would take far longer than the limit
+    t0 = time.perf_counter()
+    r = train(model.path, minutes=0.2, **SMALL)
+    assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 500
+    assert time.perf_counter() - t0 >= 12
