@@ -226,8 +226,11 @@ def test_collection_stops_at_the_deadline_with_a_heartbeat(model):
 
 
 def test_minutes_stops_the_run_at_the_limit(model):
-    _small(model, num_episodes_between_training=500)  # one iteration would take far longer than the limit
+    _small(model, num_episodes_between_training=5000)  # one iteration would take far longer than the limit
+    text = model.config_path.read_text()  # and no step cap ends its collection early
+    model.config_path.write_text(re.sub(r"(?m)^max_steps_per_iteration = .*$", "max_steps_per_iteration = 1000000",
+                                        text))
     t0 = time.perf_counter()
     r = train(model.path, minutes=0.2, **SMALL)
-    assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 500
+    assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 5000
     assert time.perf_counter() - t0 >= 12

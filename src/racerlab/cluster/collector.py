@@ -74,7 +74,11 @@ class RayCollector:
         if self.starts[k]:
             self.actors[k].set_starts.remote(self.starts[k])
 
-    def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0) -> Rollout:
+    def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0, *,
+                deadline: float | None = None, tick=None, tick_s: float = 10.0) -> Rollout:
+        """`target_episodes` whole episodes, split over the workers, driven with the learner's current weights.
+        `deadline` (the driver's `time.perf_counter()` value) reaches each worker as the seconds left; `tick` is
+        called at least every `tick_s` seconds while waiting, with the finished workers' episodes and steps."""
         t0 = time.perf_counter()
         weights = broadcast_state(agent)
         ref = self.ray.put(weights)
@@ -84,7 +88,9 @@ class RayCollector:
         for k, c in enumerate(counts):
             if c:
                 steps = max(1, math.ceil(max_steps * c / max(target_episodes, 1)))
-                calls[k] = self.actors[k].collect.remote(ref, c, steps, self.episodes[k])
+                left = None if deadline is None else deadline - time.perf_counter()
+                calls[k] = self.actors[k].collect.remote(ref, c, steps, self.episodes[k], left)
+        self._wait(calls, target_episodes, t0, tick, tick_s)
         parts = []
         for k, fut in calls.items():
             try:
@@ -108,7 +114,17 @@ class RayCollector:
                                 "and the workers' logs under the Ray session folder, then resume the training")
         merged = merge_rollouts([ro for _, ro, _ in parts], first_episode_number, time.perf_counter() - t0)
         merged.parts = parts  # (worker, its rollout, its first episode number): the per-worker logs
+        merged.cut = any(getattr(ro, "cut", False) for _, ro, _ in parts)
         return merged
+
+    def _wait(self, calls: dict, target: int, t0: float, tick, tick_s: float) -> None:
+        """Block until every worker's call has finished (or failed), calling `tick` every `tick_s` seconds."""
+        pending = list(calls.values())
+        while pending:
+            ready, pending = self.ray.wait(pending, num_returns=len(pending), timeout=tick_s)
+            if pending and tick is not None:
+                done = len(calls) - len(pending)
+                tick(target * done // max(len(calls), 1), target, 0, time.perf_counter() - t0)
 
     def close(self) -> None:
         for a in self.actors:

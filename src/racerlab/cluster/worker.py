@@ -15,6 +15,7 @@ from racerlab.model import ModelFolder
 from racerlab.sim.reward import RewardCaller
 from racerlab.train.loop import Trainer, apply_overrides
 from racerlab.train.rollout import Collector
+from racerlab.train.watchdog import RewardWatchdog
 
 _LEARNER_ONLY = ("optimizer", "generator")  # state keys a worker keeps its own of
 
@@ -49,6 +50,7 @@ class RolloutWorker:
 
     _make_world = Trainer._make_world
     _make_worlds = Trainer._make_worlds
+    _load_track = Trainer._load_track
 
     def __init__(self, model_dir: str, index: int, workers: int, overrides: dict):
         import torch
@@ -65,7 +67,10 @@ class RolloutWorker:
         run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers),
                       seed=cfg.run.seed + 1009 * index, device="cpu")
         self.cfg = replace(cfg, track=track, run=run)
-        self.reward = RewardCaller(folder.reward_function())
+        self._track_flag = bool(overrides.get("tracks"))
+        self.watchdog = RewardWatchdog(folder.reward_function(), cfg.run.reward_budget_s,
+                                       lambda text: print(f"worker {index}: {text}", flush=True))
+        self.reward = RewardCaller(self.watchdog)
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
         from racerlab.agent import make_agent
@@ -81,11 +86,18 @@ class RolloutWorker:
         for w, n in zip(self.worlds, starts, strict=False):
             w.sim.episodes_started = int(n)
 
-    def collect(self, weights: dict, target: int, max_steps: int, first_episode_number: int):
-        """Load the broadcast weights, then collect `target` whole episodes; returns the `Rollout`
-        (numpy arrays) and each world's round-robin counter."""
+    def collect(self, weights: dict, target: int, max_steps: int, first_episode_number: int,
+                seconds_left: float | None = None):
+        """Load the broadcast weights, then collect `target` whole episodes (stopping after `seconds_left`
+        seconds, when given, as `Collector.collect` does at its deadline); returns the `Rollout` (numpy arrays)
+        and each world's round-robin counter."""
+        import time
+
         state = self.agent.state_dict()
         state.update(weights)
         self.agent.load_state_dict(state)
-        ro = self.collector.collect(self.agent, target, max_steps, first_episode_number=first_episode_number)
+        deadline = None if seconds_left is None else time.perf_counter() + max(seconds_left, 0.0)
+        with self.watchdog:
+            ro = self.collector.collect(self.agent, target, max_steps, first_episode_number=first_episode_number,
+                                        deadline=deadline)
         return ro, [w.sim.episodes_started for w in self.worlds]

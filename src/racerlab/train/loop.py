@@ -32,6 +32,7 @@ MAX_ROLLBACKS = 3
 VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
 MAX_SENSIBLE_REWARD = 1e3
 COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
+KL_LIMIT = 2.0  # nats; PPO at sane learning rates moves the policy ~0.01-0.05 per update
 STATE_FORMAT = "racerlab.checkpoint/1"
 
 
@@ -246,8 +247,9 @@ class Trainer:
 
     def _collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
         """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
-        the value loss exploded (rewards far too large), or a discrete policy's entropy fell to near zero while
-        its evaluation progress fell (a learning rate far too high)."""
+        the value loss exploded (rewards far too large), one update moved the policy absurdly far (approx KL), or a
+        discrete policy's entropy fell to near zero while its evaluation progress fell (a learning rate far too
+        high)."""
         v = metrics.get("losses/value")
         if v is not None and v > VALUE_LOSS_LIMIT:
             top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
@@ -256,6 +258,10 @@ class Trainer:
                         f"the reward scale: {self.folder.reward_path} returned rewards up to {top:.3g}; keep them "
                         f"within about 0..{MAX_SENSIBLE_REWARD:g} per step")
             return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
+                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+        kl = metrics.get("losses/approx_kl")
+        if kl is not None and kl > KL_LIMIT:
+            return (f"the policy moved {kl:.3g} nats in one update (approx KL over {KL_LIMIT:g})",
                     f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
         ent = metrics.get("losses/entropy")
         ev = float(np.mean([e.progress for e in evals])) if evals else None
