@@ -63,8 +63,9 @@ def test_quickstart_on_defaults(tmp_path, capsys):
     # the quickstart keeps the checkpoint with the fastest mean evaluation lap (newest on ties)
     assert 'best_model_metric = "laptime"' in (model / "training.toml").read_text()
     rows = [json.loads(line) for line in (model / "metrics" / "metrics.jsonl").read_text().splitlines()]
-    fastest = min(r["eval/metric"] for r in rows)
-    newest_fastest = max(r["iteration"] for r in rows if r["eval/metric"] == fastest)
+    evaluated = [r for r in rows if r["eval/metric"] is not None]  # the iteration cut by the time limit has none
+    fastest = min(r["eval/metric"] for r in evaluated)
+    newest_fastest = max(r["iteration"] for r in evaluated if r["eval/metric"] == fastest)
     best = json.loads((model / "checkpoints" / "deepracer_checkpoints.json").read_text())["best_checkpoint"]
     assert best["name"].startswith(f"{newest_fastest}_Step-") and best["avg_eval_metric"] == fastest
 

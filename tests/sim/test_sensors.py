@@ -3,7 +3,9 @@ randomization, determinism, shapes per sensor combination, env_checker, and a ca
 
 from __future__ import annotations
 
+import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -402,7 +404,14 @@ def test_a_camera_model_trains(tmp_path):
     from racerlab.model import init_model
     from racerlab.train import train
 
-    init_model(tmp_path / "cam", track=str(aws_track_path("reInvent2019_track")), sensor="camera", num_cars=4)
+    folder = init_model(tmp_path / "cam", track=str(aws_track_path("reInvent2019_track")), sensor="camera",
+                        num_cars=4)
+    hp = json.loads(folder.hyperparameters_path.read_text())
+    hp.update(num_episodes_between_training=8, num_epochs=3)  # AWS's 20 x 10 takes minutes on a busy CPU
+    folder.hyperparameters_path.write_text(json.dumps(hp))
+    # an untrained greedy camera policy may circle on the track: cap episodes so evaluation stays short
+    text = folder.config_path.read_text()
+    folder.config_path.write_text(re.sub(r"(?m)^max_episode_steps = .*$", "max_episode_steps = 200", text))
     result = train(tmp_path / "cam", iterations=2, progress=False)
     assert result.iterations == 2
     assert result.env_steps > 0 and result.best_checkpoint
