@@ -222,3 +222,27 @@ def test_a_worker_drives_with_the_learners_weights_but_its_own_random_stream(tmp
     assert w.agent.generator.initial_seed() != learner.agent.generator.initial_seed()
     assert worker_tracks(("a", "b", "c"), 1, 2) == ("b",) and worker_tracks(("a",), 1, 2) == ("a",)
     assert [worker_cars(5, k, 2) for k in (0, 1)] == [3, 2]
+
+
+def test_a_worker_table_gives_that_worker_its_own_track_and_direction(tmp_path):
+    from racerlab.cluster.worker import RolloutWorker
+
+    model = _small_model(tmp_path / "m")
+    cfg = model / "training.toml"
+    cfg.write_text(cfg.read_text() + '\n[[worker]]\n\n[[worker]]\ntrack.names = ["lab_oval"]\ntrack.reverse = true\n')
+    w0, w1 = RolloutWorker(str(model), 0, 2, {}), RolloutWorker(str(model), 1, 2, {})
+    base = w0.describe()["tracks"]
+    assert base != ["lab_oval"] and not w0.describe()["reverse"]  # worker 1's table leaves worker 0 alone
+    assert w1.describe()["tracks"] == ["lab_oval"] and w1.describe()["reverse"]
+    assert w1.worlds[0].sim.start_rules.reverse and w1.worlds[0].sim.track.name == "lab_oval"
+    ro, _ = w1.collect(broadcast_state_of(w0), 1, 10_000, 0)
+    assert len(ro.episodes) == 1
+    # a --track flag wins over the worker tables, as over the file's own [track]
+    w1_flag = RolloutWorker(str(model), 1, 2, {"tracks": ("lab_technical",)})
+    assert w1_flag.describe()["tracks"] == ["lab_technical"]
+
+
+def broadcast_state_of(worker):
+    from racerlab.cluster.worker import broadcast_state
+
+    return broadcast_state(worker.agent)

@@ -63,3 +63,49 @@ def test_observation_with_sensor_options(tmp_path):
     assert parse_training_config({"run": {"observation": "camera:dr"}}).run.observation == "camera:dr"
     with pytest.raises(ConfigError, match="run.observation must be empty .* or one of features, camera"):
         parse_training_config({"run": {"observation": "radar:dr"}})
+
+
+WORKERS_TOML = """
+[track]
+names = ["lab_oval"]
+
+[run]
+num_cars = 4
+
+[[worker]]
+track.names = ["lab_technical", "lab_grand_prix"]
+track.reverse = true
+
+[[worker]]
+run.seed = 7
+"""
+
+
+def test_worker_tables_change_only_their_worker(tmp_path):
+    p = tmp_path / "training.toml"
+    p.write_text(WORKERS_TOML)
+    cfg = load_training_config(p)
+    w0, w1, w2 = (cfg.for_worker(k) for k in range(3))
+    assert w0.track.names == ("lab_technical", "lab_grand_prix") and w0.track.reverse
+    assert w0.run.num_cars == 4 and w0.run.seed == 0  # the rest comes from the file's own sections
+    assert w1.track.names == ("lab_oval",) and not w1.track.reverse and w1.run.seed == 7
+    assert w2.track == cfg.track and w2.run == cfg.run and w2.workers == ()
+    assert cfg.worker_sets(0, "track", "names") and not cfg.worker_sets(1, "track", "names")
+    assert not cfg.worker_sets(5, "track", "names")
+    # written back out, the tables survive
+    p.write_text(cfg.to_toml())
+    assert load_training_config(p).workers == cfg.workers
+
+
+@pytest.mark.parametrize("table, message", [
+    ("[[worker]]\ntrack.reverse = 1\n", "[[worker]] 1: track.reverse must be true or false"),
+    ("[[worker]]\ntrack.speed = 1\n", "[[worker]] 1: unknown key track.speed"),
+    ("[[worker]]\n\n[[worker]]\ncars = 2\n", "[[worker]] 2: unknown section cars"),
+    ("[[worker]]\ntrack.start_offset = 1.5\n", "[[worker]] 1: track.start_offset must be in [0, 1)"),
+])
+def test_bad_worker_tables_name_the_worker_and_key(tmp_path, table, message):
+    p = tmp_path / "training.toml"
+    p.write_text(table)
+    with pytest.raises(ConfigError) as err:
+        load_training_config(p)
+    assert str(p) in str(err.value) and message in str(err.value)

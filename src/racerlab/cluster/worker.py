@@ -60,9 +60,11 @@ class RolloutWorker:
         self.index = index
         folder = ModelFolder(model_dir)
         self.metadata = folder.metadata()
-        cfg = apply_overrides(folder.config(), **overrides)
+        base = folder.config()
+        cfg = apply_overrides(base.for_worker(index), **overrides)  # its [[worker]] table, then the flags
         r = cfg.track
-        track = replace(r, names=worker_tracks(r.names, index, workers),
+        own = base.worker_sets(index, "track", "names") and not overrides.get("tracks")
+        track = replace(r, names=r.names if own else worker_tracks(r.names, index, workers),
                         start_offset=(r.start_offset + index / workers) % 1.0)
         run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers),
                       seed=cfg.run.seed + 1009 * index, device="cpu")
@@ -80,7 +82,8 @@ class RolloutWorker:
 
     def describe(self) -> dict:
         return {"index": self.index, "pid": os.getpid(), "cars": self.cfg.run.num_cars,
-                "tracks": list(self.cfg.track.names), "start_offset": self.cfg.track.start_offset}
+                "tracks": list(self.cfg.track.names), "start_offset": self.cfg.track.start_offset,
+                "reverse": self.cfg.track.reverse, "alternate_direction": self.cfg.track.alternate_direction}
 
     def set_starts(self, starts: list[int]) -> None:
         for w, n in zip(self.worlds, starts, strict=False):

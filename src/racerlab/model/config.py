@@ -7,7 +7,7 @@ Sections and defaults live in `DEFAULTS`; unknown sections or keys and wrong typ
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from racerlab.errors import ConfigError
@@ -67,18 +67,39 @@ class TrainingConfig:
     evaluation: EvaluationSettings = field(default_factory=EvaluationSettings)
     logs: LogSettings = field(default_factory=LogSettings)
     source: str = "training.toml"
+    # [[worker]] tables: what rollout worker k changes for itself ({section: {key: value}}), DRfC's multi-config
+    workers: tuple[dict, ...] = ()
 
     def to_toml(self) -> str:
         out = []
         for f in fields(self):
-            if f.name == "source":
+            if f.name in ("source", "workers"):
                 continue
             out.append(f"[{f.name}]")
             section = getattr(self, f.name)
             for sf in fields(section):
                 out.append(f"{sf.name} = {_toml_value(getattr(section, sf.name))}")
             out.append("")
+        for overlay in self.workers:
+            out.append("[[worker]]")
+            out.extend(f"{name}.{key} = {_toml_value(v)}" for name, keys in overlay.items() for key, v in keys.items())
+            out.append("")
         return "\n".join(out)
+
+    def for_worker(self, index: int) -> TrainingConfig:
+        """The settings rollout worker `index` runs with: these, changed by its `[[worker]]` table if it has one."""
+        if index >= len(self.workers):
+            return replace(self, workers=())
+        where = f"{self.source} [[worker]] {index + 1}"
+        changed = {name: _parse_section(where, name, keys, getattr(self, name))
+                   for name, keys in self.workers[index].items()}
+        cfg = replace(self, **changed, workers=())
+        _validate(replace(cfg, source=where))
+        return cfg
+
+    def worker_sets(self, index: int, section: str, key: str) -> bool:
+        """Whether worker `index`'s `[[worker]]` table sets `section.key`."""
+        return index < len(self.workers) and key in self.workers[index].get(section, {})
 
 
 def _toml_value(v) -> str:
@@ -121,24 +142,44 @@ def _coerce(src: str, key: str, default, value):
 
 def parse_training_config(data: dict, source: str = "training.toml") -> TrainingConfig:
     sections = {}
+    overlays = data.get("worker", [])
+    if not isinstance(overlays, list) or not all(isinstance(o, dict) for o in overlays):
+        raise ConfigError(f"{source}: worker must be an array of [[worker]] tables")
     for name, section in data.items():
+        if name == "worker":
+            continue
         if name not in SECTIONS:
-            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}")
-        if not isinstance(section, dict):
-            raise ConfigError(f"{source}: {name} must be a [section]")
-        cls = SECTIONS[name]
-        defaults = cls()
-        allowed = {f.name for f in fields(cls)}
-        values = {}
-        for key, value in section.items():
-            if key not in allowed:
-                raise ConfigError(f"{source}: unknown key {name}.{key}; allowed in [{name}]: "
-                                  f"{', '.join(sorted(allowed))}")
-            values[key] = _coerce(source, f"{name}.{key}", getattr(defaults, key), value)
-        sections[name] = cls(**values)
-    cfg = TrainingConfig(**sections, source=source)
+            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}, [[worker]]")
+        sections[name] = _parse_section(source, name, section, SECTIONS[name]())
+    workers = []
+    for k, overlay in enumerate(overlays):
+        where = f"{source} [[worker]] {k + 1}"
+        for name, section in overlay.items():
+            if name not in SECTIONS:
+                raise ConfigError(f"{where}: unknown section {name}; a worker may change "
+                                  f"{', '.join(SECTIONS)} (for example track.names = [\"...\"])")
+            _parse_section(where, name, section, SECTIONS[name]())
+        workers.append({name: dict(section) for name, section in overlay.items()})
+    cfg = TrainingConfig(**sections, source=source, workers=tuple(workers))
     _validate(cfg)
+    for k in range(len(workers)):
+        cfg.for_worker(k)  # each worker's settings are valid on their own
     return cfg
+
+
+def _parse_section(source: str, name: str, section, base):
+    """`base` (a settings dataclass) with the keys of the TOML table `section` applied, each checked."""
+    if not isinstance(section, dict):
+        raise ConfigError(f"{source}: {name} must be a [section]")
+    cls = type(base)
+    allowed = {f.name for f in fields(cls)}
+    values = {}
+    for key, value in section.items():
+        if key not in allowed:
+            raise ConfigError(f"{source}: unknown key {name}.{key}; allowed in [{name}]: "
+                              f"{', '.join(sorted(allowed))}")
+        values[key] = _coerce(source, f"{name}.{key}", getattr(cls(), key), value)
+    return replace(base, **values)
 
 
 def _check(ok: bool, source: str, message: str) -> None:
