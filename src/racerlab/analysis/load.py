@@ -131,10 +131,8 @@ def _parse_sources(store: Store, sources: list[Source], threads: bool) -> tuple[
 def _read_csvs(store: Store, csvs: list[Source], threads: bool) -> tuple[pa.Table, np.ndarray]:
     rels = [s.parts[0] for s in csvs]
     described = [store.describe(r) for r in rels]
-    if isinstance(store, DirStore) and not any(r.endswith(".gz") for r in rels):
-        fast = read_simtrace_files([str(store.root / r) for r in rels], described, threads)
-        if fast is not None:
-            return fast
+    if isinstance(store, DirStore):
+        return read_simtrace_files([str(store.root / r) for r in rels], described, threads)
     blobs = _read_many(store, rels)
     return read_simtrace_csvs([(d, blobs[r]) for d, r in zip(described, rels, strict=True)], threads)
 
