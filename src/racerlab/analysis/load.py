@@ -33,6 +33,7 @@ import pyarrow as pa
 from racerlab.logs.cache import SegmentCache, cache_folder, source_key
 from racerlab.logs.metrics import LogFileError, read_metrics_document
 from racerlab.logs.read import (
+    MEMORY,
     RAW_COLUMNS,
     decompress,
     looks_like_radians,
@@ -241,7 +242,7 @@ def _frame(tables: list[pa.Table], kind: str, info: dict) -> pd.DataFrame:
         df.attrs.update(kind=kind, **info)
         return df
     table = pa.concat_tables(tables, promote_options="permissive") if len(tables) > 1 else tables[0]
-    df = table.to_pandas(split_blocks=True, self_destruct=True)
+    df = table.to_pandas(split_blocks=True, self_destruct=True, memory_pool=MEMORY)
     keys = _sort_keys(df, kind)
     if not _is_sorted(keys):
         order = np.lexsort(keys[::-1])
