@@ -66,8 +66,8 @@ def load(path: str | os.PathLike, kind: str = "auto", *, cache: bool = True,
 
     kind: "training", "evaluation", "leaderboard" or "auto" (training when there is any, else
     evaluation, else leaderboard). cache: keep a Parquet copy of the parsed files under `cache_dir`
-    (see `racerlab.logs.cache`) so that a reload reads only new or changed files. threads: let
-    the CSV parser use all cores.
+    (see `racerlab.logs.cache`) so that a reload reads only new or changed files. threads: read and
+    parse the CSV files on a pool of threads (False: one file after another in this thread).
     """
     if kind != "auto" and kind not in KINDS:
         raise ValueError(f"kind must be 'auto' or one of {KINDS}, got {kind!r}")
