@@ -45,7 +45,7 @@ _INTEGER_ACTION = re.compile(rb"^\s*-?\d+\s*$")
 _SNIFF = 4096  # bytes looked at to guess whether `action` is a discrete index
 # threads reading and parsing files: more than cores, so that a file waiting on the disk (or a thread
 # waiting for a busy core) does not leave a core idle
-_POOL = max(4, os.cpu_count() or 1)
+_THREADS = max(4, os.cpu_count() or 1)
 # Arrow memory for parsed logs: the C library's malloc. Arrow's default (mimalloc) touches fresh memory for
 # the many small blocks that threads parsing files side by side allocate; in a fresh process that made a
 # cold load of 1 M rows cost about half as much CPU again (page zeroing).
@@ -215,7 +215,7 @@ def _read_each(names: list[str], plain_text, threads: bool) -> tuple[pa.Table, n
         return parse_csv_body(body, columns, names[i])
 
     if threads and len(names) > 1:
-        with ThreadPoolExecutor(max_workers=min(len(names), _POOL)) as pool:
+        with ThreadPoolExecutor(max_workers=min(len(names), _THREADS)) as pool:
             tables = list(pool.map(parse, range(len(names))))
     else:
         tables = [parse(i) for i in range(len(names))]
