@@ -3,12 +3,13 @@ iteration) against deepracer-utils on the same DRfC multi-worker folder. One JSO
 
 `cold_side_by_side` is the comparison to quote: a 500-file, 1 M-row single-worker DRfC folder loaded by
 each tool in a fresh Python process (the tool imported first, then the load timed: lazy imports, parsing
-and building the DataFrame; files in the OS cache for both), racerlab and deepracer-utils alternating,
-`--rounds` times each; the figures are the medians and the ratio of the medians.
+and building the DataFrame; files in the OS cache for both), racerlab and deepracer-utils alternating
+(ABBA), `--rounds` times each; the figures are the medians and the ratio of the medians, with the load
+average before and after (the machine may be shared: compare ratios taken in one run).
 
 Budget (DESIGN.md): cold load of 1 M rows <= 1.5 s; at least 4x faster than deepracer-utils side by side.
 
-    python benchmarks/analysis_speed.py [--rows 1000000] [--workers 3] [--rounds 3] [--keep DIR]
+    python benchmarks/analysis_speed.py [--rows 1000000] [--workers 3] [--rounds 5] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=1_000_000)
     ap.add_argument("--workers", type=int, default=3)
-    ap.add_argument("--rounds", type=int, default=3, help="fresh-process loads per tool in the side-by-side run")
+    ap.add_argument("--rounds", type=int, default=5, help="fresh-process loads per tool in the side-by-side run")
     ap.add_argument("--keep", help="generate into this folder and keep it")
     args = ap.parse_args()
 
@@ -150,22 +151,27 @@ def bench_side_by_side(folder: Path, rows: int, rounds: int) -> None:
     """racerlab and deepracer-utils loading the same 500-file folder, alternating, each in a fresh process."""
     per_file = max(1, round(rows / (SIDE_BY_SIDE_FILES * MEAN_STEPS)))
     written = write_training_folder(folder, SIDE_BY_SIDE_FILES, per_file, 1, MEAN_STEPS, seed=3)
+    os.sync()  # the folder's write-back is done before the first timed load, not during it
     try:
         import deepracer.logs  # noqa: F401
     except ImportError:
         emit(bench="cold_side_by_side", skipped="deepracer-utils is not installed (pip install deepracer-utils)")
         return
-    ours, theirs = [], []
-    for _ in range(rounds):
-        n_ours, *t = _fresh_load(COLD_RACERLAB, folder)
-        ours.append(t)
-        n_theirs, *t = _fresh_load(COLD_DEEPRACER_UTILS, folder)
-        theirs.append(t)
+    runs: dict[str, list] = {COLD_RACERLAB: [], COLD_DEEPRACER_UTILS: []}
+    rows_loaded = set()
+    load_before = os.getloadavg()[0]
+    for r in range(rounds):  # ABBA order: neither tool always runs first, right after the other
+        for script in list(runs)[::1 if r % 2 == 0 else -1]:
+            n, *t = _fresh_load(script, folder)
+            rows_loaded.add(n)
+            runs[script].append(t)
+    ours, theirs = runs[COLD_RACERLAB], runs[COLD_DEEPRACER_UTILS]
     (a, a_cpu), (b, b_cpu) = np.median(ours, axis=0), np.median(theirs, axis=0)
-    emit(bench="cold_side_by_side", files=SIDE_BY_SIDE_FILES, rows=written, same_rows=n_ours == n_theirs == written,
+    emit(bench="cold_side_by_side", files=SIDE_BY_SIDE_FILES, rows=written, same_rows=rows_loaded == {written},
          racerlab_s=round(a, 3), deepracer_utils_s=round(b, 3), ratio=round(b / a, 2), target_ratio=4.0,
          racerlab_cpu_s=round(a_cpu, 3), deepracer_utils_cpu_s=round(b_cpu, 3), cpu_ratio=round(b_cpu / a_cpu, 2),
-         racerlab_runs=[round(t[0], 3) for t in ours], deepracer_utils_runs=[round(t[0], 3) for t in theirs])
+         racerlab_runs=[round(t[0], 3) for t in ours], deepracer_utils_runs=[round(t[0], 3) for t in theirs],
+         load_average=[round(load_before, 1), round(os.getloadavg()[0], 1)], cores=os.cpu_count())
 
 
 def bench_deepracer_utils(folder: Path, racerlab_cold: float, rows: int) -> None:

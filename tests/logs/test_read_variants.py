@@ -201,20 +201,19 @@ def test_log_without_trace_lines_gives_an_empty_table():
     assert table.num_rows == 0 and info["hyperparameters"] is None
 
 
-def test_files_read_into_one_buffer_equal_the_general_reader(tmp_path):
+def test_files_on_disk_equal_the_general_reader(tmp_path):
     from racerlab.logs.read import read_simtrace_csvs, read_simtrace_files
 
     texts = [csv_text([0, 1]), csv_text([2]).rstrip("\n"), csv_text([3, 4], HEADER_17, 17),
              csv_text([5], fields=19, action="[0.5 1.2]")]
     paths = [write(tmp_path / f"{i}-iteration.csv", t) for i, t in enumerate(texts)]
-    # one header, discrete actions, one file without a final newline: one buffer, rows per file
+    # one header, discrete actions, one file without a final newline: rows per file, exact integer types
     table, counts = read_simtrace_files([str(p) for p in paths[:2]], [str(p) for p in paths[:2]])
     general, general_counts = read_simtrace_csvs([(str(p), p.read_bytes()) for p in paths[:2]])
     assert counts.tolist() == general_counts.tolist() == [6, 3] and table.equals(general)
     assert table.column("action").to_pylist() == [3] * 9 and table.column("episode").type == "int64"
-    # two headers, or a continuous action: the general reader's job (None), which handles both
-    assert read_simtrace_files([str(p) for p in paths[1:3]], [str(p) for p in paths[1:3]]) is None
-    mixed, mixed_counts = read_simtrace_csvs([(str(p), p.read_bytes()) for p in paths])
-    assert mixed_counts.tolist() == [6, 3, 6, 3] and mixed.column("action").to_pylist()[-3:] == [-1] * 3
-    table, counts = read_simtrace_files([str(paths[3])], [str(paths[3])])
-    assert counts.tolist() == [3] and table.column("action").to_pylist() == [-1] * 3
+    # two headers and a continuous action: each file its own layout, back in the order given
+    mixed, mixed_counts = read_simtrace_files([str(p) for p in paths], [str(p) for p in paths])
+    assert mixed_counts.tolist() == [6, 3, 6, 3] and mixed.column("action").to_pylist() == [3] * 15 + [-1] * 3
+    assert mixed.column("episode").to_pylist() == [0] * 3 + [1] * 3 + [2] * 3 + [3] * 3 + [4] * 3 + [5] * 3
+    assert np.isnan(mixed.column("wall_clock").to_numpy()[9:15]).all()

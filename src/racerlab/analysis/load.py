@@ -34,6 +34,7 @@ import pyarrow as pa
 from racerlab.logs.cache import SegmentCache, cache_folder, source_key
 from racerlab.logs.metrics import LogFileError, read_metrics_document
 from racerlab.logs.read import (
+    MEMORY,
     RAW_COLUMNS,
     decompress,
     looks_like_radians,
@@ -66,8 +67,8 @@ def load(path: str | os.PathLike, kind: str = "auto", *, cache: bool = True,
 
     kind: "training", "evaluation", "leaderboard" or "auto" (training when there is any, else
     evaluation, else leaderboard). cache: keep a Parquet copy of the parsed files under `cache_dir`
-    (see `racerlab.logs.cache`) so that a reload reads only new or changed files. threads: let
-    the CSV parser use all cores.
+    (see `racerlab.logs.cache`) so that a reload reads only new or changed files. threads: read and
+    parse the CSV files on a pool of threads (False: one file after another in this thread).
     """
     if kind != "auto" and kind not in KINDS:
         raise ValueError(f"kind must be 'auto' or one of {KINDS}, got {kind!r}")
@@ -156,10 +157,8 @@ def _parse_sources(store: Store, sources: list[Source], threads: bool) -> tuple[
 def _read_csvs(store: Store, csvs: list[Source], threads: bool) -> tuple[pa.Table, np.ndarray]:
     rels = [s.parts[0] for s in csvs]
     described = [store.describe(r) for r in rels]
-    if isinstance(store, DirStore) and not any(r.endswith(".gz") for r in rels):
-        fast = read_simtrace_files([str(store.root / r) for r in rels], described, threads)
-        if fast is not None:
-            return fast
+    if isinstance(store, DirStore):
+        return read_simtrace_files([str(store.root / r) for r in rels], described, threads)
     blobs = _read_many(store, rels)
     return read_simtrace_csvs([(d, blobs[r]) for d, r in zip(described, rels, strict=True)], threads)
 
@@ -268,7 +267,7 @@ def _frame(tables: list[pa.Table], kind: str, info: dict) -> pd.DataFrame:
         df.attrs.update(kind=kind, **info)
         return df
     table = pa.concat_tables(tables, promote_options="permissive") if len(tables) > 1 else tables[0]
-    df = table.to_pandas(split_blocks=True, self_destruct=True)
+    df = table.to_pandas(split_blocks=True, self_destruct=True, memory_pool=MEMORY)
     keys = _sort_keys(df, kind)
     if not _is_sorted(keys):
         order = np.lexsort(keys[::-1])

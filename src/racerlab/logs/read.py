@@ -43,6 +43,13 @@ _TRACE = re.compile(rb"SIM_TRACE_LOG:([^\n\t\r]*)")
 _OLD_CONTINUOUS = re.compile(rb"\[([^\],\n]*),\s*([^\]\n]*)\]")
 _INTEGER_ACTION = re.compile(rb"^\s*-?\d+\s*$")
 _SNIFF = 4096  # bytes looked at to guess whether `action` is a discrete index
+# threads reading and parsing files: more than cores, so that a file waiting on the disk (or a thread
+# waiting for a busy core) does not leave a core idle
+_THREADS = max(4, os.cpu_count() or 1)
+# Arrow memory for parsed logs: the C library's malloc. Arrow's default (mimalloc) touches fresh memory for
+# the many small blocks that threads parsing files side by side allocate; in a fresh process that made a
+# cold load of 1 M rows cost about half as much CPU again (page zeroing).
+MEMORY = pa.system_memory_pool()
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -94,7 +101,8 @@ def _read_csv(body, names: list[str], threads: bool, types: dict) -> pa.Table:
         read_options=pacsv.ReadOptions(column_names=list(names), use_threads=threads, block_size=1 << 24),
         parse_options=pacsv.ParseOptions(newlines_in_values=False),
         convert_options=pacsv.ConvertOptions(column_types=types, true_values=["True", "true"],
-                                             false_values=["False", "false"], strings_can_be_null=True))
+                                             false_values=["False", "false"], strings_can_be_null=True),
+        memory_pool=MEMORY)
 
 
 def normalise(table: pa.Table) -> pa.Table:
@@ -141,24 +149,19 @@ def decompress(data: bytes, name: str) -> bytes:
 
 def split_header(data: bytes, name: str) -> tuple[list[str], bytes]:
     """(frame column names, body) of a simtrace CSV."""
-    names, body, _ = _split(data, name)
+    names, body = _split(data, name)
     return names, bytes(body)
 
 
-def _split(data: bytes, name: str) -> tuple[list[str], memoryview, int]:
-    """(frame column names, body, its line count); the body is a view of `data`, not a copy."""
+def _split(data: bytes, name: str) -> tuple[list[str], memoryview]:
+    """(frame column names, body); the body is a view of `data`, not a copy."""
     end = data.find(b"\n")
     head = (data if end < 0 else data[:end]).decode("utf-8", "replace").strip().lstrip("\ufeff")
     names = [CSV_TO_FRAME.get(h.strip(), h.strip()) for h in head.split(",")]
     missing = [c for c in RAW_COLUMNS[:15] if c not in names and c != "tstamp"]
     if missing:
         raise LogFileError(f"{name}:1: not a simtrace CSV header (missing {', '.join(missing)}): {head[:80]!r}")
-    if end < 0 or end + 1 == len(data):
-        return names, memoryview(b""), 0
-    body = memoryview(data)[end + 1:]
-    if not data.endswith(b"\n"):
-        body = memoryview(bytes(body) + b"\n")
-    return names, body, data.count(b"\n", end + 1) + (not data.endswith(b"\n"))
+    return names, memoryview(data)[len(data) if end < 0 else end + 1:]
 
 
 def read_simtrace_csv(data: bytes, name: str, threads: bool = False) -> pa.Table:
@@ -167,111 +170,69 @@ def read_simtrace_csv(data: bytes, name: str, threads: bool = False) -> pa.Table
     return normalise(parse_csv_body(body, names, name, threads))
 
 
-def parse_csv_body(body: bytes, names: list[str], name: str, threads: bool = False, first_line: int = 2) -> pa.Table:
-    if not body.strip():
+def parse_csv_body(body, names: list[str], name: str, threads: bool = False, first_line: int = 2) -> pa.Table:
+    """CSV text after the header (bytes or a buffer) -> a table of `names`; a bad line is a `LogFileError`."""
+    if _blank(body):
         return pa.table({n: pa.array([], t) for n, t in _column_types(names).items()})
     try:
         return _parse(body, names, threads)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as e:
-        raise LogFileError(locate_error(body, names, name, first_line, str(e))) from None
+        raise LogFileError(locate_error(bytes(body), names, name, first_line, str(e))) from None
+
+
+def _blank(body) -> bool:
+    head = bytes(body[:_SNIFF])
+    return not head.strip() and (len(body) <= _SNIFF or not bytes(body).strip())
 
 
 def read_simtrace_csvs(blobs: list[tuple[str, bytes]], threads: bool = True) -> tuple[pa.Table, np.ndarray]:
-    """Many simtrace CSVs parsed as one buffer per distinct header (much faster than one by one).
-
-    Returns the normalised table (files in the given order) and the row count of each file.
-    """
-    groups: dict[tuple, list[tuple[int, str, memoryview, int]]] = {}
-    plain = _decompress_all(blobs, threads)
-    for i, (name, _) in enumerate(blobs):
-        names, body, lines = _split(plain[i], name)
-        groups.setdefault(tuple(names), []).append((i, name, body, lines))
-    counts = np.zeros(len(blobs), np.int64)
-    tables, order = [], []
-    for names, files in groups.items():
-        table, rows = _parse_group(list(names), files, threads)
-        for (i, *_), r in zip(files, rows, strict=True):
-            counts[i] = r
-        tables.append(table)
-        order.extend(i for i, *_ in files)
-    if len(tables) == 1:
-        return tables[0], counts
-    # header groups were parsed apart: put the files back in the order given
-    starts = np.zeros(len(blobs), np.int64)
-    starts[order] = np.concatenate([[0], np.cumsum(counts[order])[:-1]])
-    rows = np.concatenate([np.arange(starts[i], starts[i] + counts[i]) for i in range(len(blobs))])
-    return pa.concat_tables(tables).take(pa.array(rows)), counts
+    """Many simtrace CSVs given as (name, plain or gzip bytes) -> (one normalised table, files in the given
+    order; the row count of each file). See `read_simtrace_files`."""
+    return _read_each([name for name, _ in blobs], lambda i: decompress(blobs[i][1], blobs[i][0]), threads)
 
 
 def read_simtrace_files(paths: list[str], names_for_messages: list[str], threads: bool = True
-                        ) -> tuple[pa.Table, np.ndarray] | None:
-    """Plain simtrace CSV files on disk read straight into one buffer (no copy per file) and parsed at once.
+                        ) -> tuple[pa.Table, np.ndarray]:
+    """Simtrace CSV files on disk (plain or `.gz`) -> (one normalised table, files in the given order; the
+    row count of each file). Errors name the file by `names_for_messages`.
 
-    Returns (table, rows per file) like `read_simtrace_csvs`, or None when the files do not share one
-    header or a file does not parse cleanly: the caller then reads them the general way, which also
-    names a bad line.
+    Each file is read and parsed on its own, on a pool of threads when `threads` (reading, gunzip and
+    Arrow's parser release the GIL): no copy of all the text into one buffer, no pass counting lines, and
+    a busy core holds up one file, not the whole parse. Files whose columns differ (older formats, a
+    continuous action read as text) are normalised group by group.
     """
-    sizes = [os.stat(p).st_size for p in paths]
-    buf = bytearray(sum(sizes) + len(paths))  # room for a newline a file may lack at its end
-    view = memoryview(buf)
-    header, at, counts = None, 0, np.zeros(len(paths), np.int64)
-    for i, (path, size) in enumerate(zip(paths, sizes, strict=True)):
-        head, n = _read_body_into(path, view[at:at + size])
-        if head is None or (header is not None and head.strip() != header.strip()):
-            return None
-        header = header or head
-        if n and buf[at + n - 1] != 0x0A:
-            buf[at + n] = 0x0A
-            n += 1
-        counts[i] = buf.count(b"\n", at, at + n)
-        at += n
-    if header is None:
-        return None
-    names, _, _ = _split(header, names_for_messages[0])
-    try:
-        table = normalise(_parse(view[:at], names, threads))
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-        return None
-    return (table, counts) if table.num_rows == counts.sum() else None
+    return _read_each(names_for_messages, lambda i: _read_path(paths[i], names_for_messages[i]), threads)
 
 
-def _read_body_into(path: str, dest: memoryview) -> tuple[bytes | None, int]:
-    """Read the file at `path` into `dest` without its header line: (the header, bytes of body read), or
-    (None, 0) when the first 64 kB hold no line end. The file is read straight into `dest`; only the first
-    block moves down over the header."""
-    with open(path, "rb", buffering=0) as f:
-        n = f.readinto(dest[:1 << 16])
-        end = bytes(dest[:n]).find(b"\n")
-        if end < 0:
-            return (None, 0) if n == 1 << 16 or not n else (bytes(dest[:n]), 0)
-        head = bytes(dest[:end + 1])
-        dest[:n - end - 1] = dest[end + 1:n]  # memoryview copies overlapping ranges safely (memmove)
-        n -= end + 1
-        while n < len(dest) and (got := f.readinto(dest[n:])):
-            n += got
-    return head, n
+def _read_path(path: str, name: str) -> bytes:
+    with open(path, "rb") as f:
+        return decompress(f.read(), name)
 
 
-def _decompress_all(blobs: list[tuple[str, bytes]], threads: bool) -> list[bytes]:
-    """zlib releases the GIL, so gzipped files decompress in parallel."""
-    gz = sum(name.endswith(".gz") for name, _ in blobs)
-    if not threads or gz < 8:
-        return [decompress(data, name) for name, data in blobs]
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 2) as pool:
-        return list(pool.map(lambda b: decompress(b[1], b[0]), blobs))
+def _read_each(names: list[str], plain_text, threads: bool) -> tuple[pa.Table, np.ndarray]:
+    def parse(i: int) -> pa.Table:
+        columns, body = _split(plain_text(i), names[i])
+        return parse_csv_body(body, columns, names[i])
 
-
-def _parse_group(names: list[str], files, threads: bool) -> tuple[pa.Table, list[int]]:
-    rows = [lines for *_, lines in files]
-    try:
-        table = normalise(_parse(b"".join(body for _, _, body, _ in files), names, threads))
-        if table.num_rows == sum(rows):
-            return table, rows
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-        pass
-    # a bad file, or blank lines that make row counts unreliable: one by one, to name the culprit
-    tables = [normalise(parse_csv_body(bytes(body), names, name, threads)) for _, name, body, _ in files]
-    return pa.concat_tables(tables), [t.num_rows for t in tables]
+    if threads and len(names) > 1:
+        with ThreadPoolExecutor(max_workers=min(len(names), _THREADS)) as pool:
+            tables = list(pool.map(parse, range(len(names))))
+    else:
+        tables = [parse(i) for i in range(len(names))]
+    counts = np.array([t.num_rows for t in tables], np.int64)
+    groups: dict[pa.Schema, list[int]] = {}
+    for i, t in enumerate(tables):
+        groups.setdefault(t.schema, []).append(i)
+    if len(groups) == 1:
+        return normalise(pa.concat_tables(tables)), counts
+    # files of several layouts: normalise each layout once, then put the files back in the order given
+    pieces: list[pa.Table | None] = [None] * len(tables)
+    for members in groups.values():
+        table, at = normalise(pa.concat_tables([tables[i] for i in members])), 0
+        for i in members:
+            pieces[i] = table.slice(at, counts[i])
+            at += counts[i]
+    return pa.concat_tables(pieces), counts
 
 
 # ---------------------------------------------------------------------------------------------------------
