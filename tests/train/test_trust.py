@@ -231,3 +231,25 @@ def test_minutes_stops_the_run_at_the_limit(model):
     r = train(model.path, minutes=0.2, **SMALL)
     assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 500
     assert time.perf_counter() - t0 >= 12
+
+
+# ---- bounded disk --------------------------------------------------------------------------------------------
+def test_a_training_keeps_its_simtrace_under_logs_max_mb_and_the_newest_plain(model):
+    from racerlab.analysis import load
+
+    _small(model)
+    text = model.config_path.read_text()
+    text = re.sub(r"(?m)^plain_iterations = .*$", "plain_iterations = 2", text)
+    model.config_path.write_text(re.sub(r"(?m)^max_mb = .*$", "max_mb = 0.045", text))
+    sizes = []
+    for _ in range(3):  # each run resumes: the budget also holds across restarts
+        train(model.path, iterations=3, **SMALL)
+        sizes.append(sum(p.stat().st_size for p in (model.path / "training-simtrace").iterdir()))
+    names = sorted((p.name for p in (model.path / "training-simtrace").iterdir()), key=lambda n: int(n.split("-")[0]))
+    assert max(sizes) <= 45_000 and names[0] == "0-iteration.csv" and names[-2:] == ["7-iteration.csv",
+                                                                                      "8-iteration.csv"]
+    assert all(n.endswith(".csv.gz") for n in names[1:-2])
+    df = load(model.path, cache=False)
+    assert set(df["iteration"]) == {int(n.split("-")[0]) for n in names}
+    doc = json.loads((model.path / "metrics" / "TrainingMetrics.json").read_text())
+    assert df["episode"].nunique() < sum(m["phase"] == "training" for m in doc["metrics"])  # thinned to fit

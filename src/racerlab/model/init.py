@@ -81,9 +81,11 @@ _TOML_HEADER = """\
 #            reverse / alternate_direction / change_start / round_robin_advance / start_offset: as DRfC
 #   [run]    num_cars in parallel, seed, device (auto|cpu|cuda), threads (0 = all cores),
 #            observation ("" follows model_metadata.json), reward_order (aws|after_action),
-#            max_steps_per_iteration (AWS: 10000), max_episode_steps
+#            max_steps_per_iteration (AWS: 10000), max_episode_steps, reward_budget_s (0 = no limit)
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
-#   [logs]   simtrace_every: log every k-th training episode; compress: gzip the simtrace CSVs
+#   [logs]   simtrace_every: log every k-th training episode; plain_iterations: the newest iterations kept
+#            as plain CSV (deepracer-utils reads those), older ones gzipped; max_mb: the training-simtrace
+#            budget, past which the oldest gzipped iterations are thinned (0 = none); compress: gzip all
 
 """

@@ -26,6 +26,8 @@ class TrainingLogs:
                                             best_model_metric=cfg.evaluation.best_model_metric)
         self.jsonl = logs.MetricsLog(logs.metrics_jsonl_path(self.model_dir))
         logs.export_drfc_metadata(self.model_dir)  # model/ and ip/ copies where deepracer-utils looks
+        self.retention = logs.SimtraceRetention(logs.training_simtrace_dir(self.model_dir), cfg.logs.plain_iterations,
+                                                int(cfg.logs.max_mb * 1e6))
 
     # ---- per iteration ---------------------------------------------------------------------------
     def write_iteration(self, iteration: int, ro, evals, first_episode: int) -> None:
@@ -52,7 +54,8 @@ class TrainingLogs:
         writer = logs.SimtraceWriter(logs.training_simtrace_path(self.model_dir, iteration - 1, compress=compress),
                                      compress=compress, sample_episodes=self.cfg.logs.simtrace_every)
         writer.write(cols)
-        writer.close()
+        self.retention.added(iteration - 1, writer.close())
+        self.retention.enforce()
 
     @staticmethod
     def _train_entry(ep, number: int, trial: int) -> dict:
@@ -79,6 +82,8 @@ class TrainingLogs:
     def truncate(self, iteration: int, episodes: int) -> None:
         """Forget what was logged after the checkpoint a training resumes from."""
         logs.remove_training_simtrace_after(self.model_dir, iteration - 1)
+        self.retention.rescan()
+        self.retention.enforce()  # a budget lowered since the last run applies now
         self.metrics.truncate(episodes)
         self.metrics.save()
         self.jsonl.truncate(iteration)
