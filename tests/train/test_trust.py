@@ -253,3 +253,15 @@ def test_a_training_keeps_its_simtrace_under_logs_max_mb_and_the_newest_plain(mo
     assert set(df["iteration"]) == {int(n.split("-")[0]) for n in names}
     doc = json.loads((model.path / "metrics" / "TrainingMetrics.json").read_text())
     assert df["episode"].nunique() < sum(m["phase"] == "training" for m in doc["metrics"])  # thinned to fit
+
+
+def test_importing_racerlab_makes_torch_threads_wait_passively():
+    # spinning OpenMP workers made one update 40x slower on a shared 2-core machine (see racerlab/__init__.py)
+    code = "import os, racerlab, torch; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    env["PYTHONPATH"] = os.path.abspath(SRC)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "PASSIVE"
+    env["OMP_WAIT_POLICY"] = "ACTIVE"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ACTIVE"
