@@ -68,3 +68,18 @@ def test_init_best_model_metric_flag(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["init", str(tmp_path / "x"), "--best-model-metric", "fastest"])
     assert "invalid choice: 'fastest'" in capsys.readouterr().err
+
+
+def test_printed_commands_quote_their_paths(tmp_path, capsys):
+    import re
+    import shlex
+
+    model = tmp_path / "my model's folder"  # a space and a quote: pasted unquoted, the command breaks
+    assert main(["init", str(model), "--track", str(aws_track_path("reInvent2019_track"))]) == 0
+    assert main(["train", str(model), "--iterations", "1", "--cars", "2", "--episodes", "2"]) == 0
+    assert main(["clone", str(model), str(tmp_path / "a clone")]) == 0
+    commands = re.findall(r"`(racerlab [^`]*)`", capsys.readouterr().out)
+    assert len(commands) >= 4
+    for cmd in commands:
+        args = shlex.split(cmd)
+        assert str(model) in args or str(tmp_path / "a clone") in args, cmd
