@@ -127,3 +127,63 @@ def test_deepracer_utils_reads_the_plain_part(tmp_path):
     theirs = theirs.sort_values(["episode", "steps"]).reset_index(drop=True)
     pd.testing.assert_series_equal(theirs["x"], mine["x"], check_names=False)
     assert ours["iteration"].nunique() > 3  # racerlab's reader also reads the gzipped history
+
+
+# ---- TrainingMetrics.json stays small: the oldest entries move to a gzipped archive -------------------------
+def _entry(episode: int) -> dict:
+    return {"reward_score": 12, "metric_time": 1000 + episode, "start_time": 900, "elapsed_time_in_milliseconds": 100,
+            "episode": episode, "trial": (episode - 1) % 4 + 1, "phase": "training", "completion_percentage": 42,
+            "episode_status": "Off track"}
+
+
+def test_training_metrics_keeps_the_newest_entries_and_archives_the_rest(tmp_path):
+    import json
+
+    from racerlab.analysis import load_metrics
+    from racerlab.logs import TrainingMetrics, training_metrics_path
+    from racerlab.logs.metrics import read_training_archive, training_archive_path
+
+    path = training_metrics_path(tmp_path)
+    m = TrainingMetrics(path, keep=3)
+    for e in range(1, 21):
+        m.add([_entry(e)])
+        m.save()
+        assert len(json.loads(path.read_text())["metrics"]) <= 6  # never past 2 * keep
+    in_file = [e["episode"] for e in json.loads(path.read_text())["metrics"]]
+    archived = [e["episode"] for e in read_training_archive(path, [])]
+    assert archived + in_file == list(range(1, 21))
+    assert load_metrics(tmp_path)["episode"].tolist() == list(range(1, 21))
+    assert load_metrics(tmp_path)["iteration"].tolist() == [(e - 1) // 4 for e in range(1, 21)]
+
+    # a crash after archiving, before the file was saved: the entries are in both, read once
+    doc = json.loads(path.read_text())
+    resumed = TrainingMetrics(path, keep=3)
+    resumed.add([_entry(21), _entry(22), _entry(23), _entry(24)])
+    resumed.save()
+    path.write_text(json.dumps({**doc, "metrics": doc["metrics"] + [_entry(21), _entry(22), _entry(23),
+                                                                    _entry(24)]}))
+    assert load_metrics(tmp_path)["episode"].tolist() == list(range(1, 25))
+    # a torn last gzip member (killed mid-append) ends the archive there
+    with open(training_archive_path(path), "ab") as f:
+        f.write(gzip.compress(b'{"episode": 99}\n')[:12])
+    assert load_metrics(tmp_path)["episode"].tolist() == list(range(1, 25))
+
+    # resuming from an older checkpoint drops archived entries after it too
+    again = TrainingMetrics(path, keep=3)
+    again.truncate(10)
+    again.save()
+    assert load_metrics(tmp_path)["episode"].tolist() == list(range(1, 11))
+
+
+def test_deepracer_utils_reads_a_training_metrics_file_with_archived_entries(tmp_path):
+    log_mod = pytest.importorskip("deepracer.logs", reason="deepracer-utils is a test dependency")
+    from racerlab.logs import TrainingMetrics, training_metrics_path
+
+    m = TrainingMetrics(training_metrics_path(tmp_path), keep=4)
+    for e in range(1, 22):
+        m.add([_entry(e)])
+        m.save()
+    tm = log_mod.TrainingMetrics(None, fname=str(training_metrics_path(tmp_path)))
+    # the file's entries keep their AWS numbering: iteration = (episode - 1) // episodes per iteration
+    assert tm.metrics["episode"].tolist() == list(range(16, 22))
+    assert tm.metrics["iteration"].tolist() == [(e - 1) // 4 for e in range(16, 22)]

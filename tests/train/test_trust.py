@@ -234,20 +234,36 @@ def test_minutes_stops_the_run_at_the_limit(model):
 
 
 # ---- bounded disk --------------------------------------------------------------------------------------------
-def test_a_training_keeps_its_simtrace_under_logs_max_mb_and_the_newest_plain(model):
+def _logs_bytes(folder: ModelFolder, suffix: str = "") -> int:
+    return sum(p.stat().st_size for d in ("training-simtrace", "metrics") for p in (folder.path / d).iterdir()
+               if p.name.endswith(suffix))
+
+
+def _set_logs(folder: ModelFolder, **values) -> None:
+    text = folder.config_path.read_text()
+    for key, value in values.items():
+        text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
+    folder.config_path.write_text(text)
+
+
+def test_a_training_keeps_its_logs_under_logs_max_mb_and_the_newest_simtrace_plain(model):
     from racerlab.analysis import load
 
     _small(model)
-    text = model.config_path.read_text()
-    text = re.sub(r"(?m)^plain_iterations = .*$", "plain_iterations = 2", text)
-    model.config_path.write_text(re.sub(r"(?m)^max_mb = .*$", "max_mb = 0.045", text))
-    sizes = []
-    for _ in range(3):  # each run resumes: the budget also holds across restarts
+    _set_logs(model, plain_iterations=2, max_mb=0)
+    for _ in range(2):
         train(model.path, iterations=3, **SMALL)
-        sizes.append(sum(p.stat().st_size for p in (model.path / "training-simtrace").iterdir()))
+    names = sorted(p.name for p in (model.path / "training-simtrace").iterdir())
+    assert names == ["0-iteration.csv", "1-iteration.csv.gz", "2-iteration.csv.gz", "3-iteration.csv.gz",
+                     "4-iteration.csv", "5-iteration.csv"]  # without a budget: gzip only
+    cap = _logs_bytes(model) - _logs_bytes(model, ".gz") // 2  # half the gzipped history must go
+    _set_logs(model, max_mb=cap / 1e6)
+    train(model.path, iterations=2, **SMALL)  # resumes: the lowered budget applies at the start and each iteration
     names = sorted((p.name for p in (model.path / "training-simtrace").iterdir()), key=lambda n: int(n.split("-")[0]))
-    assert max(sizes) <= 45_000 and names[0] == "0-iteration.csv" and names[-2:] == ["7-iteration.csv",
-                                                                                      "8-iteration.csv"]
+    # simtrace + metrics/ stay in the budget, up to the last metrics.jsonl line (written after the check)
+    line = len((model.path / "metrics" / "metrics.jsonl").read_text().splitlines()[-1]) + 1
+    assert _logs_bytes(model) <= cap + line
+    assert names[0] == "0-iteration.csv" and names[-2:] == ["6-iteration.csv", "7-iteration.csv"]
     assert all(n.endswith(".csv.gz") for n in names[1:-2])
     df = load(model.path, cache=False)
     assert set(df["iteration"]) == {int(n.split("-")[0]) for n in names}

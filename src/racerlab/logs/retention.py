@@ -104,15 +104,16 @@ class SimtraceRetention:
         path = Path(path)
         self.files[iteration], self.sizes[iteration] = path, path.stat().st_size
 
-    def enforce(self) -> list[str]:
-        """Gzip iterations older than the plain window, then thin until within budget. Returns what it did."""
+    def enforce(self, reserve: int = 0) -> list[str]:
+        """Gzip iterations older than the plain window, then thin until the folder fits in max_bytes - reserve
+        (the bytes other logs under the same budget take). Returns what it did."""
         done = []
         newest = max(self.files, default=0)
         for n in list(self.files):
             if 0 < n <= newest - self.plain and self.files[n].suffix == ".csv":
                 self._pack(n)
         if self.max_bytes:
-            done += self._thin_to_budget(newest)
+            done += self._thin_to_budget(newest, self.max_bytes - reserve)
         self.thinned = done
         return done
 
@@ -123,9 +124,9 @@ class SimtraceRetention:
         plain.unlink()
         self.files[n], self.sizes[n] = packed, packed.stat().st_size
 
-    def _thin_to_budget(self, newest: int) -> list[str]:
+    def _thin_to_budget(self, newest: int, budget: int) -> list[str]:
         done = []
-        while self.total() > self.max_bytes:
+        while self.total() > budget:
             packed = [n for n, p in self.files.items()
                       if p.suffix == ".gz" and 0 < n < newest and self.level.get(n, 0) < _ONLY_ZERO]
             if packed:

@@ -58,7 +58,7 @@ class LogSettings:
     simtrace_every: int = 1  # write the training simtrace of every k-th episode (bounds disk use)
     compress: bool = False  # gzip even the newest simtrace CSVs (deepracer-utils then reads none of them)
     plain_iterations: int = 10  # the newest iterations kept as plain CSV (deepracer-utils); older ones are gzipped
-    max_mb: float = 500.0  # training-simtrace/ budget: past it the oldest gzipped iterations are thinned (0 = none)
+    max_mb: float = 500.0  # training-simtrace/ + metrics/ budget: past it the oldest gzipped iterations are thinned
 
 
 @dataclass(frozen=True)

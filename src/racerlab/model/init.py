@@ -85,7 +85,8 @@ _TOML_HEADER = """\
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
 #   [logs]   simtrace_every: log every k-th training episode; plain_iterations: the newest iterations kept
-#            as plain CSV (deepracer-utils reads those), older ones gzipped; max_mb: the training-simtrace
-#            budget, past which the oldest gzipped iterations are thinned (0 = none); compress: gzip all
+#            as plain CSV (deepracer-utils reads those), older ones gzipped; max_mb: the budget of
+#            training-simtrace/ + metrics/, past which the oldest gzipped iterations are thinned (0 = none);
+#            compress: gzip all
 
 """
