@@ -103,11 +103,20 @@ def test_an_edited_learning_rate_takes_effect_on_resume_and_is_reported(model):
 
 def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
     train(model.path, iterations=1, **FAST)
-    meta = json.loads(model.metadata_path.read_text())
+    original = model.metadata_path.read_text()
+    meta = json.loads(original)
     meta["action_space"] = meta["action_space"][:3]
     model.metadata_path.write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match="number of actions"):
         train(model.path, iterations=1, **FAST)
+    model.metadata_path.write_text(original)
+    text = model.config_path.read_text()
+    model.config_path.write_text(re.sub(r'(?m)^observation = .*$', 'observation = "sector_lidar"', text))
+    with pytest.raises(ConfigError) as err:  # the network's inputs cannot change under a trained model
+        train(model.path, iterations=1, **FAST)
+    msg = str(err.value)
+    assert msg.startswith(str(model.config_path)) and "run.observation is 'sector_lidar'" in msg
+    assert "trained with 'features'" in msg and "\n" not in msg
 
 
 # ---- rollback, by injection ----------------------------------------------------------------------------------
