@@ -240,6 +240,18 @@ def test_minutes_stops_the_run_at_the_limit(model):
     r = train(model.path, minutes=0.2, **SMALL)
     assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 500
     assert time.perf_counter() - t0 >= 12
+    assert r.wall_seconds <= 12 + 10  # within max(10 s, 5 %) of the limit
+
+
+def test_an_update_running_at_the_deadline_ends_after_its_minibatch(model):
+    from racerlab.train.loop import Trainer
+
+    _small(model)
+    t = Trainer(model.path, progress=False, num_cars=2)
+    ro = t.collector.collect(t.agent, 2, 10**9)
+    full = t.agent.learn(ro)["charts/gradient_steps"]
+    t.agent.deadline = time.perf_counter()  # already past: one minibatch, then stop
+    assert full > 1 and t.agent.learn(ro)["charts/gradient_steps"] == 1
 
 
 # ---- bounded disk --------------------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ How the training loop feeds it (the batch representation):
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -196,7 +197,11 @@ class PPO:
 
     `obs` is the observation space or shapes (see `networks.observation_shapes`). `device` "auto" is
     CUDA when present, else CPU. `seed` fixes the initial weights, sampling and shuffling.
+    `deadline` (a `time.perf_counter()` value, set by the trainer for `--minutes`) ends an update early,
+    after the minibatch in progress.
     """
+
+    deadline: float | None = None
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
                  device: str | torch.device = "auto", seed: int = 0, mlp_hidden=MLP_HIDDEN):
@@ -326,7 +331,9 @@ class PPO:
                 losses.loss.backward()
                 self.optimizer.step()
                 history.append(torch.stack([x.detach() for x in losses[1:]]))
-            if nonfinite:
+                if self.deadline is not None and time.perf_counter() >= self.deadline:
+                    break
+            if nonfinite or (self.deadline is not None and time.perf_counter() >= self.deadline):
                 break
         return self._metrics(history, batch, mb, nonfinite)
 

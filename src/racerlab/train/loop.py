@@ -322,7 +322,8 @@ class Trainer:
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
             return {}
-        evals = [] if ro.cut else self._evaluate()  # at the time limit: learn and save, skip the evaluation
+        past = self.deadline is not None and time.perf_counter() >= self.deadline
+        evals = [] if ro.cut or past else self._evaluate()  # at the time limit: learn and save, no evaluation
         collapsed = self._collapse(metrics, evals, ro.rewards)
         if collapsed:
             self._rollback(*collapsed)
@@ -390,6 +391,7 @@ class Trainer:
     def _run(self) -> TrainResult:
         t_start = time.perf_counter()
         self.deadline = t_start + self.cfg.stop.minutes * 60 if self.cfg.stop.minutes else None
+        self.agent.deadline = self.deadline  # the update in progress at the deadline ends after its minibatch
         resumed = self._resume_or_start()
         s = self.state
         start_iteration, start_episodes = s.iteration, s.episodes
