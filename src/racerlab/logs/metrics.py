@@ -9,7 +9,7 @@
 The JSON documents are rewritten atomically by `save()`; an existing file is loaded on construction so
 a resumed training continues the same document. A `TrainingMetrics` given `keep=n` stays small (it is
 rewritten every iteration): past 2n entries the oldest all but n move to `TrainingMetrics.archive.jsonl.gz`
-beside it (gzip members appended, one JSON entry per line; about a tenth of the size), which
+beside it (gzip members appended, one JSON entry per line; about a fifteenth of the size), which
 `read_training_archive` and `racerlab.analysis.load_metrics` read back in front of the file's entries.
 """
 
