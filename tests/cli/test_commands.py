@@ -45,7 +45,7 @@ def test_user_mistakes_are_one_line(tmp_path, capsys):
 
 def test_quickstart_on_defaults(tmp_path, capsys):
     model = tmp_path / "qs"
-    assert main(["quickstart", "--model", str(model), "--minutes", "0.1"]) == 0
+    assert main(["quickstart", "--model", str(model), "--minutes", "0.2"]) == 0
     out = capsys.readouterr().out
     assert "result:" in out and (model / "quickstart" / "evaluation.png").is_file()
     # which checkpoint drove the laps, then what to run next, each next command naming the model
@@ -63,9 +63,10 @@ def test_quickstart_on_defaults(tmp_path, capsys):
     # the quickstart keeps the checkpoint with the fastest mean evaluation lap (newest on ties)
     assert 'best_model_metric = "laptime"' in (model / "training.toml").read_text()
     rows = [json.loads(line) for line in (model / "metrics" / "metrics.jsonl").read_text().splitlines()]
-    evaluated = [r for r in rows if r["eval/metric"] is not None]  # the iteration cut by the time limit has none
-    fastest = min(r["eval/metric"] for r in evaluated)
-    newest_fastest = max(r["iteration"] for r in evaluated if r["eval/metric"] == fastest)
+    rows = [r for r in rows if r["eval/metric"] is not None]  # an iteration ended by the time limit has none
+    assert rows
+    fastest = min(r["eval/metric"] for r in rows)
+    newest_fastest = max(r["iteration"] for r in rows if r["eval/metric"] == fastest)
     best = json.loads((model / "checkpoints" / "deepracer_checkpoints.json").read_text())["best_checkpoint"]
     assert best["name"].startswith(f"{newest_fastest}_Step-") and best["avg_eval_metric"] == fastest
 
@@ -89,3 +90,18 @@ def test_init_best_model_metric_flag(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["init", str(tmp_path / "x"), "--best-model-metric", "fastest"])
     assert "invalid choice: 'fastest'" in capsys.readouterr().err
+
+
+def test_printed_commands_quote_their_paths(tmp_path, capsys):
+    import re
+    import shlex
+
+    model = tmp_path / "my model's folder"  # a space and a quote: pasted unquoted, the command breaks
+    assert main(["init", str(model), "--track", str(aws_track_path("reInvent2019_track"))]) == 0
+    assert main(["train", str(model), "--iterations", "1", "--cars", "2", "--episodes", "2"]) == 0
+    assert main(["clone", str(model), str(tmp_path / "a clone")]) == 0
+    commands = re.findall(r"`(racerlab [^`]*)`", capsys.readouterr().out)
+    assert len(commands) >= 4
+    for cmd in commands:
+        args = shlex.split(cmd)
+        assert str(model) in args or str(tmp_path / "a clone") in args, cmd

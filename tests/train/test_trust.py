@@ -103,11 +103,20 @@ def test_an_edited_learning_rate_takes_effect_on_resume_and_is_reported(model):
 
 def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
     train(model.path, iterations=1, **FAST)
-    meta = json.loads(model.metadata_path.read_text())
+    original = model.metadata_path.read_text()
+    meta = json.loads(original)
     meta["action_space"] = meta["action_space"][:3]
     model.metadata_path.write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match="number of actions"):
         train(model.path, iterations=1, **FAST)
+    model.metadata_path.write_text(original)
+    text = model.config_path.read_text()
+    model.config_path.write_text(re.sub(r'(?m)^observation = .*$', 'observation = "sector_lidar"', text))
+    with pytest.raises(ConfigError) as err:  # the network's inputs cannot change under a trained model
+        train(model.path, iterations=1, **FAST)
+    msg = str(err.value)
+    assert msg.startswith(str(model.config_path)) and "run.observation is 'sector_lidar'" in msg
+    assert "trained with 'features'" in msg and "\n" not in msg
 
 
 # ---- rollback, by injection ----------------------------------------------------------------------------------
@@ -234,3 +243,65 @@ def test_minutes_stops_the_run_at_the_limit(model):
     r = train(model.path, minutes=0.2, **SMALL)
     assert r.stopped == "time limit of 0.2 min" and r.iterations == 1 and 0 < r.episodes < 5000
     assert time.perf_counter() - t0 >= 12
+    assert r.wall_seconds <= 12 + 10  # within max(10 s, 5 %) of the limit
+
+
+def test_an_update_running_at_the_deadline_ends_after_its_minibatch(model):
+    from racerlab.train.loop import Trainer
+
+    _small(model)
+    t = Trainer(model.path, progress=False, num_cars=2)
+    ro = t.collector.collect(t.agent, 2, 10**9)
+    full = t.agent.learn(ro)["charts/gradient_steps"]
+    t.agent.deadline = time.perf_counter()  # already past: one minibatch, then stop
+    assert full > 1 and t.agent.learn(ro)["charts/gradient_steps"] == 1
+
+
+# ---- bounded disk --------------------------------------------------------------------------------------------
+def _logs_bytes(folder: ModelFolder, suffix: str = "") -> int:
+    return sum(p.stat().st_size for d in ("training-simtrace", "metrics") for p in (folder.path / d).iterdir()
+               if p.name.endswith(suffix))
+
+
+def _set_logs(folder: ModelFolder, **values) -> None:
+    text = folder.config_path.read_text()
+    for key, value in values.items():
+        text = re.sub(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
+    folder.config_path.write_text(text)
+
+
+def test_a_training_keeps_its_logs_under_logs_max_mb_and_the_newest_simtrace_plain(model):
+    from racerlab.analysis import load
+
+    _small(model)
+    _set_logs(model, plain_iterations=2, max_mb=0)
+    for _ in range(2):
+        train(model.path, iterations=3, **SMALL)
+    names = sorted(p.name for p in (model.path / "training-simtrace").iterdir())
+    assert names == ["0-iteration.csv", "1-iteration.csv.gz", "2-iteration.csv.gz", "3-iteration.csv.gz",
+                     "4-iteration.csv", "5-iteration.csv"]  # without a budget: gzip only
+    cap = _logs_bytes(model) - _logs_bytes(model, ".gz") // 2  # half the gzipped history must go
+    _set_logs(model, max_mb=cap / 1e6)
+    train(model.path, iterations=2, **SMALL)  # resumes: the lowered budget applies at the start and each iteration
+    names = sorted((p.name for p in (model.path / "training-simtrace").iterdir()), key=lambda n: int(n.split("-")[0]))
+    # simtrace + metrics/ stay in the budget, up to the last metrics.jsonl line (written after the check)
+    line = len((model.path / "metrics" / "metrics.jsonl").read_text().splitlines()[-1]) + 1
+    assert _logs_bytes(model) <= cap + line
+    assert names[0] == "0-iteration.csv" and names[-2:] == ["6-iteration.csv", "7-iteration.csv"]
+    assert all(n.endswith(".csv.gz") for n in names[1:-2])
+    df = load(model.path, cache=False)
+    assert set(df["iteration"]) == {int(n.split("-")[0]) for n in names}
+    doc = json.loads((model.path / "metrics" / "TrainingMetrics.json").read_text())
+    assert df["episode"].nunique() < sum(m["phase"] == "training" for m in doc["metrics"])  # thinned to fit
+
+
+def test_importing_racerlab_makes_torch_threads_wait_passively():
+    # spinning OpenMP workers made one update 40x slower on a shared 2-core machine (see racerlab/__init__.py)
+    code = "import os, racerlab, torch; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    env["PYTHONPATH"] = os.path.abspath(SRC)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "PASSIVE"
+    env["OMP_WAIT_POLICY"] = "ACTIVE"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "ACTIVE"

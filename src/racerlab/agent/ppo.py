@@ -31,6 +31,7 @@ How the training loop feeds it (the batch representation):
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -199,7 +200,11 @@ class PPO:
     CUDA when present, else CPU. `seed` fixes the initial weights, sampling and shuffling.
     `fast_update`: networks of dense layers on one vector input (features, lidar) update on the CPU
     through `mlp_update` (the same loss and Adam step, without autograd's overhead); False keeps torch's.
+    `deadline` (a `time.perf_counter()` value, set by the trainer for `--minutes`) ends an update early,
+    after the minibatch in progress.
     """
+
+    deadline: float | None = None
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
                  device: str | torch.device = "auto", seed: int = 0, mlp_hidden=PPO_MLP_HIDDEN,
@@ -322,10 +327,15 @@ class PPO:
         return self._metrics(history, batch, mb, nonfinite)
 
     def _minibatches(self, n: int, mb: int):
-        """num_epochs shuffles of range(n), each cut into int(n / mb) index blocks (the rest dropped)."""
+        """num_epochs shuffles of range(n), each cut into int(n / mb) index blocks (the rest dropped). Past
+        `deadline`, no further block is given: the update ends after the minibatch in progress."""
+        first = True
         for _epoch in range(self.hp.num_epochs):
             perm = torch.randperm(n, generator=self.generator, device=self.generator.device)
             for start in range(0, (n // mb) * mb, mb):
+                if not first and self.deadline is not None and time.perf_counter() >= self.deadline:
+                    return
+                first = False
                 yield perm[start:start + mb]
 
     @staticmethod

@@ -19,6 +19,7 @@ same map AWS applies inside its SAC head.
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Mapping
 from typing import NamedTuple
 
@@ -125,7 +126,10 @@ def policy_loss(q1_pi, q2_pi, log_probs, alpha: float) -> torch.Tensor:
 
 
 class SAC:
-    """SAC for a continuous model: `act`, `observe` transitions, `update(gradient_steps)`."""
+    """SAC for a continuous model: `act`, `observe` transitions, `update(gradient_steps)`. `deadline` (a
+    `time.perf_counter()` value, set by the trainer for `--minutes`) ends an update early."""
+
+    deadline: float | None = None
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
                  device: str | torch.device = "auto", seed: int = 0, buffer_size: int = BUFFER_SIZE,
@@ -223,6 +227,8 @@ class SAC:
                 nonfinite = True
                 break
             history.append(torch.stack(losses))
+            if self.deadline is not None and time.perf_counter() >= self.deadline:
+                break
         means = torch.stack(history).mean(0).tolist() if history else [float("nan")] * 2
         return {"losses/q": means[0], "losses/policy": means[1], "charts/alpha": self.alpha,
                 "charts/learning_rate": self.lr, "charts/gradient_steps": float(len(history)),

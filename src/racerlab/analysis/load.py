@@ -32,7 +32,7 @@ import pandas as pd
 import pyarrow as pa
 
 from racerlab.logs.cache import SegmentCache, cache_folder, source_key
-from racerlab.logs.metrics import LogFileError, read_metrics_document
+from racerlab.logs.metrics import LogFileError, read_metrics_document, read_training_archive
 from racerlab.logs.read import (
     MEMORY,
     RAW_COLUMNS,
@@ -225,6 +225,8 @@ def load_metrics(path: str | os.PathLike, kind: str = "training") -> pd.DataFram
     frames = []
     for f, label in files:
         entries = read_metrics_document(f)["metrics"]
+        if kind == TRAINING:
+            entries = read_training_archive(f, entries) + entries  # the oldest entries of a long training
         df = pd.DataFrame(entries)
         if kind == TRAINING:
             df["worker"] = int(label)

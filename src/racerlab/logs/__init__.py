@@ -13,13 +13,15 @@ detects it as `DRFC_MODEL_SINGLE_WORKERS` because `training-simtrace/` sits at t
       model/model_metadata.json               copies made by `export_drfc_metadata`, so that deepracer-utils'
       ip/hyperparameters.json                 action_space() and hyperparameters() work (optional for load())
 
-deepracer-utils 1.5.6 reads plain `.csv` only. Bounded logging that stays compatible: `SimtraceWriter(...,
-sample_episodes=k)` (every k-th episode, still plain CSV; deepracer-utils loads it, though its
-`unique_episode` numbering assumes no gaps) or logging only some iterations (always iteration 0, which
-deepracer-utils uses to count episodes per iteration). `compress=True` writes `.csv.gz`: about 4x smaller,
-read by `racerlab.analysis.load` but invisible to deepracer-utils.
+deepracer-utils 1.5.6 reads plain `.csv` only (its glob ends in `.csv`; the bytes go to `pandas.read_csv`
+undecompressed) and counts episodes per iteration from iteration 0. A training therefore keeps iteration 0
+and the newest `logs.plain_iterations` plain, gzips older ones to `.csv.gz` and, past `logs.max_mb`, thins
+the oldest gzipped ones (`SimtraceRetention`); `racerlab.analysis.load` reads all of them. Other bounded
+modes: `SimtraceWriter(..., sample_episodes=k)` (every k-th episode, still plain CSV; deepracer-utils'
+`unique_episode` numbering assumes no gaps) and `compress=True` (every file gzipped).
 
 Writers:
+- `SimtraceRetention(folder, plain, max_bytes)`: `.enforce()` gzips and thins a training-simtrace folder.
 - `SimtraceWriter(path, compress=False, *, sample_episodes=1)`: `.write(columns)` appends a batch (the 19
   `SIMTRACE_COLUMNS` as equal-length arrays, vectorised formatting), `.close()` publishes atomically.
 - `TrainingMetrics(path, best_model_metric="progress")`, `EvalMetrics(path)`: `.add(entries)`, `.save()`.
@@ -58,15 +60,16 @@ from racerlab.logs.metrics import (
     finite_json,
     read_metrics_jsonl,
 )
+from racerlab.logs.retention import SimtraceRetention, thin_simtrace
 from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
 
 __all__ = [
     "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
-    "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceWriter", "TrainingMetrics",
+    "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceRetention", "SimtraceWriter", "TrainingMetrics",
     "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
     "finite_json", "format_rows", "metrics_jsonl_path", "new_evaluation_dir", "read_metrics_jsonl",
     "remove_stale_temps",
     "remove_training_simtrace_after", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
-    "training_simtrace_path", "write_simtrace",
+    "training_simtrace_path", "thin_simtrace", "write_simtrace",
 ]

@@ -7,18 +7,23 @@
   ignored when reading.
 
 The JSON documents are rewritten atomically by `save()`; an existing file is loaded on construction so
-a resumed training continues the same document.
+a resumed training continues the same document. A `TrainingMetrics` given `keep=n` stays small (it is
+rewritten every iteration): past 2n entries the oldest all but n move to `TrainingMetrics.archive.jsonl.gz`
+beside it (gzip members appended, one JSON entry per line; about a fifteenth of the size), which
+`read_training_archive` and `racerlab.analysis.load_metrics` read back in front of the file's entries.
 """
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
+import zlib
 from pathlib import Path
 
 from racerlab.errors import RacerlabError
-from racerlab.logs.atomic import atomic_write_json, atomic_write_text
+from racerlab.logs.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 
 TRAINING_METRICS_KEYS = ("reward_score", "metric_time", "start_time", "elapsed_time_in_milliseconds",
                          "episode", "trial", "phase", "completion_percentage", "episode_status")
@@ -90,18 +95,64 @@ class TrainingMetrics(_MetricsDocument):
     keys = TRAINING_METRICS_KEYS
     what = "TrainingMetrics"
 
-    def __init__(self, path: str | os.PathLike, best_model_metric: str = "progress"):
+    def __init__(self, path: str | os.PathLike, best_model_metric: str = "progress", keep: int = 0):
         if best_model_metric not in BEST_MODEL_METRICS:
             raise ValueError(f"best_model_metric must be one of {BEST_MODEL_METRICS}, got {best_model_metric!r}")
         super().__init__(path)
         self.best_model_metric = best_model_metric
+        self.keep = int(keep)
+        self.archive = training_archive_path(self.path)
 
     def document(self) -> dict:
         return {"metrics": self.metrics, "version": 2.0, "best_model_metric": self.best_model_metric}
 
+    def save(self) -> Path:
+        """Write the document atomically, first moving the oldest entries to the archive when over 2 * keep."""
+        if self.keep and len(self.metrics) > 2 * self.keep:
+            old, self.metrics = self.metrics[:-self.keep], self.metrics[-self.keep:]
+            data = "".join(json.dumps(e) + "\n" for e in old).encode("utf-8")
+            with open(self.archive, "ab") as f:  # a crash before the save below leaves duplicates, read once
+                f.write(gzip.compress(data, 6, mtime=0))
+                f.flush()
+                os.fsync(f.fileno())
+        return super().save()
+
     def truncate(self, last_episode: int) -> None:
         """Drop entries of episodes after `last_episode` (resuming from an older checkpoint)."""
         self.metrics = [m for m in self.metrics if m["episode"] <= last_episode]
+        archived = read_training_archive(self.path, [])
+        if any(m["episode"] > last_episode for m in archived):
+            kept = [m for m in archived if m["episode"] <= last_episode]
+            atomic_write_bytes(self.archive, gzip.compress("".join(json.dumps(e) + "\n" for e in kept).encode(),
+                                                           6, mtime=0))
+
+
+def training_archive_path(path: str | os.PathLike) -> Path:
+    """`TrainingMetrics.archive.jsonl.gz` beside `TrainingMetrics.json` (no DeepRacer tool's glob matches it)."""
+    path = Path(path)
+    return path.with_name(path.stem + ".archive.jsonl.gz")
+
+
+def read_training_archive(path: str | os.PathLike, current: list[dict]) -> list[dict]:
+    """The archived entries of the TrainingMetrics file `path`, oldest first, without those also in `current`
+    (a crash between archiving and saving); a member torn by a crash ends the read."""
+    archive = training_archive_path(path)
+    if not archive.is_file():
+        return []
+    data, out = archive.read_bytes(), []
+    while data:
+        d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+        try:
+            chunk = d.decompress(data)
+        except zlib.error:
+            break
+        if not d.eof:
+            break
+        out.append(chunk)
+        data = d.unused_data
+    seen = {(m["episode"], m["trial"], m["phase"]) for m in current}
+    entries = (json.loads(line) for line in b"".join(out).decode("utf-8").splitlines() if line)
+    return [e for e in entries if (e["episode"], e["trial"], e["phase"]) not in seen]
 
 
 class EvalMetrics(_MetricsDocument):

@@ -56,7 +56,9 @@ class EvaluationSettings:
 @dataclass(frozen=True)
 class LogSettings:
     simtrace_every: int = 1  # write the training simtrace of every k-th episode (bounds disk use)
-    compress: bool = False  # gzip the simtrace CSVs (smaller; some older tools read only plain CSV)
+    compress: bool = False  # gzip even the newest simtrace CSVs (deepracer-utils then reads none of them)
+    plain_iterations: int = 10  # the newest iterations kept as plain CSV (deepracer-utils); older ones are gzipped
+    max_mb: float = 500.0  # training-simtrace/ + metrics/ budget: past it the oldest gzipped iterations are thinned
 
 
 @dataclass(frozen=True)
@@ -209,6 +211,8 @@ def _validate(c: TrainingConfig) -> None:
     _check(c.evaluation.best_model_metric in BEST_MODEL_METRICS, s,
            f"evaluation.best_model_metric must be one of {BEST_MODEL_METRICS}")
     _check(c.logs.simtrace_every >= 1, s, "logs.simtrace_every must be >= 1")
+    _check(c.logs.plain_iterations >= 1, s, f"logs.plain_iterations must be >= 1, got {c.logs.plain_iterations}")
+    _check(c.logs.max_mb >= 0, s, f"logs.max_mb must be >= 0 (0 = no budget), got {c.logs.max_mb:g}")
     _check(c.run.device == "auto" or c.run.device == "cpu" or c.run.device.startswith("cuda"), s,
            "run.device must be auto, cpu, cuda or cuda:N")
 

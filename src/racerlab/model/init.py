@@ -82,9 +82,12 @@ _TOML_HEADER = """\
 #   [run]    num_cars in parallel, seed, device (auto|cpu|cuda), threads (0 = auto: all cores for
 #            camera networks, 1 for vector ones),
 #            observation ("" follows model_metadata.json), reward_order (aws|after_action),
-#            max_steps_per_iteration (AWS: 10000), max_episode_steps
+#            max_steps_per_iteration (AWS: 10000), max_episode_steps, reward_budget_s (0 = no limit)
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
-#   [logs]   simtrace_every: log every k-th training episode; compress: gzip the simtrace CSVs
+#   [logs]   simtrace_every: log every k-th training episode; plain_iterations: the newest iterations kept
+#            as plain CSV (deepracer-utils reads those), older ones gzipped; max_mb: the budget of
+#            training-simtrace/ + metrics/, past which the oldest gzipped iterations are thinned (0 = none);
+#            compress: gzip all
 
 """

@@ -99,6 +99,7 @@ class Trainer:
     """Holds the pieces of one training run; `run()` iterates until a stop condition."""
 
     def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, **overrides):
+        self.t_created = time.perf_counter()  # --minutes counts the set-up (tracks, compiling the simulator) too
         self.stop_at_first_lap = stop_at_first_lap
         self.folder = ModelFolder(model_dir)
         self.folder.require()
@@ -328,7 +329,8 @@ class Trainer:
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
             return {}
-        evals = [] if ro.cut else self._evaluate()  # at the time limit: learn and save, skip the evaluation
+        past = self.deadline is not None and time.perf_counter() >= self.deadline
+        evals = [] if ro.cut or past else self._evaluate()  # at the time limit: learn and save, no evaluation
         collapsed = self._collapse(metrics, evals, ro.rewards)
         if collapsed:
             self._rollback(*collapsed)
@@ -394,8 +396,9 @@ class Trainer:
             return self._run()
 
     def _run(self) -> TrainResult:
-        t_start = time.perf_counter()
+        t_start = self.t_created
         self.deadline = t_start + self.cfg.stop.minutes * 60 if self.cfg.stop.minutes else None
+        self.agent.deadline = self.deadline  # the update in progress at the deadline ends after its minibatch
         resumed = self._resume_or_start()
         s = self.state
         start_iteration, start_episodes = s.iteration, s.episodes

@@ -16,6 +16,7 @@ from racerlab.sim import STATUS_NAMES
 from racerlab.spec import STATUS_LABELS
 
 _STATUS = np.array(STATUS_NAMES, dtype=object)
+METRICS_KEEP = 10_000  # TrainingMetrics.json entries kept in the file (rewritten each iteration); older: archive
 
 
 class TrainingLogs:
@@ -23,17 +24,19 @@ class TrainingLogs:
         self.model_dir = Path(model_dir)
         self.cfg = cfg
         self.metrics = logs.TrainingMetrics(logs.training_metrics_path(self.model_dir),
-                                            best_model_metric=cfg.evaluation.best_model_metric)
+                                            best_model_metric=cfg.evaluation.best_model_metric, keep=METRICS_KEEP)
         self.jsonl = logs.MetricsLog(logs.metrics_jsonl_path(self.model_dir))
         logs.export_drfc_metadata(self.model_dir)  # model/ and ip/ copies where deepracer-utils looks
+        self.retention = logs.SimtraceRetention(logs.training_simtrace_dir(self.model_dir), cfg.logs.plain_iterations,
+                                                int(cfg.logs.max_mb * 1e6))
 
     # ---- per iteration ---------------------------------------------------------------------------
     def write_iteration(self, iteration: int, ro, evals, first_episode: int) -> None:
-        self._simtrace(iteration, ro)
         entries = [self._train_entry(ep, first_episode + n, n) for n, ep in enumerate(ro.episodes)]
         entries += [self._eval_entry(e, first_episode + len(ro.episodes), n) for n, e in enumerate(evals)]
         self.metrics.add(entries)
         self.metrics.save()
+        self._simtrace(iteration, ro)  # after the metrics: the simtrace gets what they leave of logs.max_mb
 
     def _simtrace(self, iteration: int, ro, base: Path | None = None) -> None:
         """One iteration's simtrace under `base` (default the model folder; `<model>/<k>` for worker k)."""
@@ -53,7 +56,8 @@ class TrainingLogs:
         path = logs.training_simtrace_path(base or self.model_dir, iteration - 1, compress=compress)
         writer = logs.SimtraceWriter(path, compress=compress, sample_episodes=self.cfg.logs.simtrace_every)
         writer.write(cols)
-        writer.close()
+        self.retention.added(iteration - 1, writer.close())
+        self.retention.enforce(reserve=self._metrics_bytes())
 
     @staticmethod
     def _train_entry(ep, number: int, trial: int) -> dict:
@@ -83,6 +87,12 @@ class TrainingLogs:
         self.metrics.truncate(episodes)
         self.metrics.save()
         self.jsonl.truncate(iteration)
+        self.retention.rescan()
+        self.retention.enforce(reserve=self._metrics_bytes())  # a budget lowered since the last run applies now
+
+    def _metrics_bytes(self) -> int:
+        """metrics/ (TrainingMetrics.json, its archive, metrics.jsonl): inside logs.max_mb with the simtrace."""
+        return logs.disk_bytes(logs.training_metrics_path(self.model_dir).parent)
 
     def disk_bytes(self) -> int:
         return sum(logs.disk_bytes(p) for p in (logs.training_simtrace_dir(self.model_dir),
