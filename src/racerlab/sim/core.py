@@ -16,6 +16,7 @@ import numpy as np
 
 from racerlab.sim import _kernels as K
 from racerlab.sim.car import pack as pack_car
+from racerlab.sim.objects import ObjectSet, RaceConfig, as_race, base_from_model_point
 from racerlab.sim.state import CarState
 from racerlab.spec import STEP_S, CarParams
 from racerlab.track import Track
@@ -51,7 +52,7 @@ class Simulator:
 
     def __init__(self, track: Track | str, num_cars: int = 1, car: CarParams | None = None, *,
                  start: StartRules | None = None, max_episode_steps: int = 10_000, reward_order: str = "aws",
-                 lookahead_m=DEFAULT_LOOKAHEAD_M, seed: int | None = None):
+                 lookahead_m=DEFAULT_LOOKAHEAD_M, seed: int | None = None, race: RaceConfig | None = None):
         if reward_order not in REWARD_ORDERS:
             raise ValueError(f"reward_order must be one of {REWARD_ORDERS}, got {reward_order!r}")
         self.track = track if isinstance(track, Track) else load_track(track)
@@ -78,6 +79,10 @@ class Simulator:
         self._none = np.zeros(n, dtype=np.bool_)
         self._state = CarState(self.car, self.ctr, self.meas)
         self._judged = CarState(self.car, self.ctr, self.params)
+        self.race = as_race(race) or RaceConfig()
+        # each car's boxes (None in a time trial: the step then runs exactly as without objects)
+        self.objects = (ObjectSet(self.race, self.track, self.track_reversed, n, self.rng)
+                        if self.race.has_objects else None)
         self.reset()
 
     # ---- track arrays for the compiled step -----------------------------------------------------
@@ -118,6 +123,8 @@ class Simulator:
             nd = np.broadcast_to(np.asarray(start_ndist, dtype=np.float64), idx.shape)
             rev = np.broadcast_to(np.asarray(r.reverse if reverse is None else reverse, dtype=bool), idx.shape)
         self.ctr[idx, K.KREV] = rev
+        if self.objects is not None:
+            self.objects.place(idx, rev)
         s = nd * self.track.length
         pts = np.empty((idx.size, 2))
         yaw = np.empty(idx.size)
@@ -142,6 +149,8 @@ class Simulator:
         t = self.track_reversed if self.ctr[i, K.KREV] else self.track
         if start_ndist is None:
             start_ndist = float(t.project([[x, y]]).s[0] / t.length)
+        if self.objects is not None:
+            self.objects.place([i], [bool(self.ctr[i, K.KREV])])
         self._place(i, x, y, yaw_rad, start_ndist)
         self.car[i, K.CV] = speed
         self.episode_start_time[i] = self.time
@@ -184,8 +193,23 @@ class Simulator:
         K.step_all(act, np.ascontiguousarray(steer), np.ascontiguousarray(spd), self.car, self.ctr, self.meas,
                    self.params, self._car_arr, self.dt, self.after_action, self.max_episode_steps,
                    self.truncated, *self._geom)
+        if self.objects is not None:
+            self._judge_crashes(act)
         self.time += self.dt
         return self.ctr[:, K.KSTATUS]
+
+    def _judge_crashes(self, active) -> None:
+        """The crash rule on the judged pose of the stepped cars: status `crashed` where a corner of the car is
+        inside an object, unless the lap was completed on that step (AWS's status order: lap_complete, crashed,
+        off_track, in_progress, immobilized, reversed)."""
+        codes = self.ctr[:, K.KSTATUS]
+        idx = np.flatnonzero(active & (codes != K.STATUS_PREPARE) & (codes != K.LAP_COMPLETE))
+        if idx.size == 0:
+            return
+        p = self.params[idx]
+        hit = idx[self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]))]
+        self.ctr[hit, K.KSTATUS] = K.CRASHED
+        self.truncated[hit] = False
 
     def features(self, out=None, rows=None) -> np.ndarray:
         """(num_cars, feature_size) `features` observation of the current poses (float64 in `out`).

@@ -50,15 +50,16 @@ class World:
     `reward` a `RewardCaller`, a callable, a path, or None (reward 0 and no params built: the fastest
     path). `observation` names it ("features", "camera", ...); None follows the model's sensors, or
     is "features" when no metadata is given either. `car` and `start` take `CarParams` / `StartRules`
-    or their keyword dicts. With `keep_params`, `params` holds each car's params dict of the last step
-    (None where no reward was called).
+    or their keyword dicts; `race` a `RaceConfig`, its `[race]` table as a dict, or a race type name
+    ("object_avoidance": 6 evenly spaced boxes), None for a time trial. With `keep_params`, `params` holds
+    each car's params dict of the last step (None where no reward was called).
     """
 
     def __init__(self, track, num_cars: int = 1, metadata=None, reward=None, observation: str | None = None, *,
                  car=None, start=None, max_episode_steps: int = 10_000, reward_order: str = "aws",
-                 seed: int | None = None, keep_params: bool = False):
+                 seed: int | None = None, keep_params: bool = False, race=None):
         self.sim = Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
-                             max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed)
+                             max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed, race=race)
         self.metadata = as_model_metadata(metadata)
         if observation is None and metadata is None:
             observation = "features"

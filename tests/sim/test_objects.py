@@ -1,0 +1,221 @@
+"""Object avoidance on real AWS tracks: placement, the crash rule and the `objects_*` params against values
+worked out here from the waypoint arrays (brute-force geometry, not racerlab's projection)."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from racerlab.errors import ConfigError
+from racerlab.sim import Simulator
+from racerlab.sim.objects import RaceConfig
+from racerlab.sim.reward import ParamsBuilder
+from racerlab.spec import NO_OBJECTS
+
+TRACK = "reInvent2019_track"
+
+
+def arc_lengths(line):
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(line, axis=0).T))])
+
+
+def point_at(line, s):
+    cum = arc_lengths(line)
+    return np.array([np.interp(s, cum, line[:, 0]), np.interp(s, cum, line[:, 1])])
+
+
+def nearest_on(line, p):
+    """(nearest point, arc length there, segment heading) of polyline `line` to p, by brute force."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(1) / (ab * ab).sum(1), 0.0, 1.0)
+    q = a + t[:, None] * ab
+    k = int(np.argmin(np.hypot(*(q - p).T)))
+    return q[k], arc_lengths(line)[k] + t[k] * np.hypot(*ab[k]), math.atan2(ab[k, 1], ab[k, 0])
+
+
+def box_pose(track, frac, lane):
+    """Where AWS puts a box: the centre point at frac * L, projected onto the lane line (centre/border midline)."""
+    border = track.inner if lane == 1 else track.outer
+    lane_line = 0.5 * (track.center + border)
+    c = point_at(track.center, frac * arc_lengths(track.center)[-1])
+    q, _, yaw = nearest_on(lane_line, c)
+    return q, yaw
+
+
+def oa_sim(track, positions, num_cars=1, **kw):
+    return Simulator(track, num_cars, race=RaceConfig(type="object_avoidance", object_positions=positions), **kw)
+
+
+def test_fixed_positions_stand_on_their_lanes(aws_track):
+    t = aws_track(TRACK)
+    sim = oa_sim(t, [(0.25, 1), (0.6, -1)], num_cars=2)
+    for j, (frac, lane) in enumerate([(0.25, 1), (0.6, -1)]):
+        q, yaw = box_pose(t, frac, lane)
+        for car in range(2):
+            np.testing.assert_allclose(sim.objects.xy[car, j], q, atol=1e-9)
+            assert sim.objects.yaw[car, j] == pytest.approx(yaw, abs=1e-9)
+    sim.reset()
+    np.testing.assert_allclose(sim.objects.xy[0, 0], box_pose(t, 0.25, 1)[0], atol=1e-9)  # fixed layouts repeat
+
+
+def test_evenly_spaced_alternating_lanes(aws_track):
+    t = aws_track(TRACK)
+    sim = Simulator(t, 1, race=RaceConfig(type="object_avoidance", number_of_obstacles=4))
+    length = arc_lengths(t.center)[-1]
+    want = np.linspace(0.02 * length, length - 1.0, 4)  # min distance 2 % of the lap, the last 1 m before the end
+    for j, s in enumerate(want):
+        q, _ = box_pose(t, s / length, 1 if j % 2 == 0 else -1)
+        np.testing.assert_allclose(sim.objects.xy[0, j], q, atol=1e-9)
+    assert sim.objects.lane[0].tolist() == [1, -1, 1, -1]
+
+
+def test_random_layouts_keep_the_minimum_gap_and_change_every_reset(aws_track):
+    t = aws_track(TRACK)
+    race = RaceConfig(type="object_avoidance", number_of_obstacles=5, randomize_obstacle_locations=True,
+                      min_distance_between_obstacles=10.0)
+    sim = Simulator(t, 3, race=race, seed=4)
+    length = arc_lengths(t.center)[-1]
+    layouts = []
+    for _ in range(6):  # the intended minimum holds at every reset (AWS's shrinks from the second one on)
+        sim.reset()
+        for car in range(3):
+            s = np.array([nearest_on(t.center, p)[1] for p in sim.objects.xy[car]])
+            gaps = np.diff(s)
+            assert s[0] >= 0.1 * length - 0.3 and s[-1] <= length - 1.0 + 0.3  # lane projection moves it a little
+            assert (gaps >= 0.1 * length - 0.3).all()
+            layouts.append(s)
+        assert set(sim.objects.lane.ravel().tolist()) <= {1, -1}
+    assert len({tuple(np.round(s, 3)) for s in layouts}) == len(layouts)
+
+
+def crash_sim(t, gap):
+    """A car behind the box at 0.5 of the lap in the inner lane, aligned with it; its front corners `gap` m
+    before the box's footprint (negative: inside). Returns the status after one judged step."""
+    sim = oa_sim(t, [(0.5, 1)])
+    q, yaw = box_pose(t, 0.5, 1)
+    back = 0.25 + 0.32352 / 2 + gap
+    sim.set_pose(0, q[0] - back * math.cos(yaw), q[1] - back * math.sin(yaw), yaw)
+    sim.step(0.0, 0.1)  # prepare
+    return sim, sim.status_names(sim.step(0.0, 0.1))[0]
+
+
+def test_crash_when_a_corner_is_inside_the_box_footprint(aws_track):
+    t = aws_track(TRACK)
+    assert crash_sim(t, -0.01)[1] == "crashed"
+    assert crash_sim(t, 0.01)[1] == "in_progress"
+
+
+def test_crash_footprint_is_wider_than_the_box(aws_track):
+    # beside the box, 0.19 m from its lane line to the car's axis: the car's corner (0.098 m) is at 0.092 m,
+    # inside the 0.2 m half-width footprint (box 0.15 m + buffer), so a crash
+    t = aws_track(TRACK)
+    q, yaw = box_pose(t, 0.5, 1)
+    for side, want in ((0.19, "crashed"), (0.31, "in_progress")):
+        sim = oa_sim(t, [(0.5, 1)])
+        nx, ny = -math.sin(yaw), math.cos(yaw)
+        sim.set_pose(0, q[0] - side * nx, q[1] - side * ny, yaw)
+        sim.step(0.0, 0.1)
+        assert sim.status_names(sim.step(0.0, 0.1))[0] == want
+
+
+def test_training_episode_ends_on_a_crash(aws_track):
+    t = aws_track(TRACK)
+    env = gym.make("racerlab/DeepRacer-v0", track=t, race={"type": "object_avoidance", "object_positions": ["0.03,1"]},
+                   reward_function=lambda p: 1.0)
+    env.reset(seed=0)
+    for _ in range(60):
+        _, _, terminated, truncated, info = env.step(env.action_space.n // 2 if hasattr(env.action_space, "n") else 0)
+        if terminated:
+            break
+    assert terminated and env.unwrapped.sim.status_names()[0] == "crashed"
+    env.close()
+
+
+def params_for(sim):
+    sim.step(0.0, 0.1)
+    sim.step(0.0, 0.1)
+    return ParamsBuilder(sim).build()[0]
+
+
+def test_object_params_by_hand(aws_track):
+    t = aws_track(TRACK)
+    positions = [(0.7, -1), (0.2, 1), (0.45, -1)]
+    sim = oa_sim(t, positions)
+    length = arc_lengths(t.center)[-1]
+    # the car's model point on the centre line at 0.3 of the lap, heading along it
+    s_car = 0.3 * length
+    m = point_at(t.center, s_car)
+    _, _, heading = nearest_on(t.center, m)
+    sim.set_pose(0, m[0] - 0.14 * math.cos(heading), m[1] - 0.14 * math.sin(heading), heading)
+    p = params_for(sim)
+    boxes = [box_pose(t, f, lane)[0] for f, lane in positions]
+    np.testing.assert_allclose(p["objects_location"], boxes, atol=1e-9)
+    for j, b in enumerate(boxes):
+        q, s, _ = nearest_on(t.center, b)
+        assert p["objects_distance"][j] == pytest.approx(s, abs=1e-6)
+        assert p["objects_distance_from_center"][j] == pytest.approx(np.hypot(*(b - q)), abs=1e-9)
+    assert t.is_ccw  # reInvent2019 drives counter-clockwise: the inner lane is on the left
+    assert p["objects_left_of_center"] == [False, True, False]
+    # by arc length: box 1 (0.2) is behind the car (0.3), box 2 (0.45) is the next one ahead
+    assert p["closest_objects"] == [1, 2]
+    assert p["objects_heading"] == [0.0, 0.0, 0.0] and p["objects_speed"] == [0.0, 0.0, 0.0]
+    assert isinstance(p["objects_location"][0], list) and p["is_crashed"] is False
+    # beyond the last box the next one wraps to the first along the lap, the previous is the last
+    sim2 = oa_sim(t, positions)
+    m = point_at(t.center, 0.8 * length)
+    _, _, heading = nearest_on(t.center, m)
+    sim2.set_pose(0, m[0] - 0.14 * math.cos(heading), m[1] - 0.14 * math.sin(heading), heading)
+    assert params_for(sim2)["closest_objects"] == [0, 1]
+
+
+def test_object_in_camera(aws_track):
+    t = aws_track(TRACK)
+    q, yaw = box_pose(t, 0.5, 1)
+    for back, want in ((1.5, True), (-1.0, False)):  # 1.5 m behind the box and looking at it; past it
+        sim = oa_sim(t, [(0.5, 1), (0.02, -1)])
+        sim.set_pose(0, q[0] - back * math.cos(yaw), q[1] - back * math.sin(yaw), yaw)
+        p = params_for(sim)
+        nxt = p["closest_objects"][1]
+        assert (nxt == 0) == (back > 0)
+        assert p["object_in_camera"] is want
+
+
+def test_reversed_direction_measures_along_the_reversed_line(aws_track):
+    t = aws_track(TRACK)
+    sim = oa_sim(t, [(0.25, 1)])
+    rt = t.reverse()
+    m = point_at(rt.center, 0.1 * arc_lengths(rt.center)[-1])
+    _, _, heading = nearest_on(rt.center, m)
+    sim.set_pose(0, m[0] - 0.14 * math.cos(heading), m[1] - 0.14 * math.sin(heading), heading, reverse=True)
+    p = params_for(sim)
+    b = box_pose(rt, 0.25, 1)[0]
+    np.testing.assert_allclose(p["objects_location"][0], b, atol=1e-9)
+    assert p["objects_distance"][0] == pytest.approx(nearest_on(rt.center, b)[1], abs=1e-6)
+    assert p["objects_left_of_center"] == [False]  # the inner lane is on the right when driving clockwise
+
+
+def test_time_trial_has_no_objects(aws_track):
+    sim = Simulator(aws_track(TRACK), 1)
+    assert sim.objects is None
+    p = params_for(sim)
+    assert {k: p[k] for k in NO_OBJECTS} == {k: (list(v) if isinstance(v, tuple) else v) for k, v in NO_OBJECTS.items()}
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"object_positions": ["1.2,1"]}, "object_positions"),
+    ({"object_positions": [[0.2, 2]]}, "object_positions"),
+    ({"number_of_obstacles": 30, "min_distance_between_obstacles": 5.0}, "number_of_obstacles"),
+    ({"obstacle_type": "crate"}, "obstacle_type"),
+    ({"type": "drag_race"}, "type"),
+    ({"number_of_obstacle": 3}, "number_of_obstacle"),
+    ({"penalty_seconds": -1}, "penalty_seconds"),
+])
+def test_bad_race_settings_name_the_key(table, key):
+    with pytest.raises(ConfigError) as err:
+        RaceConfig.from_mapping({"type": "object_avoidance", **table}, where="training.toml [race]")
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("training.toml [race]:") and key in msg
