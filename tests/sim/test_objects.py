@@ -219,3 +219,21 @@ def test_bad_race_settings_name_the_key(table, key):
         RaceConfig.from_mapping({"type": "object_avoidance", **table}, where="training.toml [race]")
     msg = str(err.value)
     assert "\n" not in msg and msg.startswith("training.toml [race]:") and key in msg
+
+
+def test_race_table_of_training_toml(tmp_path):
+    from racerlab.model.config import load_training_config, parse_training_config
+
+    path = tmp_path / "training.toml"
+    path.write_text('[race]\ntype = "object_avoidance"\nobject_positions = ["0.2,1", "0.5,-1"]\n'
+                    'min_distance_between_obstacles = 5\n')
+    cfg = load_training_config(path)
+    assert cfg.race.object_positions == ((0.2, 1), (0.5, -1)) and cfg.race.num_obstacles == 2
+    again = parse_training_config(__import__("tomllib").loads(cfg.to_toml()))
+    assert again.race == cfg.race
+    path.write_text('[race]\ntype = "object_avoidance"\nobject_positions = ["0.2,3"]\n')
+    with pytest.raises(ConfigError, match=r"training.toml \[race\]: object_positions lane"):
+        load_training_config(path)
+    path.write_text('[race]\nrandomize_obstacle_locations = "yes"\n')
+    with pytest.raises(ConfigError, match="randomize_obstacle_locations must be true or false"):
+        load_training_config(path)

@@ -13,6 +13,7 @@ from pathlib import Path
 from racerlab.errors import ConfigError
 from racerlab.logs.metrics import BEST_MODEL_METRICS
 from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
+from racerlab.spec import RaceConfig
 
 REWARD_ORDERS = ("aws", "after_action")
 
@@ -65,6 +66,7 @@ class TrainingConfig:
     stop: StopSettings = field(default_factory=StopSettings)
     evaluation: EvaluationSettings = field(default_factory=EvaluationSettings)
     logs: LogSettings = field(default_factory=LogSettings)
+    race: RaceConfig = field(default_factory=RaceConfig)  # [race]: DRfC's names (racerlab.spec.RaceConfig)
     source: str = "training.toml"
 
     def to_toml(self) -> str:
@@ -75,6 +77,8 @@ class TrainingConfig:
             out.append(f"[{f.name}]")
             section = getattr(self, f.name)
             for sf in fields(section):
+                if sf.name == "where":
+                    continue
                 out.append(f"{sf.name} = {_toml_value(getattr(section, sf.name))}")
             out.append("")
         return "\n".join(out)
@@ -121,10 +125,13 @@ def _coerce(src: str, key: str, default, value):
 def parse_training_config(data: dict, source: str = "training.toml") -> TrainingConfig:
     sections = {}
     for name, section in data.items():
-        if name not in SECTIONS:
-            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}")
+        if name not in SECTIONS and name != "race":
+            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}, race")
         if not isinstance(section, dict):
             raise ConfigError(f"{source}: {name} must be a [section]")
+        if name == "race":
+            sections[name] = RaceConfig.from_mapping(section, where=f"{source} [race]")
+            continue
         cls = SECTIONS[name]
         defaults = cls()
         allowed = {f.name for f in fields(cls)}
