@@ -124,12 +124,15 @@ def test_crash_footprint_is_wider_than_the_box(aws_track):
 
 def test_training_episode_ends_on_a_crash(aws_track):
     t = aws_track(TRACK)
-    env = gym.make("racerlab/DeepRacer-v0", track=t, race={"type": "object_avoidance", "object_positions": ["0.03,1"]},
+    env = gym.make("racerlab/DeepRacer-v0", track=t, race={"type": "object_avoidance", "object_positions": ["0.5,1"]},
                    reward_function=lambda p: 1.0)
     env.reset(seed=0)
+    q, yaw = box_pose(t, 0.5, 1)
+    env.unwrapped.sim.set_pose(0, q[0] - 0.8 * math.cos(yaw), q[1] - 0.8 * math.sin(yaw), yaw)
+    straight = int(np.flatnonzero(env.unwrapped.world.commands(np.arange(env.action_space.n))[0] == 0.0)[0])
     for _ in range(60):
-        _, _, terminated, truncated, info = env.step(env.action_space.n // 2 if hasattr(env.action_space, "n") else 0)
-        if terminated:
+        _, _, terminated, truncated, info = env.step(straight)
+        if terminated or truncated:
             break
     assert terminated and env.unwrapped.sim.status_names()[0] == "crashed"
     env.close()
@@ -237,3 +240,16 @@ def test_race_table_of_training_toml(tmp_path):
     path.write_text('[race]\nrandomize_obstacle_locations = "yes"\n')
     with pytest.raises(ConfigError, match="randomize_obstacle_locations must be true or false"):
         load_training_config(path)
+
+
+def test_a_start_near_a_box_moves_to_the_other_lane(aws_track):
+    # evenly spaced: the first box is 2 % of the lap (0.46 m) after the start line in the inner lane, so the
+    # car starting at the line goes to the outer lane and can drive straight past it
+    t = aws_track(TRACK)
+    sim = Simulator(t, 1, race=RaceConfig(type="object_avoidance", number_of_obstacles=3))
+    q = nearest_on(0.5 * (t.center + t.outer), t.center[0])[0]
+    np.testing.assert_allclose([sim.state.x[0], sim.state.y[0]], q, atol=1e-9)
+    codes = [sim.step(0.0, 0.5)[0] for _ in range(20)]
+    assert 2 not in codes  # never crashed
+    sim2 = oa_sim(t, [(0.5, 1)])  # nothing near the start: the centre line
+    np.testing.assert_allclose([sim2.state.x[0], sim2.state.y[0]], t.center[0], atol=1e-9)

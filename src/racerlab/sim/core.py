@@ -133,6 +133,8 @@ class Simulator:
             if sel.any():
                 pts[sel] = t.point_at(s[sel])
                 yaw[sel] = t.heading_at(s[sel])
+        if self.objects is not None:
+            self.objects.clear_starts(idx, rev, pts, yaw)
         K.place_many(idx, pts[:, 0].copy(), pts[:, 1].copy(), yaw, np.ascontiguousarray(nd, dtype=np.float64),
                      self.car, self.ctr, self.meas, *self._geom)
         self.episode_start_time[idx] = self.time

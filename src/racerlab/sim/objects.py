@@ -38,6 +38,7 @@ BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX
 CAR_FOOTPRINT_M = (0.32352, 0.1961)  # (length, width): BOT_CAR_DIMENSION, the agent's crash footprint
 OBSTACLE_Z_M = 0.1
 END_MARGIN_M = 1.0  # the last obstacle stays this far before the end of the lap
+CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
 CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
 CAMERA_FAR_M = 300.0
@@ -186,6 +187,19 @@ class ObjectSet:
             self.left[i] = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[int(rev)])
             self.order[i] = np.argsort(self.arc[i], kind="stable")
             self._lists[i] = (xy.tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist())
+
+    def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
+        """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
+        the car's objects onto the lane on the other side of that object, as AWS starts a training episode."""
+        for j, (i, rev) in enumerate(zip(np.asarray(idx).tolist(), np.asarray(reversed_).tolist(), strict=True)):
+            d = np.hypot(*(self.xy[i] - pts[j]).T)
+            if d.size == 0 or d.min() >= CLOSEST_OBJ_GAP_M:
+                continue
+            lanes = self.lanes[int(rev)]
+            lane = lanes.outer if self.lane[i, int(np.argmin(d))] == 1 else lanes.inner
+            proj = lane.project(pts[j:j + 1])
+            pts[j] = lane.point_at(proj.s)[0]
+            yaw[j] = proj.heading[0]
 
     def crashed(self, bx, by, yaw) -> np.ndarray:
         """Per car: a corner of the car at base pose (bx, by, yaw) is inside one of its objects' footprints."""
