@@ -253,3 +253,32 @@ def test_a_start_near_a_box_moves_to_the_other_lane(aws_track):
     assert 2 not in codes  # never crashed
     sim2 = oa_sim(t, [(0.5, 1)])  # nothing near the start: the centre line
     np.testing.assert_allclose([sim2.state.x[0], sim2.state.y[0]], t.center[0], atol=1e-9)
+
+
+def test_init_object_avoidance_writes_a_race_and_a_reward_that_reads_objects(tmp_path):
+    from racerlab.cli import main
+    from racerlab.model.config import load_training_config
+    from racerlab.sim.world import World
+
+    assert main(["init", str(tmp_path / "oa"), "--race", "object_avoidance"]) == 0
+    cfg = load_training_config(tmp_path / "oa" / "training.toml")
+    assert cfg.race.type == "object_avoidance" and cfg.race.num_obstacles == 3
+    oa = tmp_path / "oa"
+    world = World(cfg.track.names[0], 2, oa / "model_metadata.json", oa / "reward_function.py", race=cfg.race,
+                  keep_params=True, seed=0)
+    rewards = []
+    for _ in range(30):
+        codes, r = world.step(np.array([4, 5]))
+        rewards += r.tolist()
+        if world.done(codes)[0].any():
+            world.sim.reset(world.done(codes)[0])
+    assert len(world.params[0]["objects_location"]) == 3 and all(x >= 0 for x in rewards)
+    # the example reward: a box ahead in the car's lane lowers the reward as the car closes in
+    from racerlab.model.reward import load_reward_function
+
+    fn = load_reward_function(tmp_path / "oa" / "reward_function.py")
+    base = dict(world.params[0], is_offtrack=False, is_crashed=False, all_wheels_on_track=True, x=0.0, y=0.0,
+                distance_from_center=0.0, is_left_of_center=True, closest_objects=[0, 0],
+                objects_location=[[1.0, 0.0]], objects_left_of_center=[True])
+    assert fn(base) < fn(dict(base, objects_location=[[1.4, 0.0]])) < fn(dict(base, objects_location=[[3.0, 0.0]]))
+    assert fn(dict(base, objects_left_of_center=[False])) > fn(dict(base, objects_location=[[3.0, 0.0]]))

@@ -20,6 +20,8 @@ def register(sub) -> None:
     p.add_argument("--cars", type=int, help="cars simulated in parallel")
     p.add_argument("--best-model-metric", choices=BEST_MODEL_METRICS,
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
+    p.add_argument("--race", choices=["time_trial", "object_avoidance"], default="time_trial",
+                   help="object_avoidance: three boxes in [race] and an example reward using objects_*")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -50,7 +52,7 @@ def run_init(args) -> int:
 
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
-                        best_model_metric=args.best_model_metric, force=args.force)
+                        best_model_metric=args.best_model_metric, force=args.force, race=args.race)
     print(f"created {folder.path}: reward_function.py, model_metadata.json, hyperparameters.json, training.toml")
     print(f"next: edit the reward function, then `racerlab train {folder.path} --minutes 5`")
     return 0

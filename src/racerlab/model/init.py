@@ -12,9 +12,14 @@ from racerlab.model.config import TrackSettings, TrainingConfig
 from racerlab.model.folder import ModelFolder
 from racerlab.model.hyperparameters import Hyperparameters
 from racerlab.model.metadata import ContinuousActions, ModelMetadata, default_discrete_actions
-from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED
+from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, RaceConfig
 
 EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
+EXAMPLE_REWARDS = {"time_trial": EXAMPLE_REWARD,
+                   "object_avoidance": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
+# `init --race object_avoidance`: three fixed boxes that pass the console's rules (first >= 7 %, last <= 90 %,
+# gaps >= 13 % of the lap), alternating lanes
+OBJECT_AVOIDANCE_POSITIONS = ((0.25, 1), (0.5, -1), (0.75, 1))
 SENSORS = {
     "features": (("FEATURES",), "MLP"),
     "camera": (("FRONT_FACING_CAMERA",), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
@@ -44,7 +49,7 @@ def make_metadata(sensor: str = "features", action_space: str = "discrete", algo
 
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
-               best_model_metric: str | None = None, force: bool = False) -> ModelFolder:
+               best_model_metric: str | None = None, force: bool = False, race: str = "time_trial") -> ModelFolder:
     folder = ModelFolder(path)
     existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
@@ -66,8 +71,12 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
     if sensor != "features":
         # pixels cost more per step; fewer cars keep an iteration's memory and time moderate
         cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars or 16))
+    if race not in EXAMPLE_REWARDS:
+        raise RacerlabError(f"race must be one of {', '.join(EXAMPLE_REWARDS)}, got {race!r}")
+    if race == "object_avoidance":
+        cfg = replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
     folder.path.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(EXAMPLE_REWARD, folder.reward_path)
+    shutil.copyfile(EXAMPLE_REWARDS[race], folder.reward_path)
     folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
     folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
     folder.config_path.write_text(_TOML_HEADER + cfg.to_toml())
@@ -85,5 +94,8 @@ _TOML_HEADER = """\
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
 #   [logs]   simtrace_every: log every k-th training episode; compress: gzip the simtrace CSVs
+#   [race]   DRfC's race settings: type (time_trial|object_avoidance), number_of_obstacles, obstacle_type,
+#            randomize_obstacle_locations, object_positions ([fraction of the lap, lane 1 inner | -1 outer]),
+#            min_distance_between_obstacles (% of the lap), penalty_seconds, bot car keys (not driven yet)
 
 """
