@@ -282,3 +282,21 @@ def test_init_object_avoidance_writes_a_race_and_a_reward_that_reads_objects(tmp
                 objects_location=[[1.0, 0.0]], objects_left_of_center=[True])
     assert fn(base) < fn(dict(base, objects_location=[[1.4, 0.0]])) < fn(dict(base, objects_location=[[3.0, 0.0]]))
     assert fn(dict(base, objects_left_of_center=[False])) > fn(dict(base, objects_location=[[3.0, 0.0]]))
+
+
+def test_features_end_with_the_nearest_boxes_ahead_in_the_car_frame(aws_track):
+    t = aws_track(TRACK)
+    positions = [(0.7, -1), (0.2, 1), (0.45, -1)]
+    sim = oa_sim(t, positions)
+    assert sim.feature_size == Simulator(t, 1).feature_size + 4
+    length = arc_lengths(t.center)[-1]
+    m = point_at(t.center, 0.3 * length)
+    _, _, heading = nearest_on(t.center, m)
+    bx, by = m[0] - 0.14 * math.cos(heading), m[1] - 0.14 * math.sin(heading)
+    sim.set_pose(0, bx, by, heading)
+    f = sim.features()[0, -4:]
+    for k, j in enumerate((2, 0)):  # ahead of 0.3: the box at 0.45, then the one at 0.7
+        d = box_pose(t, *positions[j])[0] - (bx, by)
+        fwd = d[0] * math.cos(heading) + d[1] * math.sin(heading)
+        left = -d[0] * math.sin(heading) + d[1] * math.cos(heading)
+        np.testing.assert_allclose(f[2 * k:2 * k + 2], [fwd / 2, left / 2], atol=1e-9)

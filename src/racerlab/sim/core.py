@@ -16,7 +16,7 @@ import numpy as np
 
 from racerlab.sim import _kernels as K
 from racerlab.sim.car import pack as pack_car
-from racerlab.sim.objects import ObjectSet, RaceConfig, as_race, base_from_model_point
+from racerlab.sim.objects import FEATURE_OBJECTS, ObjectSet, RaceConfig, as_race, base_from_model_point
 from racerlab.sim.state import CarState
 from racerlab.spec import STEP_S, CarParams
 from racerlab.track import Track
@@ -222,11 +222,22 @@ class Simulator:
         idx = np.arange(self.num_cars) if rows is None else np.asarray(rows, dtype=np.int64)
         K.features(idx, self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed,
                    self.track.length, self.lookahead, self._car_arr, buf)
+        if self.objects is not None:
+            c = self.car[idx]
+            near = np.empty((idx.size, 2 * FEATURE_OBJECTS))
+            self.objects.features_ahead(idx, c[:, K.CX], c[:, K.CY], c[:, K.CYAW], self.meas[idx, K.MS],
+                                        self.track.length, near)
+            buf[idx, self._track_features:] = near
         return buf
 
     @property
-    def feature_size(self) -> int:
+    def _track_features(self) -> int:
         return 6 + 2 * len(self.lookahead)
+
+    @property
+    def feature_size(self) -> int:
+        """Length of the `features` vector; in a race with objects it ends with the nearest objects ahead."""
+        return self._track_features + (2 * FEATURE_OBJECTS if self.objects is not None else 0)
 
     # ---- views -------------------------------------------------------------------------------
     @property

@@ -38,6 +38,7 @@ BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX
 CAR_FOOTPRINT_M = (0.32352, 0.1961)  # (length, width): BOT_CAR_DIMENSION, the agent's crash footprint
 OBSTACLE_Z_M = 0.1
 END_MARGIN_M = 1.0  # the last obstacle stays this far before the end of the lap
+FEATURE_OBJECTS = 2  # the `features` observation gains the nearest objects ahead, (x ahead, y left) / 2 m each
 CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
 CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
@@ -200,6 +201,19 @@ class ObjectSet:
             proj = lane.project(pts[j:j + 1])
             pts[j] = lane.point_at(proj.s)[0]
             yaw[j] = proj.heading[0]
+
+    def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
+        """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
+        s: the nearest objects ahead along the lap, in the car's frame (x ahead, y left) divided by 2 m, as the
+        centre points of `features`; with fewer objects the list repeats from the nearest."""
+        ahead = np.mod(self.arc[rows] - s[:, None], length)
+        order = np.argsort(ahead, axis=1, kind="stable")
+        pick = order[:, np.arange(FEATURE_OBJECTS) % self.num_objects]  # (k, F)
+        dx = self.xy[rows[:, None], pick, 0] - x[:, None]
+        dy = self.xy[rows[:, None], pick, 1] - y[:, None]
+        c, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        out[:, 0::2] = (dx * c + dy * sn) * 0.5
+        out[:, 1::2] = (-dx * sn + dy * c) * 0.5
 
     def crashed(self, bx, by, yaw) -> np.ndarray:
         """Per car: a corner of the car at base pose (bx, by, yaw) is inside one of its objects' footprints."""
