@@ -300,3 +300,27 @@ def test_features_end_with_the_nearest_boxes_ahead_in_the_car_frame(aws_track):
         fwd = d[0] * math.cos(heading) + d[1] * math.sin(heading)
         left = -d[0] * math.sin(heading) + d[1] * math.cos(heading)
         np.testing.assert_allclose(f[2 * k:2 * k + 2], [fwd / 2, left / 2], atol=1e-9)
+
+
+def test_lidar_sees_the_car_s_own_boxes(aws_track):
+    from racerlab.sim.sensors import Lidar
+    from racerlab.sim.sensors.geometry import lidar_position, lidar_ray_angles
+
+    t = aws_track(TRACK)
+    sim = oa_sim(t, [(0.5, 1)], num_cars=2)
+    q, yaw = box_pose(t, 0.5, 1)
+    fx, fy = math.cos(yaw), math.sin(yaw)
+    lx, ly = -fy, fx
+    # car 0: lidar level with the box centre, the box 0.5 m to its left; car 1 far from its box
+    sim.set_pose(0, q[0] - lidar_position() * fx - 0.5 * lx, q[1] - lidar_position() * fy - 0.5 * ly, yaw)
+    sim.set_pose(1, *point_at(t.center, 0.05 * arc_lengths(t.center)[-1]), yaw)
+    lidar = Lidar(sim, noise_sigma_m=0.0)
+    r = lidar.scan().astype(float)
+    a = lidar_ray_angles()
+    side = 0.5 - 0.15  # the box is 0.30 m across: its near face is 0.35 m away
+    with np.errstate(divide="ignore"):
+        along = side / np.tan(a)
+    hits = (np.sin(a) > 0) & (np.abs(along) <= 0.2)
+    np.testing.assert_allclose(r[0][hits], side / np.sin(a[hits]), atol=1e-6)
+    assert (r[0][~hits] == 1.0).all() and hits.sum() >= 10
+    assert (r[1] == 1.0).all()  # car 1 does not see car 0's box

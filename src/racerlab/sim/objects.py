@@ -34,6 +34,7 @@ from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
 
+BOX_SIZE_M = (0.40, 0.30)  # the box model (along the lane, across): what the lidar and camera see
 BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX_OBSTACLE_DIMENSION (0.4, 0.5)
 CAR_FOOTPRINT_M = (0.32352, 0.1961)  # (length, width): BOT_CAR_DIMENSION, the agent's crash footprint
 OBSTACLE_Z_M = 0.1
@@ -165,6 +166,7 @@ class ObjectSet:
         m = race.num_obstacles
         self.num_objects = m
         self.half = (0.5 * BOX_FOOTPRINT_M[0], 0.5 * BOX_FOOTPRINT_M[1])
+        self.box_size_m = np.array(BOX_SIZE_M)
         self.xy = np.zeros((num_cars, m, 2))
         self.yaw = np.zeros((num_cars, m))
         self.arc = np.zeros((num_cars, m))

@@ -197,6 +197,14 @@ class Lidar:
         self.grid = edge_grid(self.edges, self.reach_m + GRID_CELL_M * math.sqrt(2.0)) if self.walls \
             else (np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int64), 0.0, 0.0, 1.0, 1, 1)
         self.set_objects(None)
+        objects = getattr(sim, "objects", None)
+        if objects is not None and objects.num_objects:
+            # each car sees its own boxes: one row per car and box, visible on the car's block only
+            m = objects.num_objects
+            sizes = np.tile(objects.box_size_m, (sim.num_cars * m, 1))
+            boxes = np.hstack([np.zeros((sim.num_cars * m, 3)), sizes])
+            self.set_objects(boxes, np.kron(np.eye(sim.num_cars, dtype=np.bool_), np.ones((1, m), dtype=np.bool_)))
+        self._objects = objects if self.boxes.shape[0] else None
         self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
         self.ranges = np.full((sim.num_cars, LIDAR_RAYS), self.max_range_m, dtype=np.float32)
         self._all = np.arange(sim.num_cars, dtype=np.int64)
@@ -221,6 +229,9 @@ class Lidar:
         Ranges are clipped to [0.15, max_range_m]; a ray that hits nothing reads max_range_m.
         """
         idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        if self._objects is not None:  # the boxes move at every reset
+            self.boxes[:, :2] = self._objects.xy.reshape(-1, 2)
+            self.boxes[:, 2] = self._objects.yaw.ravel()
         if self.boxes.shape[0] or self.walls:
             car = self.sim.car
             scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD,
