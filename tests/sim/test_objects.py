@@ -324,3 +324,39 @@ def test_lidar_sees_the_car_s_own_boxes(aws_track):
     np.testing.assert_allclose(r[0][hits], side / np.sin(a[hits]), atol=1e-6)
     assert (r[0][~hits] == 1.0).all() and hits.sum() >= 10
     assert (r[1] == 1.0).all()  # car 1 does not see car 0's box
+
+
+def test_evaluation_crash_restarts_behind_the_box_in_the_other_lane(aws_track):
+    from racerlab.evaluate.rules import RaceRules, pause_steps
+    from racerlab.evaluate.runner import run_evaluation
+    from racerlab.model import ContinuousActions, ModelMetadata
+    from racerlab.sim import World
+    from racerlab.sim.pursuit import PurePursuit
+
+    t = aws_track(TRACK)
+    meta = ModelMetadata(ContinuousActions(-30.0, 30.0, 0.5, 4.0), ("FEATURES",), "MLP")
+    w = World(t, 1, meta, None, "features", max_episode_steps=100_000, seed=0,
+              race={"type": "object_avoidance", "object_positions": [[0.5, 1]]})
+    pp = PurePursuit.on_centre_line(t, speed=1.0)
+
+    def policy(obs):  # the centre line passes 0.27 m from the box: a crash
+        steer, v = pp(w.sim)
+        return np.stack([steer / 30.0, (v - 0.5) / 1.75 - 1.0], axis=1)
+
+    run = run_evaluation(w, policy, RaceRules(trials=1, collision_penalty=1.0, max_resets=1))
+    tr, x = run.trace, run.extra
+    crash = np.flatnonzero(tr["episode_status"] == "crashed")
+    assert crash.size == 2 and run.laps[0].status == "crashed" and run.laps[0].counts["crashed"] == 2
+    i = crash[0]
+    assert tr["obstacle_crash_counter"][i] == 1 and tr["obstacle_crash_counter"][i - 1] == 0
+    assert tr["pause_duration"][i] == 1.0
+    pause = np.arange(i + 1, i + 1 + pause_steps(1.0))
+    assert np.all(tr["episode_status"][pause] == "pause") and np.all(tr["obstacle_crash_counter"][pause] == 1)
+    # put back 1 m of centre line behind the box, on the outer lane (the box is in the inner one)
+    box = box_pose(t, 0.5, 1)[0]
+    s_box = nearest_on(t.center, box)[1]
+    want, _, _ = nearest_on(0.5 * (t.center + t.outer), point_at(t.center, s_box - 1.0))
+    np.testing.assert_allclose([x["base_x"][pause[0]], x["base_y"][pause[0]]], want, atol=1e-9)
+    # progress is measured there: the model point, 0.14 m ahead of that base, from the start line
+    length = arc_lengths(t.center)[-1]
+    assert tr["progress"][pause[0]] == pytest.approx(100.0 * (s_box - 1.0 + 0.14) / length, abs=0.05)

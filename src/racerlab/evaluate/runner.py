@@ -96,6 +96,7 @@ class _Episode:
     resets: int = 0
     counts: dict = field(default_factory=lambda: dict.fromkeys(INCIDENTS, 0))
     prev: tuple | None = None  # (progress, model x, model y, heading °) of the previous row
+    obstacle_crashes: int = 0  # the simtrace's obstacle_crash_counter
 
 
 class _Driver:
@@ -187,7 +188,12 @@ class _Driver:
         ep.resets += 1
         penalty = self.rules.penalty(status)
         self.trace.set_last("pause_duration", penalty)
-        self._put_back(before)
+        if status == "crashed" and self.sim.objects is not None:
+            ep.obstacle_crashes += 1
+            self.trace.set_last("obstacle_crash_counter", ep.obstacle_crashes)
+            self._put_behind_obstacle(before)
+        else:
+            self._put_back(before)
         self._hold(penalty)
         return False
 
@@ -203,6 +209,17 @@ class _Driver:
         x, y, new_yaw = self.lanes.reset_pose(s, base)
         # measure the new pose against the progress the car is put back at, not where it left the road
         sim.relocate(0, x, y, new_yaw, progress=progress)
+
+    def _put_behind_obstacle(self, before: tuple) -> None:
+        """After hitting a box: 1 m behind it in the other lane (simapp's obstacle reset), progress moved back
+        by the centre-line distance between the two points."""
+        sim = self.sim
+        progress, mx, my, _ = before
+        length = self.track.length
+        s_before = (sim.state.start[0] + progress / 100.0) * length
+        x, y, yaw, s = sim.objects.reset_behind(0, bool(sim.state.reversed[0]), mx, my)
+        back = (s_before - s) % length if self.track.closed else s_before - s
+        sim.relocate(0, x, y, yaw, progress=progress - 100.0 * back / length)
 
     def _hold(self, penalty: float) -> None:
         """The pause rows: the car stands still for the penalty; the sim clock runs on."""
@@ -228,7 +245,7 @@ class _Driver:
         row.update({
             "episode": len(self.laps), "steer": float(steer[0]), "throttle": float(speed[0]), "action": action,
             "reward": reward, "done": False, "track_len": self.track.length, "episode_status": status,
-            "pause_duration": pause, "obstacle_crash_counter": 0, "wall_clock": time.time(),
+            "pause_duration": pause, "obstacle_crash_counter": self.ep.obstacle_crashes, "wall_clock": time.time(),
             "base_x": float(car.x[0]), "base_y": float(car.y[0]), "base_yaw": float(car.yaw[0]),
             "speed": float(car.speed[0]), "lap_clock": sim.time - self.ep.lap_start,
         })

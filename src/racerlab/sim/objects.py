@@ -40,6 +40,7 @@ CAR_FOOTPRINT_M = (0.32352, 0.1961)  # (length, width): BOT_CAR_DIMENSION, the a
 OBSTACLE_Z_M = 0.1
 END_MARGIN_M = 1.0  # the last obstacle stays this far before the end of the lap
 FEATURE_OBJECTS = 2  # the `features` observation gains the nearest objects ahead, (x ahead, y left) / 2 m each
+RESET_BEHIND_DIST_M = 1.0  # evaluation: after a crash the car restarts this far behind the box, other lane
 CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
 CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
@@ -216,6 +217,19 @@ class ObjectSet:
         c, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         out[:, 0::2] = (dx * c + dy * sn) * 0.5
         out[:, 1::2] = (-dx * sn + dy * c) * 0.5
+
+    def reset_behind(self, i: int, reversed_: bool, mx: float, my: float) -> tuple[float, float, float, float]:
+        """AWS's evaluation reset after car i (model point mx, my) hit a box: (x, y, yaw) on the lane opposite
+        the nearest box, `RESET_BEHIND_DIST_M` of centre line behind it, and that point's centre-line arc."""
+        k = int(np.argmin(np.hypot(self.xy[i, :, 0] - mx, self.xy[i, :, 1] - my)))
+        lanes = self.lanes[int(reversed_)]
+        t = lanes.track
+        s = self.arc[i, k] - RESET_BEHIND_DIST_M
+        s = s % t.length if t.closed else max(s, 0.0)
+        lane = lanes.outer if self.lane[i, k] == 1 else lanes.inner
+        proj = lane.project(t.point_at(s).reshape(1, 2))
+        x, y = lane.point_at(proj.s)[0]
+        return float(x), float(y), float(proj.heading[0]), float(s)
 
     def crashed(self, bx, by, yaw) -> np.ndarray:
         """Per car: a corner of the car at base pose (bx, by, yaw) is inside one of its objects' footprints."""
