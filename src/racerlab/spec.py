@@ -174,8 +174,13 @@ class RaceConfig:
         return len(self.object_positions) or self.number_of_obstacles
 
     @property
+    def num_bot_cars(self) -> int:
+        """Bot cars on the track (in a head-to-bot race)."""
+        return self.number_of_bot_cars if self.type == "head_to_bot" else 0
+
+    @property
     def has_objects(self) -> bool:
-        return self.num_obstacles > 0
+        return self.num_obstacles + self.num_bot_cars > 0
 
     @classmethod
     def from_mapping(cls, table, where: str = "race") -> RaceConfig:

@@ -360,3 +360,36 @@ def test_evaluation_crash_restarts_behind_the_box_in_the_other_lane(aws_track):
     # progress is measured there: the model point, 0.14 m ahead of that base, from the start line
     length = arc_lengths(t.center)[-1]
     assert tr["progress"][pause[0]] == pytest.approx(100.0 * (s_box - 1.0 + 0.14) / length, abs=0.05)
+
+
+def test_bot_cars_drive_their_lane_and_count_only_when_hit_from_behind(aws_track):
+    t = aws_track(TRACK)
+    race = RaceConfig(type="head_to_bot", number_of_bot_cars=2, bot_car_speed=0.6)
+    sim = Simulator(t, 1, race=race)
+    length = arc_lengths(t.center)[-1]
+    inner = 0.5 * (t.center + t.inner)
+    start_s = nearest_on(inner, box_pose(t, 2.0 / length, 1)[0])[1]
+    assert sim.objects.lane[0].tolist() == [1, -1]  # 2 m (min_distance_between_bot_cars) and L - 1 m
+    np.testing.assert_allclose(sim.objects.xy[0, 0], box_pose(t, 2.0 / length, 1)[0], atol=1e-9)
+    sim.set_pose(0, *point_at(t.center, 0.5 * length), 0.0)  # the agent out of the way
+    for _ in range(30):
+        sim.step(0.0, 0.1)
+    elapsed = 30 / 15
+    q, s_lane, yaw = nearest_on(inner, sim.objects.xy[0, 0])
+    assert s_lane == pytest.approx(start_s + 0.6 * elapsed, abs=1e-6)
+    p = ParamsBuilder(sim).build()[0]
+    assert p["objects_speed"] == [0.6, 0.6]
+    assert p["objects_heading"][0] == pytest.approx(yaw, abs=1e-9)  # radians, along its lane
+
+    def judged(offset):
+        """Agent aligned with bot 0, `offset` m of lane ahead (+) or behind (-) of it, half overlapping."""
+        s2 = Simulator(t, 1, race=race)
+        bx, by = s2.objects.xy[0, 0]
+        byaw = s2.objects.yaw[0, 0]
+        s2.set_pose(0, bx + offset * math.cos(byaw), by + offset * math.sin(byaw), byaw)
+        s2.objects.drive([0], [0.0])
+        s2.step(0.0, 0.1)
+        return s2.status_names(s2.step(0.0, 0.1))[0]
+
+    assert judged(-0.2) == "crashed"  # the agent's nose in the bot's tail (the bot drives 0.04 m a step)
+    assert judged(0.2) == "in_progress"  # the bot's nose in the agent's tail: not the agent's crash

@@ -198,6 +198,8 @@ class Simulator:
         if self.objects is not None:
             self._judge_crashes(act)
         self.time += self.dt
+        if self.objects is not None and self.objects.bots:
+            self.objects.drive(np.arange(n), self.time - self.episode_start_time)
         return self.ctr[:, K.KSTATUS]
 
     def _judge_crashes(self, active) -> None:
@@ -209,7 +211,8 @@ class Simulator:
         if idx.size == 0:
             return
         p = self.params[idx]
-        hit = idx[self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]))]
+        hit = idx[self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]),
+                                       rows=idx, car_arc=p[:, K.MS], length=self.track.length)]
         self.ctr[hit, K.KSTATUS] = K.CRASHED
         self.truncated[hit] = False
 

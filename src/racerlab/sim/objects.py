@@ -60,6 +60,10 @@ def as_race(value) -> RaceConfig | None:
 # ---- placement -----------------------------------------------------------------------------------------
 def obstacle_arcs(race: RaceConfig, length: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """(arc lengths along the centre line in m, lanes +1 inner / -1 outer) of one episode's boxes."""
+    if race.num_bot_cars:  # bot cars: evenly spaced, min distance in metres, lanes alternating (BotCarsCtrl)
+        n = race.num_bot_cars
+        d = np.linspace(race.min_distance_between_bot_cars, length - END_MARGIN_M, n)
+        return d, np.where(np.arange(n) % 2 == 0, 1, -1)
     if race.object_positions:
         pos = np.array(race.object_positions, dtype=np.float64)
         return pos[:, 0] * length, pos[:, 1].astype(np.int64)
@@ -164,10 +168,15 @@ class ObjectSet:
         self.lanes = (Lanes(track), Lanes(track_reversed))
         self._inner_ring = np.vstack([track.center, track.inner[::-1]])
         self._ccw = (track.is_ccw, track_reversed.is_ccw)
-        m = race.num_obstacles
+        self.bots = race.num_bot_cars > 0
+        m = race.num_bot_cars if self.bots else race.num_obstacles
         self.num_objects = m
-        self.half = (0.5 * BOX_FOOTPRINT_M[0], 0.5 * BOX_FOOTPRINT_M[1])
-        self.box_size_m = np.array(BOX_SIZE_M)
+        foot = CAR_FOOTPRINT_M if self.bots else BOX_FOOTPRINT_M
+        self.half = (0.5 * foot[0], 0.5 * foot[1])
+        self.box_size_m = np.array(CAR_FOOTPRINT_M if self.bots else BOX_SIZE_M)
+        self.speed = race.bot_car_speed if self.bots else 0.0
+        self.lane_s0 = np.zeros((num_cars, m))  # bots: arc length along their lane line at the episode start
+        self.rev = np.zeros(num_cars, dtype=np.bool_)
         self.xy = np.zeros((num_cars, m, 2))
         self.yaw = np.zeros((num_cars, m))
         self.arc = np.zeros((num_cars, m))
@@ -183,14 +192,41 @@ class ObjectSet:
             lanes = self.lanes[int(rev)]
             arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
             xy, yaw = lanes.poses(arcs, lane)
-            proj = lanes.track.project(xy)
             self.xy[i], self.yaw[i], self.lane[i] = xy, yaw, lane
-            self.arc[i] = proj.s
-            self.dfc[i] = np.abs(proj.lateral)
-            # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
-            self.left[i] = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[int(rev)])
-            self.order[i] = np.argsort(self.arc[i], kind="stable")
-            self._lists[i] = (xy.tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist())
+            self.rev[i] = rev
+            if self.bots:
+                for flag, line in ((1, lanes.inner), (-1, lanes.outer)):
+                    sel = lane == flag
+                    if sel.any():
+                        self.lane_s0[i, sel] = line.project(xy[sel]).s
+            self._measure(i)
+
+    def drive(self, idx, elapsed) -> None:
+        """Bot cars of cars `idx` where they are `elapsed` s (per car) after their episode start: each drives its
+        lane at `bot_car_speed` (kinematic: it never reacts to the agent)."""
+        for i, t in zip(np.asarray(idx).tolist(), np.asarray(elapsed, dtype=np.float64).tolist(), strict=True):
+            lanes = self.lanes[int(self.rev[i])]
+            for flag, line in ((1, lanes.inner), (-1, lanes.outer)):
+                sel = self.lane[i] == flag
+                if sel.any():
+                    s = self.lane_s0[i, sel] + self.speed * t
+                    s = np.mod(s, line.length) if line.closed else np.minimum(s, line.length)
+                    self.xy[i, sel] = line.point_at(s)
+                    self.yaw[i, sel] = line.heading_at(s)
+            self._measure(i)
+
+    def _measure(self, i: int) -> None:
+        """The static params of car i's objects at their current poses."""
+        rev = int(self.rev[i])
+        xy = self.xy[i]
+        proj = self.lanes[rev].track.project(xy)
+        self.arc[i] = proj.s
+        self.dfc[i] = np.abs(proj.lateral)
+        # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
+        self.left[i] = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[rev])
+        self.order[i] = np.argsort(self.arc[i], kind="stable")
+        self._lists[i] = (xy.tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
+                          self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
 
     def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
         """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
@@ -231,20 +267,23 @@ class ObjectSet:
         x, y = lane.point_at(proj.s)[0]
         return float(x), float(y), float(proj.heading[0]), float(s)
 
-    def crashed(self, bx, by, yaw) -> np.ndarray:
-        """Per car: a corner of the car at base pose (bx, by, yaw) is inside one of its objects' footprints."""
+    def crashed(self, bx, by, yaw, rows=None, car_arc=None, length: float = 0.0) -> np.ndarray:
+        """Per car (`rows`, all by default): a corner of the car at base pose (bx, by, yaw) is inside one of its
+        objects' footprints. A bot car counts only when it is ahead of the car along the lap (within half a lap of
+        centre line from `car_arc`): the car ran into it; a bot that runs into the car from behind is not the
+        car's crash (AWS compares the two cars' progress)."""
         hl, hw = 0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]
         c, s = np.cos(yaw), np.sin(yaw)
         ox = np.array([hl, hl, -hl, -hl])
         oy = np.array([hw, -hw, hw, -hw])
         cx = bx[:, None] + ox * c[:, None] - oy * s[:, None]  # (k, 4)
         cy = by[:, None] + ox * s[:, None] + oy * c[:, None]
-        return self.corners_inside(cx, cy, np.arange(bx.size))
-
-    def corners_inside(self, cx, cy, rows) -> np.ndarray:
+        rows = np.arange(bx.size) if rows is None else np.asarray(rows)
         inside = _inside_rect(cx[:, :, None], cy[:, :, None], self.xy[rows, None, :, 0], self.xy[rows, None, :, 1],
-                              self.yaw[rows, None, :], *self.half)
-        return inside.any(axis=(1, 2))
+                              self.yaw[rows, None, :], *self.half).any(axis=1)  # (k, m)
+        if self.bots and car_arc is not None:
+            inside &= np.mod(self.arc[rows] - car_arc[:, None], length) < 0.5 * length
+        return inside.any(axis=1)
 
     def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
         """The `objects_*` params columns for cars `idx`: the model point's xy (k, 2) and centre-line arc (k,),
@@ -268,8 +307,8 @@ class ObjectSet:
             "objects_left_of_center": [t[1] for t in lists],
             "objects_distance": [t[2] for t in lists],
             "objects_distance_from_center": [t[3] for t in lists],
-            "objects_heading": [[0.0] * m] * idx.size,
-            "objects_speed": [[0.0] * m] * idx.size,
+            "objects_heading": [t[4] for t in lists],
+            "objects_speed": [[float(self.speed)] * m] * idx.size,
             "object_in_camera": in_cam.tolist(),
         }
 
