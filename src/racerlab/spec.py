@@ -116,8 +116,9 @@ class RaceConfig:
 
     `type` is "time_trial", "object_avoidance" or "head_to_bot". Obstacles: `number_of_obstacles`,
     `obstacle_type`, `randomize_obstacle_locations`, `object_positions` (overrides the two before it),
-    `min_distance_between_obstacles` (% of the lap). Bot cars: `number_of_bot_cars`, `bot_car_speed` (m/s),
-    `is_lane_change`, `lower_lane_change_time` / `upper_lane_change_time` (s), `lane_change_distance` (m),
+    `min_distance_between_obstacles` (% of the lap). Bot cars: `number_of_bot_cars`,
+    `randomize_bot_car_locations`, `bot_car_speed` (m/s), `is_lane_change`, `lower_lane_change_time` /
+    `upper_lane_change_time` (s), `lane_change_distance` (m),
     `min_distance_between_bot_cars` (m). `penalty_seconds`: the evaluation penalty of a crash.
     """
 
@@ -128,6 +129,7 @@ class RaceConfig:
     object_positions: tuple = ()
     min_distance_between_obstacles: float = 2.0
     number_of_bot_cars: int = 0
+    randomize_bot_car_locations: bool = False
     bot_car_speed: float = 0.2
     is_lane_change: bool = False
     lower_lane_change_time: float = 3.0
@@ -143,7 +145,7 @@ class RaceConfig:
             raise ConfigError(f"{w}: type {self.type!r} is not one of {', '.join(RACE_TYPES)}")
         if self.obstacle_type not in OBSTACLE_TYPES:
             raise ConfigError(f"{w}: obstacle_type {self.obstacle_type!r} is not one of {', '.join(OBSTACLE_TYPES)}")
-        for key in ("randomize_obstacle_locations", "is_lane_change"):
+        for key in ("randomize_obstacle_locations", "randomize_bot_car_locations", "is_lane_change"):
             if not isinstance(getattr(self, key), bool):
                 raise ConfigError(f"{w}: {key} must be true or false, got {getattr(self, key)!r}")
         for key in ("number_of_obstacles", "number_of_bot_cars"):

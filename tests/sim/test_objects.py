@@ -362,34 +362,103 @@ def test_evaluation_crash_restarts_behind_the_box_in_the_other_lane(aws_track):
     assert tr["progress"][pause[0]] == pytest.approx(100.0 * (s_box - 1.0 + 0.14) / length, abs=0.05)
 
 
-def test_bot_cars_drive_their_lane_and_count_only_when_hit_from_behind(aws_track):
+def lane_at_centre(track, lane, d):
+    """AWS's bot path: the lane line's points keyed by the centre-line arc of their projection (brute force),
+    linear between them, at centre-line distance d (wrapping around the lap)."""
+    line = 0.5 * (track.center + (track.inner if lane == 1 else track.outer))
+    length = arc_lengths(track.center)[-1]
+    u = np.array([nearest_on(track.center, p)[1] for p in line])
+    u, first = np.unique(np.mod(u, length), return_index=True)
+    pts = line[first]
+    return np.array([np.interp(d, u, pts[:, 0], period=length), np.interp(d, u, pts[:, 1], period=length)])
+
+
+def h2b_sim(track, **kw):
+    return Simulator(track, 1, race=RaceConfig(type="head_to_bot", **kw))
+
+
+def test_bot_cars_drive_their_lane_by_centre_line_distance(aws_track):
     t = aws_track(TRACK)
-    race = RaceConfig(type="head_to_bot", number_of_bot_cars=2, bot_car_speed=0.6)
-    sim = Simulator(t, 1, race=race)
+    sim = h2b_sim(t, number_of_bot_cars=2, bot_car_speed=0.6)
     length = arc_lengths(t.center)[-1]
-    inner = 0.5 * (t.center + t.inner)
-    start_s = nearest_on(inner, box_pose(t, 2.0 / length, 1)[0])[1]
-    assert sim.objects.lane[0].tolist() == [1, -1]  # 2 m (min_distance_between_bot_cars) and L - 1 m
-    np.testing.assert_allclose(sim.objects.xy[0, 0], box_pose(t, 2.0 / length, 1)[0], atol=1e-9)
+    assert sim.objects.lane[0].tolist() == [1, -1]  # at 2 m (min_distance_between_bot_cars) and L - 1 m
+    np.testing.assert_allclose(sim.objects.xy[0, 0], lane_at_centre(t, 1, 2.0), atol=1e-9)
+    np.testing.assert_allclose(sim.objects.xy[0, 1], lane_at_centre(t, -1, length - 1.0), atol=1e-9)
     sim.set_pose(0, *point_at(t.center, 0.5 * length), 0.0)  # the agent out of the way
     for _ in range(30):
         sim.step(0.0, 0.1)
     elapsed = 30 / 15
-    q, s_lane, yaw = nearest_on(inner, sim.objects.xy[0, 0])
-    assert s_lane == pytest.approx(start_s + 0.6 * elapsed, abs=1e-6)
+    np.testing.assert_allclose(sim.objects.xy[0, 0], lane_at_centre(t, 1, 2.0 + 0.6 * elapsed), atol=1e-9)
+    # the second bot crossed the start line: its centre distance wraps around the lap
+    np.testing.assert_allclose(sim.objects.xy[0, 1], lane_at_centre(t, -1, 0.6 * elapsed - 1.0), atol=1e-9)
     p = ParamsBuilder(sim).build()[0]
     assert p["objects_speed"] == [0.6, 0.6]
-    assert p["objects_heading"][0] == pytest.approx(yaw, abs=1e-9)  # radians, along its lane
+    ahead = lane_at_centre(t, 1, 2.0 + 0.6 * elapsed + 0.05) - lane_at_centre(t, 1, 2.0 + 0.6 * elapsed - 0.05)
+    assert p["objects_heading"][0] == pytest.approx(math.atan2(ahead[1], ahead[0]), abs=1e-9)  # radians
+
+
+def test_random_bot_placement_keeps_the_gap_in_metres(aws_track):
+    t = aws_track(TRACK)
+    length = arc_lengths(t.center)[-1]
+    sim = Simulator(t, 4, race=RaceConfig(type="head_to_bot", number_of_bot_cars=4, min_distance_between_bot_cars=3.0,
+                                          randomize_bot_car_locations=True), seed=3)
+    d = sim.objects.d0
+    assert (np.diff(d, axis=1) >= 3.0 - 1e-9).all() and (d[:, 0] >= 3.0).all() and (d[:, -1] <= length - 1.0).all()
+    assert not np.allclose(d[0], np.linspace(3.0, length - 1.0, 4))  # re-drawn, not evenly spaced
+    assert set(np.unique(sim.objects.lane)) <= {1, -1}
+    before = d.copy()
+    sim.reset()
+    assert not np.allclose(sim.objects.d0, before)  # a new layout at every reset
+
+
+def test_lane_change_blends_between_the_lane_lines(aws_track):
+    t = aws_track(TRACK)
+    length = arc_lengths(t.center)[-1]
+    # a change every 1 s (U(1, 1)) over 1 m at 0.5 m/s: 2 s long, starting 1 s after the bots start driving
+    sim = h2b_sim(t, number_of_bot_cars=1, bot_car_speed=0.5, is_lane_change=True, lower_lane_change_time=1.0,
+                  upper_lane_change_time=1.0, lane_change_distance=1.0)
+    sim.set_pose(0, *point_at(t.center, 0.5 * length), 0.0)
+    dt = 1 / 15
+    start, end = dt + 1.0, dt + 3.0  # drawn on the first step of the bots' clock
+    seen = []
+    for k in range(1, 15 * 4):
+        sim.step(0.0, 0.1)
+        clock = k * dt
+        d = 2.0 + 0.5 * clock
+        a = min(max((clock - start) / (end - start), 0.0), 1.0)
+        w = a * a * (3 - 2 * a)
+        want = (1 - w) * lane_at_centre(t, 1, d) + w * lane_at_centre(t, -1, d)
+        np.testing.assert_allclose(sim.objects.xy[0, 0], want, atol=1e-9)
+        seen.append(w)
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and 0.4 < seen[29] < 0.6  # inner lane, halfway, outer lane
+    assert sim.objects.lane[0, 0] == -1  # the change ended: the bot's lane is the outer one
+
+
+def test_bot_that_rear_ends_the_agent_pauses_and_is_not_the_agents_crash(aws_track):
+    t = aws_track(TRACK)
+    race = dict(number_of_bot_cars=2, bot_car_speed=0.6, penalty_seconds=2.0)
 
     def judged(offset):
-        """Agent aligned with bot 0, `offset` m of lane ahead (+) or behind (-) of it, half overlapping."""
-        s2 = Simulator(t, 1, race=race)
+        """Agent aligned with bot 0, `offset` m ahead (+) or behind (-) of it, the two overlapping."""
+        s2 = h2b_sim(t, **race)
         bx, by = s2.objects.xy[0, 0]
         byaw = s2.objects.yaw[0, 0]
         s2.set_pose(0, bx + offset * math.cos(byaw), by + offset * math.sin(byaw), byaw)
-        s2.objects.drive([0], [0.0])
         s2.step(0.0, 0.1)
-        return s2.status_names(s2.step(0.0, 0.1))[0]
+        return s2, s2.status_names(s2.step(0.0, 0.1))[0]
 
-    assert judged(-0.2) == "crashed"  # the agent's nose in the bot's tail (the bot drives 0.04 m a step)
-    assert judged(0.2) == "in_progress"  # the bot's nose in the agent's tail: not the agent's crash
+    sim, status = judged(-0.2)
+    assert status == "crashed"  # the agent's nose in the bot's tail
+    assert sim.objects.pause_left[0] == 0.0
+    sim, status = judged(0.2)
+    assert status == "in_progress"  # the bot's nose in the agent's tail: not the agent's crash ...
+    # the bots stop for penalty_seconds, counted from this step: 30 steps of 1/15 s with no bot clock
+    assert sim.objects.pause_left[0] == pytest.approx(2.0 - 1 / 15)
+    held = sim.objects.xy[0].copy()
+    clock = sim.objects.clock[0]
+    for _ in range(29):
+        sim.step(0.0, 0.0)
+        np.testing.assert_allclose(sim.objects.xy[0], held, atol=1e-12)
+    sim.step(0.0, 0.0)
+    assert sim.objects.clock[0] == pytest.approx(clock + 1 / 15)  # then they drive on from where they stopped
+    np.testing.assert_allclose(sim.objects.xy[0, 0], lane_at_centre(t, 1, 2.0 + 0.6 * 2 / 15), atol=1e-9)

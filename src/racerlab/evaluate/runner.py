@@ -188,7 +188,9 @@ class _Driver:
         ep.resets += 1
         penalty = self.rules.penalty(status)
         self.trace.set_last("pause_duration", penalty)
-        if status == "crashed" and self.sim.objects is not None:
+        if status == "crashed" and self.sim.objects is not None and self.sim.objects.bots:
+            self._stop_in_place()  # simapp: after hitting a bot car the car waits where it is
+        elif status == "crashed" and self.sim.objects is not None:
             ep.obstacle_crashes += 1
             self.trace.set_last("obstacle_crash_counter", ep.obstacle_crashes)
             self._put_behind_obstacle(before)
@@ -209,6 +211,10 @@ class _Driver:
         x, y, new_yaw = self.lanes.reset_pose(s, base)
         # measure the new pose against the progress the car is put back at, not where it left the road
         sim.relocate(0, x, y, new_yaw, progress=progress)
+
+    def _stop_in_place(self) -> None:
+        car = self.sim.state
+        self.sim.relocate(0, float(car.x[0]), float(car.y[0]), float(car.yaw[0]))
 
     def _put_behind_obstacle(self, before: tuple) -> None:
         """After hitting a box: 1 m behind it in the other lane (simapp's obstacle reset), progress moved back

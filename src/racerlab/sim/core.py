@@ -199,7 +199,7 @@ class Simulator:
             self._judge_crashes(act)
         self.time += self.dt
         if self.objects is not None and self.objects.bots:
-            self.objects.drive(np.arange(n), self.time - self.episode_start_time)
+            self.objects.advance(np.arange(n), self.dt)
         return self.ctr[:, K.KSTATUS]
 
     def _judge_crashes(self, active) -> None:
@@ -211,9 +211,12 @@ class Simulator:
         if idx.size == 0:
             return
         p = self.params[idx]
-        hit = idx[self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]),
-                                       rows=idx, car_arc=p[:, K.MS], length=self.track.length)]
+        crash, rear = self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]),
+                                           rows=idx, car_arc=p[:, K.MS], length=self.track.length)
+        hit = idx[crash]
         self.ctr[hit, K.KSTATUS] = K.CRASHED
+        if rear.any():  # a bot ran into the car from behind: the bots pause (not the car's crash)
+            self.objects.pause(idx[rear])
         self.truncated[hit] = False
 
     def features(self, out=None, rows=None) -> np.ndarray:

@@ -25,6 +25,7 @@ is 0.5 m along its lane x 0.4 m across, the box plus 0.1 m). Only the car's corn
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -58,32 +59,38 @@ def as_race(value) -> RaceConfig | None:
 
 
 # ---- placement -----------------------------------------------------------------------------------------
-def obstacle_arcs(race: RaceConfig, length: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """(arc lengths along the centre line in m, lanes +1 inner / -1 outer) of one episode's boxes."""
-    if race.num_bot_cars:  # bot cars: evenly spaced, min distance in metres, lanes alternating (BotCarsCtrl)
-        n = race.num_bot_cars
-        d = np.linspace(race.min_distance_between_bot_cars, length - END_MARGIN_M, n)
+def _spread(n: int, first: float, last: float, min_d: float, randomize: bool, strict: bool,
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """AWS's layout of n objects: evenly spaced over [first, last] with lanes alternating from the inner one;
+    randomised, each object in a shuffled order is re-drawn uniformly between its neighbours keeping `min_d` to
+    each (left in place when there is no room; bots need a non-empty interval, `strict`), then every object gets
+    a random lane."""
+    d = np.linspace(first, last, n)
+    if not randomize:
         return d, np.where(np.arange(n) % 2 == 0, 1, -1)
+    for i in rng.permutation(n):
+        lo = d[i - 1] + min_d if i > 0 else first
+        hi = d[i + 1] - min_d if i < n - 1 else last
+        if lo < hi or (lo == hi and not strict):
+            d[i] = rng.uniform(lo, hi)
+    return d, rng.choice(np.array([1, -1]), size=n)
+
+
+def obstacle_arcs(race: RaceConfig, length: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(arc lengths along the centre line in m, lanes +1 inner / -1 outer) of one episode's objects."""
+    last = length - END_MARGIN_M
+    if race.num_bot_cars:  # BotCarsCtrl: min distance in metres
+        return _spread(race.num_bot_cars, race.min_distance_between_bot_cars, last,
+                       race.min_distance_between_bot_cars, race.randomize_bot_car_locations, True, rng)
     if race.object_positions:
         pos = np.array(race.object_positions, dtype=np.float64)
         return pos[:, 0] * length, pos[:, 1].astype(np.int64)
     n = race.num_obstacles
     min_d = race.min_distance_between_obstacles / 100.0 * length
-    last = length - END_MARGIN_M
     if n and min_d > last:
         raise ConfigError(f"{race.where}: min_distance_between_obstacles {race.min_distance_between_obstacles} % "
                           f"of this {length:.2f} m lap leaves no room for obstacles; use a smaller value")
-    d = np.linspace(min_d, last, n)
-    if race.randomize_obstacle_locations:
-        for i in rng.permutation(n):
-            lo = d[i - 1] + min_d if i > 0 else min_d
-            hi = d[i + 1] - min_d if i < n - 1 else last
-            if lo <= hi:
-                d[i] = rng.uniform(lo, hi)
-        lanes = rng.choice(np.array([1, -1]), size=n)
-    else:
-        lanes = np.where(np.arange(n) % 2 == 0, 1, -1)
-    return d, lanes
+    return _spread(n, min_d, last, min_d, race.randomize_obstacle_locations, False, rng)
 
 
 def _lane(track: Track, border: np.ndarray) -> Track:
@@ -99,6 +106,23 @@ class Lanes:
         self.track = track
         self.inner = _lane(track, track.inner)
         self.outer = _lane(track, track.outer)
+
+    @functools.cached_property
+    def by_centre(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Per lane (+1 inner, -1 outer): (u, xy), the lane's points keyed by the centre-line arc length of their
+        projection, sorted and de-duplicated, as AWS keys the lane splines bot cars drive (`TrackSpline`)."""
+        out = {}
+        for flag, lane in ((1, self.inner), (-1, self.outer)):
+            u, first = np.unique(self.track.project(lane.center).s, return_index=True)
+            out[flag] = (u, lane.center[first])
+        return out
+
+    def at_centre_dist(self, flag: int, d: np.ndarray) -> np.ndarray:
+        """Points (k, 2) of lane `flag` at centre-line distances `d` (linear between the lane's points; on a
+        loop the distances wrap around the lap)."""
+        u, xy = self.by_centre[flag]
+        period = self.track.length if self.track.closed else None
+        return np.stack([np.interp(d, u, xy[:, 0], period=period), np.interp(d, u, xy[:, 1], period=period)], -1)
 
     def poses(self, arcs: np.ndarray, lanes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(xy (m, 2), yaw (m,)) of boxes at centre-line arc lengths `arcs` on `lanes` (+1 inner, -1 outer)."""
@@ -175,56 +199,133 @@ class ObjectSet:
         self.half = (0.5 * foot[0], 0.5 * foot[1])
         self.box_size_m = np.array(CAR_FOOTPRINT_M if self.bots else BOX_SIZE_M)
         self.speed = race.bot_car_speed if self.bots else 0.0
-        self.lane_s0 = np.zeros((num_cars, m))  # bots: arc length along their lane line at the episode start
         self.rev = np.zeros(num_cars, dtype=np.bool_)
         self.xy = np.zeros((num_cars, m, 2))
         self.yaw = np.zeros((num_cars, m))
         self.arc = np.zeros((num_cars, m))
         self.dfc = np.zeros((num_cars, m))
         self.left = np.zeros((num_cars, m), dtype=np.bool_)
-        self.lane = np.zeros((num_cars, m), dtype=np.int64)
+        self.lane = np.zeros((num_cars, m), dtype=np.int64)  # a bot's lane (the one it leaves in a lane change)
         self.order = np.zeros((num_cars, m), dtype=np.int64)  # objects sorted by `arc`
         self._lists: list = [None] * num_cars
+        # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
+        # left after a bot rear-ended the car, the current lane change (clock times; inf: none), front-point arc
+        self.d0 = np.zeros((num_cars, m))
+        self.clock = np.zeros(num_cars)
+        self.pause_left = np.zeros(num_cars)
+        self.change_start = np.full((num_cars, m), np.inf)
+        self.change_end = np.full((num_cars, m), np.inf)
+        self.front_arc = np.zeros((num_cars, m))
+        speed = self.speed
+        self.change_s = race.lane_change_distance / speed if speed > 0 else np.inf
+        self.lane_changes = self.bots and race.is_lane_change and speed > 0
 
     def place(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """New layouts for cars `idx` (each in its driving direction `reversed_`)."""
-        for i, rev in zip(np.asarray(idx).tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
+        idx = np.asarray(idx, dtype=np.int64)
+        for i, rev in zip(idx.tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
             lanes = self.lanes[int(rev)]
             arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
-            xy, yaw = lanes.poses(arcs, lane)
-            self.xy[i], self.yaw[i], self.lane[i] = xy, yaw, lane
             self.rev[i] = rev
+            self.lane[i] = lane
             if self.bots:
-                for flag, line in ((1, lanes.inner), (-1, lanes.outer)):
-                    sel = lane == flag
-                    if sel.any():
-                        self.lane_s0[i, sel] = line.project(xy[sel]).s
+                self.d0[i] = arcs
+            else:
+                self.xy[i], self.yaw[i] = lanes.poses(arcs, lane)
+                self._measure(i)
+        if self.bots:
+            self.clock[idx] = 0.0
+            self.pause_left[idx] = 0.0
+            self.change_start[idx] = np.inf
+            self.change_end[idx] = 0.0 if self.lane_changes else np.inf  # 0: the first change is drawn at once
+            self._drive(idx)
+
+    def advance(self, idx, dt: float) -> None:
+        """The bot cars of cars `idx` one step of `dt` s on (BotCarsCtrl): paused bots wait out their penalty,
+        the others drive their lane at `bot_car_speed` and change lanes when their next change comes. They never
+        react to the car."""
+        idx = np.asarray(idx, dtype=np.int64)
+        paused = self.pause_left[idx] > 1e-9  # (a penalty of k steps is over after k steps, whatever the rounding)
+        left = self.pause_left[idx[paused]] - dt
+        self.pause_left[idx[paused]] = np.where(left > 1e-9, left, 0.0)
+        run = idx[~paused]
+        if run.size == 0:
+            return
+        self.clock[run] += dt
+        if self.lane_changes:
+            self._schedule_lane_changes(run)
+        self._drive(run)
+
+    def _schedule_lane_changes(self, run: np.ndarray) -> None:
+        """A bot whose lane change has ended is in the other lane; its next change ends U(lower, upper) s plus
+        the change's duration (`lane_change_distance / bot_car_speed`) from now (AWS's timers)."""
+        now = self.clock[run][:, None]
+        due = now >= self.change_end[run]
+        if not due.any():
+            return
+        rows, cols = np.nonzero(due)
+        cars = run[rows]
+        ended = self.change_end[cars, cols] > 0.0
+        self.lane[cars[ended], cols[ended]] *= -1
+        r = self.race
+        end = self.clock[cars] + self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, cars.size)
+        self.change_end[cars, cols] = end + self.change_s
+        self.change_start[cars, cols] = end
+
+    def _bot_xy(self, rows: np.ndarray, lanes: Lanes, clock: np.ndarray, dd: float = 0.0) -> np.ndarray:
+        """Bot positions (k, m, 2) of cars `rows` (one driving direction) at bot clock `clock` (k,): on their lane
+        at `d0 + speed * clock` of centre line, blended into the other lane during a lane change (smoothstep of
+        the change's elapsed share, so the path leaves and joins the lane lines tangentially); `dd` m further on."""
+        d = self.d0[rows] + self.speed * clock[:, None] + dd
+        lane = self.lane[rows]
+        inner, outer = lanes.at_centre_dist(1, d), lanes.at_centre_dist(-1, d)
+        here = np.where((lane == 1)[..., None], inner, outer)
+        if not self.lane_changes:
+            return here
+        there = np.where((lane == 1)[..., None], outer, inner)
+        a = np.clip((clock[:, None] - self.change_start[rows]) / self.change_s, 0.0, 1.0)
+        w = (a * a * (3.0 - 2.0 * a))[..., None]
+        return here + w * (there - here)
+
+    def _drive(self, run: np.ndarray) -> None:
+        """Poses of the bots of cars `run` at their clocks; the yaw is the path's direction (a central difference
+        over +-5 cm of centre line)."""
+        h = 0.05 / self.speed if self.speed > 0 else 0.0  # the clock time of 5 cm
+        for rev in (False, True):
+            rows = run[self.rev[run] == rev]
+            if rows.size == 0:
+                continue
+            lanes = self.lanes[int(rev)]
+            c = self.clock[rows]
+            self.xy[rows] = self._bot_xy(rows, lanes, c)
+            dd = 0.0 if h > 0 else 0.05  # standing bots: 5 cm along their path
+            ahead = self._bot_xy(rows, lanes, c + h, dd) - self._bot_xy(rows, lanes, c - h, -dd)
+            self.yaw[rows] = np.arctan2(ahead[..., 1], ahead[..., 0])
+        for i in run.tolist():
             self._measure(i)
 
-    def drive(self, idx, elapsed) -> None:
-        """Bot cars of cars `idx` where they are `elapsed` s (per car) after their episode start: each drives its
-        lane at `bot_car_speed` (kinematic: it never reacts to the agent)."""
-        for i, t in zip(np.asarray(idx).tolist(), np.asarray(elapsed, dtype=np.float64).tolist(), strict=True):
-            lanes = self.lanes[int(self.rev[i])]
-            for flag, line in ((1, lanes.inner), (-1, lanes.outer)):
-                sel = self.lane[i] == flag
-                if sel.any():
-                    s = self.lane_s0[i, sel] + self.speed * t
-                    s = np.mod(s, line.length) if line.closed else np.minimum(s, line.length)
-                    self.xy[i, sel] = line.point_at(s)
-                    self.yaw[i, sel] = line.heading_at(s)
-            self._measure(i)
+    def pause(self, rows) -> None:
+        """The bots of cars `rows` stop for `penalty_seconds` (one of them rear-ended the car): AWS holds all bot
+        cars, moving their clock and lane-change timers on by the penalty."""
+        rows = np.asarray(rows, dtype=np.int64)
+        rows = rows[self.pause_left[rows] <= 0.0]
+        self.pause_left[rows] = self.race.penalty_seconds
 
     def _measure(self, i: int) -> None:
         """The static params of car i's objects at their current poses."""
         rev = int(self.rev[i])
         xy = self.xy[i]
-        proj = self.lanes[rev].track.project(xy)
+        track = self.lanes[rev].track
+        proj = track.project(xy)
         self.arc[i] = proj.s
         self.dfc[i] = np.abs(proj.lateral)
         # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
         self.left[i] = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[rev])
         self.order[i] = np.argsort(self.arc[i], kind="stable")
+        if self.bots:  # progress of a bot is that of its front point, as the car's
+            yaw = self.yaw[i]
+            front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+            self.front_arc[i] = track.project(front).s
         self._lists[i] = (xy.tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
                           self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
 
@@ -267,11 +368,11 @@ class ObjectSet:
         x, y = lane.point_at(proj.s)[0]
         return float(x), float(y), float(proj.heading[0]), float(s)
 
-    def crashed(self, bx, by, yaw, rows=None, car_arc=None, length: float = 0.0) -> np.ndarray:
-        """Per car (`rows`, all by default): a corner of the car at base pose (bx, by, yaw) is inside one of its
-        objects' footprints. A bot car counts only when it is ahead of the car along the lap (within half a lap of
-        centre line from `car_arc`): the car ran into it; a bot that runs into the car from behind is not the
-        car's crash (AWS compares the two cars' progress)."""
+    def crashed(self, bx, by, yaw, rows=None, car_arc=None, length: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Per car (`rows`, all by default) at base pose (bx, by, yaw): (crashed, rear_ended). A corner of the car
+        inside one of its objects' footprints is a crash; with bot cars only when the bot is ahead of the car (its
+        front point within half a lap ahead of the car's centre-line arc `car_arc`): the car ran into it. A bot
+        behind the car ran into the car: `rear_ended`, not the car's crash (AWS compares the two progresses)."""
         hl, hw = 0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]
         c, s = np.cos(yaw), np.sin(yaw)
         ox = np.array([hl, hl, -hl, -hl])
@@ -281,9 +382,10 @@ class ObjectSet:
         rows = np.arange(bx.size) if rows is None else np.asarray(rows)
         inside = _inside_rect(cx[:, :, None], cy[:, :, None], self.xy[rows, None, :, 0], self.xy[rows, None, :, 1],
                               self.yaw[rows, None, :], *self.half).any(axis=1)  # (k, m)
-        if self.bots and car_arc is not None:
-            inside &= np.mod(self.arc[rows] - car_arc[:, None], length) < 0.5 * length
-        return inside.any(axis=1)
+        if not self.bots or car_arc is None:
+            return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
+        ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
+        return (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
 
     def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
         """The `objects_*` params columns for cars `idx`: the model point's xy (k, 2) and centre-line arc (k,),
