@@ -462,3 +462,33 @@ def test_bot_that_rear_ends_the_agent_pauses_and_is_not_the_agents_crash(aws_tra
     sim.step(0.0, 0.0)
     assert sim.objects.clock[0] == pytest.approx(clock + 1 / 15)  # then they drive on from where they stopped
     np.testing.assert_allclose(sim.objects.xy[0, 0], lane_at_centre(t, 1, 2.0 + 0.6 * 2 / 15), atol=1e-9)
+
+
+def test_evaluation_bot_crash_holds_the_car_where_it_is(aws_track):
+    from racerlab.evaluate.rules import RaceRules, pause_steps
+    from racerlab.evaluate.runner import run_evaluation
+    from racerlab.model import ContinuousActions, ModelMetadata
+    from racerlab.sim import World
+    from racerlab.sim.pursuit import PurePursuit
+
+    t = aws_track(TRACK)
+    meta = ModelMetadata(ContinuousActions(-30.0, 30.0, 0.5, 4.0), ("FEATURES",), "MLP")
+    w = World(t, 1, meta, None, "features", max_episode_steps=100_000, seed=0,
+              race={"type": "head_to_bot", "number_of_bot_cars": 1, "bot_car_speed": 0.1})
+    pp = PurePursuit(0.5 * (t.center + t.inner), speed=1.5)
+
+    def policy(obs):  # 1.5 m/s on the inner lane catches the 0.1 m/s bot in that lane 2 m ahead
+        steer, v = pp(w.sim)
+        return np.stack([steer / 30.0, (v - 0.5) / 1.75 - 1.0], axis=1)
+
+    run = run_evaluation(w, policy, RaceRules(trials=1, collision_penalty=1.0, max_resets=1))
+    tr, x = run.trace, run.extra
+    crash = np.flatnonzero(tr["episode_status"] == "crashed")
+    assert crash.size >= 1
+    i = crash[0]
+    pause = np.arange(i + 1, i + 1 + pause_steps(1.0))
+    assert np.all(tr["episode_status"][pause] == "pause") and np.all(tr["obstacle_crash_counter"] == 0)
+    # held where it was after the crash step (no restart behind the bot), the bot driving on
+    np.testing.assert_allclose(x["base_x"][pause], x["base_x"][i], atol=1e-12)
+    np.testing.assert_allclose(x["base_y"][pause], x["base_y"][i], atol=1e-12)
+    assert tr["progress"][pause[0]] == pytest.approx(tr["progress"][i], abs=1.0)

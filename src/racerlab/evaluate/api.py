@@ -25,6 +25,7 @@ from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation
 from racerlab.model import ModelFolder, parse_model_metadata, resolve_track
+from racerlab.spec import RaceConfig
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -140,15 +141,26 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
     return agent.policy
 
 
+def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate"):
+    """The race an evaluation drives: the model's training.toml [race]; a `RaceConfig` replaces it, a dict of
+    [race] keys overrides those keys of it (`where` names the source in a bad key's one-line error)."""
+    if isinstance(race, RaceConfig):
+        return race
+    base = model.folder.config().race
+    if not race:
+        return base
+    table = {k: getattr(base, k) for k in RaceConfig.__dataclass_fields__ if k != "where"}
+    return RaceConfig.from_mapping({**table, **race}, where=where)
+
+
 def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, race=None):
-    """The evaluation world; `race` (a RaceConfig or its table) defaults to the model's training.toml [race]."""
+    """The evaluation world; `race` (a RaceConfig, or [race] keys over the model's) see `race_config`."""
     from racerlab.sim import StartRules, World
 
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
     return World(track, 1, model.metadata, model.reward_path, model.observation, start=start,
-                 max_episode_steps=rules.max_episode_steps, seed=seed,
-                 race=model.folder.config().race if race is None else race)
+                 max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race))
 
 
 # ---- evaluate -------------------------------------------------------------------------------------
@@ -164,8 +176,9 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
     or an iteration number. `rules` replaces the individual rule arguments. With `video` an MP4 of
     the run is written too (`progress` shows rendering progress on stderr). `write=False` keeps
-    everything in memory. `on_lap(lap)` is called as each lap ends. `race` (a RaceConfig or its table)
-    replaces the model's training.toml [race]: boxes crash the car, which restarts 1 m behind the box.
+    everything in memory. `on_lap(lap)` is called as each lap ends. `race` (a RaceConfig, or a dict of [race]
+    keys over the model's training.toml [race]): boxes crash the car, which restarts 1 m behind the box; a bot
+    car crash holds the car where it is.
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)

@@ -35,7 +35,8 @@ class Leaderboard:
             out.append({"rank": rank, "model": e.model, "model_dir": str(e.model_dir), "checkpoint": e.checkpoint,
                         "result": r.text, "best_lap": r.best_lap, "ranking_average": r.ranking_average,
                         "mean_lap": r.mean_lap, "laps_completed": r.laps_completed, "laps": r.laps,
-                        "completed_streak": r.completed_streak, "off_track": r.off_track, "resets": r.resets,
+                        "completed_streak": r.completed_streak, "off_track": r.off_track, "crashes": r.crashes,
+                        "resets": r.resets,
                         "total_time": r.total_time, "mean_progress": round(r.mean_progress, 2),
                         "evaluation": str(e.out_dir) if e.out_dir else None})
         return out
@@ -62,10 +63,11 @@ class Leaderboard:
 
 def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
          ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
-         on_result=None, device: str = "cpu") -> Leaderboard:
+         on_result=None, device: str = "cpu", race=None) -> Leaderboard:
     """Evaluate every model on `track` (default: the first model's training track) under `rules` and
     rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the current
-    folder; `out=False` writes nothing). `on_result(result)` is called after each model."""
+    folder; `out=False` writes nothing). `on_result(result)` is called after each model. `race` is passed to
+    each `evaluate` (a RaceConfig, or [race] keys over each model's own)."""
     model_dirs = [Path(m) for m in model_dirs]
     if not model_dirs:
         raise RacerlabError("race needs at least one model folder")
@@ -75,7 +77,7 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
     results = []
     for m in model_dirs:
         res = evaluate(m, track=track, rules=rules, checkpoint=checkpoint, ranking_laps=ranking_laps, video=video,
-                       progress=progress, device=device)
+                       progress=progress, device=device, race=race)
         results.append(res)
         if on_result:
             on_result(res)

@@ -1,0 +1,56 @@
+"""Races with objects from the command line and the API: the [race] flags of `evaluate` and `race`, crash
+counts in the results, and head-to-model races."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+
+import racerlab.cli as cli
+from tests.conftest import aws_track_path
+from tests.evaluate.models import write_checkpoint, write_model
+
+
+@pytest.fixture
+def straight():
+    return aws_track_path("Straight_track")
+
+
+def model(tmp_path, track, name="m", actions=((0.0, 1.0),), sensor="lidar"):
+    folder = write_model(tmp_path / name, track, actions, sensor)
+    write_checkpoint(folder)
+    return folder
+
+
+def test_race_flags_of_evaluate_put_boxes_on_the_track(tmp_path, straight, monkeypatch, capsys):
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ["evaluate"])
+    folder = model(tmp_path, straight)  # one action: straight down the centre line at 1 m/s
+    # a box in the inner lane half way: its footprint (0.4 m across, centred a quarter of the width off the
+    # centre line) reaches the car's side, so the car crashes into it, restarts behind it in the other lane
+    assert cli.main(["evaluate", str(folder.path), "--trials", "1", "--collision-penalty", "1",
+                     "--race-type", "object_avoidance", "--object-positions", "0.5,1"]) == 0
+    out = capsys.readouterr().out
+    assert "1 crashes" in out
+    run = sorted(folder.path.glob("evaluation-*"))[-1]
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["result"]["crashes"] == 1 and summary["laps"][0]["crashed"] == 1
+    metrics = json.loads((run / "EvalMetrics.json").read_text())["metrics"]
+    assert [m["crash_count"] for m in metrics] == [1]
+    trace = pd.read_csv(next((run / "evaluation-simtrace").glob("*.csv")))
+    assert trace["obstacle_crash_counter"].max() == 1 and (trace["episode_status"] == "crashed").sum() == 1
+
+
+@pytest.mark.parametrize(("flags", "key"), [
+    (["--object-positions", "0.5,2"], "object_positions"),
+    (["--number-of-obstacles", "-1"], "number_of_obstacles"),
+    (["--race-type", "drag_race"], "type"),
+    (["--lower-lane-change-time", "6", "--upper-lane-change-time", "5"], "lower_lane_change_time"),
+])
+def test_bad_race_flags_are_one_line_naming_the_key(tmp_path, straight, monkeypatch, capsys, flags, key):
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ["evaluate"])
+    folder = model(tmp_path, straight)
+    assert cli.main(["evaluate", str(folder.path), "--race-type", "object_avoidance", *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and key in err[0]
