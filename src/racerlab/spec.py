@@ -85,7 +85,7 @@ STATUS_LABELS = {"prepare": "Prepare", "in_progress": "In progress", "off_track"
 
 
 # ---- races ------------------------------------------------------------------------------------------------
-RACE_TYPES = ("time_trial", "object_avoidance", "head_to_bot")
+RACE_TYPES = ("time_trial", "object_avoidance", "head_to_bot", "head_to_model")
 OBSTACLE_TYPES = ("box_obstacle", "deepracer_box_obstacle", "amazon_box_obstacle")
 
 
@@ -114,12 +114,12 @@ def _parse_position(item, where: str) -> tuple[float, int]:
 class RaceConfig:
     """A race's settings with DRfC's names (lower case); `where` names the source in error messages.
 
-    `type` is "time_trial", "object_avoidance" or "head_to_bot". Obstacles: `number_of_obstacles`,
-    `obstacle_type`, `randomize_obstacle_locations`, `object_positions` (overrides the two before it),
-    `min_distance_between_obstacles` (% of the lap). Bot cars: `number_of_bot_cars`,
-    `randomize_bot_car_locations`, `bot_car_speed` (m/s), `is_lane_change`, `lower_lane_change_time` /
-    `upper_lane_change_time` (s), `lane_change_distance` (m),
-    `min_distance_between_bot_cars` (m). `penalty_seconds`: the evaluation penalty of a crash.
+    `type` is "time_trial", "object_avoidance", "head_to_bot" or "head_to_model" (cars race in pairs).
+    Obstacles: `number_of_obstacles`, `obstacle_type`, `randomize_obstacle_locations`, `object_positions`
+    (overrides the two before it), `min_distance_between_obstacles` (% of the lap). Bot cars:
+    `number_of_bot_cars`, `randomize_bot_car_locations`, `bot_car_speed` (m/s), `is_lane_change`,
+    `lower_lane_change_time` / `upper_lane_change_time` (s), `lane_change_distance` (m),
+    `min_distance_between_bot_cars` (m). `penalty_seconds`: how long bots wait after one ran into the car.
     """
 
     type: str = "time_trial"
@@ -181,8 +181,13 @@ class RaceConfig:
         return self.number_of_bot_cars if self.type == "head_to_bot" else 0
 
     @property
+    def head_to_model(self) -> bool:
+        """Cars race in pairs (0 and 1, 2 and 3, ...): each pair's cars are each other's object."""
+        return self.type == "head_to_model"
+
+    @property
     def has_objects(self) -> bool:
-        return self.num_obstacles + self.num_bot_cars > 0
+        return self.num_obstacles + self.num_bot_cars > 0 or self.head_to_model
 
     @classmethod
     def from_mapping(cls, table, where: str = "race") -> RaceConfig:

@@ -4,11 +4,13 @@ counts in the results, and head-to-model races."""
 from __future__ import annotations
 
 import json
+import math
 
 import pandas as pd
 import pytest
 
 import racerlab.cli as cli
+from racerlab.track import load_file
 from tests.conftest import aws_track_path
 from tests.evaluate.models import write_checkpoint, write_model
 
@@ -54,3 +56,37 @@ def test_bad_race_flags_are_one_line_naming_the_key(tmp_path, straight, monkeypa
     assert cli.main(["evaluate", str(folder.path), "--race-type", "object_avoidance", *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and key in err[0]
+
+
+def test_head_to_model_races_two_models_in_one_world(tmp_path, straight, monkeypatch, capsys):
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ["evaluate"])
+    slow = model(tmp_path, straight, "slow", actions=((0.0, 1.0),))
+    fast = model(tmp_path, straight, "fast", actions=((0.0, 2.0),))
+    assert cli.main(["race", str(slow.path), str(fast.path), "--head-to-model", "--trials", "1",
+                     "--out", str(tmp_path / "board.json")]) == 0
+    out = capsys.readouterr().out
+    assert "head to model" in out
+    board = json.loads((tmp_path / "board.json").read_text())["leaderboard"]
+    assert [r["model"] for r in board] == ["fast", "slow"] and all(r["laps_completed"] == 1 for r in board)
+    traces = {}
+    for name in ("slow", "fast"):
+        run = sorted((tmp_path / name).glob("evaluation-*"))[-1]
+        traces[name] = pd.read_csv(next((run / "evaluation-simtrace").glob("*.csv")))
+    s, f = traces["slow"], traces["fast"]
+    # one world: the two cars start side by side on the start line (slow on the inner lane, fast on the outer)
+    # and step together, so their simulated clocks agree row by row while both drive
+    n = min(len(s), len(f))
+    assert (s["tstamp"].to_numpy()[:n] == f["tstamp"].to_numpy()[:n]).all()
+    t = load_file(straight)
+    apart = math.hypot(s["X"].iloc[0] - f["X"].iloc[0], s["Y"].iloc[0] - f["Y"].iloc[0])
+    assert apart == pytest.approx(0.5 * math.hypot(*(t.inner[0] - t.outer[0])), abs=0.01)  # lane to lane
+    lap_time = {k: float(v) for k, v in ((r["model"], r["best_lap"]) for r in board)}
+    assert lap_time["fast"] < 0.6 * lap_time["slow"]
+
+
+def test_head_to_model_needs_two_models(tmp_path, straight, monkeypatch, capsys):
+    monkeypatch.setattr(cli, "COMMAND_MODULES", ["evaluate"])
+    paths = [str(model(tmp_path, straight, n).path) for n in ("a", "b", "c")]
+    assert cli.main(["race", *paths, "--head-to-model"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "two models" in err[0]

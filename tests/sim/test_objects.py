@@ -492,3 +492,43 @@ def test_evaluation_bot_crash_holds_the_car_where_it_is(aws_track):
     np.testing.assert_allclose(x["base_x"][pause], x["base_x"][i], atol=1e-12)
     np.testing.assert_allclose(x["base_y"][pause], x["base_y"][i], atol=1e-12)
     assert tr["progress"][pause[0]] == pytest.approx(tr["progress"][i], abs=1.0)
+
+
+def h2m_pair(track, gap):
+    """Two head-to-model cars on a straight track's centre line, car 1 `gap` m (base to base) behind car 0."""
+    sim = Simulator(track, 2, race=RaceConfig(type="head_to_model"))
+    x0, y0 = point_at(track.center, 0.5 * arc_lengths(track.center)[-1])
+    yaw = float(np.ravel(track.heading_at(0.0))[0])  # a straight track: one heading
+    sim.set_pose(0, x0, y0, yaw, start_ndist=0.0)
+    sim.set_pose(1, x0 - gap * math.cos(yaw), y0 - gap * math.sin(yaw), yaw, start_ndist=0.0)
+    return sim, (x0, y0, yaw)
+
+
+def test_head_to_model_cars_are_each_others_object(aws_track):
+    t = aws_track("Straight_track")
+    sim, (x0, y0, yaw) = h2m_pair(t, 0.5)
+    np.testing.assert_allclose(sim.objects.xy[0, 0], [x0 - 0.5 * math.cos(yaw), y0 - 0.5 * math.sin(yaw)], atol=1e-12)
+    np.testing.assert_allclose(sim.objects.xy[1, 0], [x0, y0], atol=1e-12)
+    p = ParamsBuilder(sim).build()
+    assert p[0]["objects_location"] == [list(sim.objects.xy[0, 0])]
+    assert p[0]["objects_heading"] == [0.0] and p[0]["objects_speed"] == [0.0]  # AWS fills these for bots only
+    # car 0's lidar sees car 1 behind it: the nearest rays (±2.4° off straight back) meet car 1's nose,
+    # 0.5 m - 0.16176 m (half the car) + 0.029 m (the lidar sits ahead of the base) away
+    from racerlab.sim.sensors.lidar import LidarObservation
+
+    ranges = LidarObservation(sim)()
+    want = (0.5 - 0.5 * 0.32352 + 0.029) / math.cos(math.radians(300 / 63 / 2))
+    assert ranges[0].min() == pytest.approx(want, abs=0.04)
+    assert ranges[1].min() == 1.0  # car 0 is ahead of car 1, in the lidar's 60° gap
+
+
+def test_head_to_model_crash_is_the_car_behind(aws_track):
+    t = aws_track("Straight_track")
+    sim, _ = h2m_pair(t, 0.25)  # car 1's nose 0.07 m into car 0's tail
+    sim.step(0.0, 0.0)
+    assert sim.status_names(sim.step(0.0, 0.0)) == ["in_progress", "crashed"]
+    sim, _ = h2m_pair(t, 0.35)  # 0.03 m apart: no crash
+    sim.step(0.0, 0.0)
+    assert sim.status_names(sim.step(0.0, 0.0)) == ["in_progress", "in_progress"]
+    with pytest.raises(ConfigError, match="even number of cars"):
+        Simulator(t, 3, race=RaceConfig(type="head_to_model"))

@@ -87,6 +87,8 @@ def register(sub) -> None:
     _rule_flags(p)
     _race_flags(p)
     p.add_argument("--out", type=Path, help="leaderboard JSON file (default race-<stamp>.json here)")
+    p.add_argument("--head-to-model", action="store_true",
+                   help="race two models on the track at once, each seeing the other (crashes between them count)")
     p.set_defaults(func=run_race)
 
 
@@ -115,17 +117,26 @@ def run_evaluate(args) -> int:
 
 
 def run_race(args) -> int:
-    from racerlab.evaluate import race
+    from racerlab.errors import RacerlabError
+    from racerlab.evaluate import head_to_model, race
 
     def done(res):
         print(f"{res.model}: {res.text}", file=sys.stderr, flush=True)
 
-    board = race(args.models, track=args.track, rules=_rules(args), checkpoint=args.checkpoint,
-                 ranking_laps=args.ranking_laps, out=args.out, video=args.video, progress=True, on_result=done,
-                 device=args.device, race=race_overrides(args) or None)
+    common = dict(track=args.track, rules=_rules(args), checkpoint=args.checkpoint, ranking_laps=args.ranking_laps,
+                  out=args.out, video=args.video, progress=True, on_result=done, device=args.device)
+    if args.head_to_model:
+        if len(args.models) != 2:
+            raise RacerlabError(f"race --head-to-model races two models, got {len(args.models)}; name two folders")
+        if race_overrides(args):
+            raise RacerlabError("race --head-to-model puts only the two cars on the track; drop the [race] flags")
+        board = head_to_model(*args.models, **common)
+    else:
+        board = race(args.models, race=race_overrides(args) or None, **common)
     r = board.rules
-    print(f"race on {board.track}: {r.trials} {'continuous laps' if r.continuous else 'trials'}, off-track penalty "
-          f"{r.off_track_penalty:g} s, up to {r.max_resets} resets")
+    how = "head to model, " if args.head_to_model else ""
+    print(f"race on {board.track}: {how}{r.trials} {'continuous laps' if r.continuous else 'trials'}, off-track "
+          f"penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
     print(board.table())
     print(f"leaderboard written to {board.path}")
     return 0

@@ -14,7 +14,7 @@ from pathlib import Path
 from racerlab import logs
 from racerlab.errors import RacerlabError
 from racerlab.evaluate.api import EvaluationResult, evaluate
-from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, rank_key
+from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, race_result, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
 from racerlab.model import resolve_track
@@ -81,6 +81,50 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
         results.append(res)
         if on_result:
             on_result(res)
+    return _board(results, rules, out)
+
+
+def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
+                  ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
+                  on_result=None, on_lap=None, device: str = "cpu", write: bool = True) -> Leaderboard:
+    """Two models on the track at once (`racerlab race A B --head-to-model`): one world, a car each, each car's
+    sensors and `objects_*` params seeing the other car, crashes between them judged by the crash rule (the car
+    behind crashed). Each model's evaluation folder gets its simtrace, EvalMetrics and summary (and video); the
+    leaderboard ranks the two as `race` does. `on_lap(k, lap)` is called as car k ends a lap."""
+    from racerlab.evaluate.api import _write, load_model, make_policy
+    from racerlab.evaluate.runner import run_head_to_model
+    from racerlab.sim import StartRules, World
+    from racerlab.spec import RaceConfig
+
+    rules = rules or RaceRules()
+    dirs = [Path(model_a), Path(model_b)]
+    models = [load_model(m, checkpoint) for m in dirs]
+    track_obj = resolve_track(models[0].folder, track)
+    first = World(track_obj, 2, models[0].metadata, models[0].reward_path, models[0].observation,
+                  start=StartRules(reverse=rules.reverse), max_episode_steps=rules.max_episode_steps, seed=0,
+                  race=RaceConfig(type="head_to_model", where="racerlab race --head-to-model"))
+    worlds = [first, World(None, 2, models[1].metadata, models[1].reward_path, models[1].observation, sim=first.sim)]
+    policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
+    image_of = None
+    if video:
+        from racerlab.evaluate.video import camera_image
+
+        image_of = camera_image
+    runs = run_head_to_model(worlds, policies, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
+    results = []
+    for m, w, run in zip(models, worlds, runs, strict=True):
+        res = EvaluationResult(m.folder.path.resolve().name, m.folder.path, m.checkpoint, track_obj.name, rules,
+                               run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
+                               wall_seconds=run.wall_seconds, run=run)
+        if write:
+            _write(res, w, video, progress)
+        results.append(res)
+        if on_result:
+            on_result(res)
+    return _board(results, rules, out)
+
+
+def _board(results: list[EvaluationResult], rules: RaceRules, out) -> Leaderboard:
     _disambiguate(results)
     board = Leaderboard(results[0].track, rules, results[0].result.ranking_laps,
                         sorted(results, key=lambda r: rank_key(r.result)))

@@ -138,6 +138,7 @@ class Simulator:
         K.place_many(idx, pts[:, 0].copy(), pts[:, 1].copy(), yaw, np.ascontiguousarray(nd, dtype=np.float64),
                      self.car, self.ctr, self.meas, *self._geom)
         self.episode_start_time[idx] = self.time
+        self._follow()
         return idx
 
     def _place(self, i, x, y, yaw, start_ndist):
@@ -156,6 +157,7 @@ class Simulator:
         self._place(i, x, y, yaw_rad, start_ndist)
         self.car[i, K.CV] = speed
         self.episode_start_time[i] = self.time
+        self._follow()
 
     def relocate(self, i: int, x: float, y: float, yaw_rad: float, progress: float | None = None) -> None:
         """Move car i to a base pose inside its current episode (steps, start and progress continue),
@@ -164,6 +166,7 @@ class Simulator:
         if progress is not None:
             self.meas[i, K.MPROG] = progress
         K.relocate(i, x, y, yaw_rad, self.car, self.ctr, self.meas, *self._geom)
+        self._follow()
 
     def restart_lap(self, i: int) -> None:
         """Car i's progress counts from the start line again and its reset rules start afresh, inside
@@ -179,6 +182,10 @@ class Simulator:
         """A step in which no car moves and the cars in `cars` are held (an evaluation penalty): the clock
         runs on and their step counters count the step, as simapp counts pause steps."""
         self.step(0.0, 0.0, self._none)
+        self.count_held(cars)
+
+    def count_held(self, cars) -> None:
+        """The cars in `cars` were held through the last step: their step counters count it (simapp)."""
         self.ctr[cars, K.KSTEPS] += 1
 
     # ---- stepping -----------------------------------------------------------------------------
@@ -196,11 +203,22 @@ class Simulator:
                    self.params, self._car_arr, self.dt, self.after_action, self.max_episode_steps,
                    self.truncated, *self._geom)
         if self.objects is not None:
+            if self.objects.racers:  # the other car where it was judged (stepped cars) or stands (held ones)
+                x, y, yaw = self.car[:, K.CX].copy(), self.car[:, K.CY].copy(), self.car[:, K.CYAW].copy()
+                p = self.params[act]
+                x[act], y[act], yaw[act] = base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING])
+                self.objects.follow(x, y, yaw)
             self._judge_crashes(act)
+            self._follow()
         self.time += self.dt
         if self.objects is not None and self.objects.bots:
             self.objects.advance(np.arange(n), self.dt)
         return self.ctr[:, K.KSTATUS]
+
+    def _follow(self) -> None:
+        """Head-to-model: each car's object is the other car of its pair where it is now."""
+        if self.objects is not None and self.objects.racers:
+            self.objects.follow(self.car[:, K.CX], self.car[:, K.CY], self.car[:, K.CYAW])
 
     def _judge_crashes(self, active) -> None:
         """The crash rule on the judged pose of the stepped cars: status `crashed` where a corner of the car is
@@ -228,7 +246,7 @@ class Simulator:
         idx = np.arange(self.num_cars) if rows is None else np.asarray(rows, dtype=np.int64)
         K.features(idx, self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed,
                    self.track.length, self.lookahead, self._car_arr, buf)
-        if self.objects is not None:
+        if self._object_features:
             c = self.car[idx]
             near = np.empty((idx.size, 2 * FEATURE_OBJECTS))
             self.objects.features_ahead(idx, c[:, K.CX], c[:, K.CY], c[:, K.CYAW], self.meas[idx, K.MS],
@@ -241,9 +259,15 @@ class Simulator:
         return 6 + 2 * len(self.lookahead)
 
     @property
+    def _object_features(self) -> bool:
+        """Boxes and bot cars add the nearest objects ahead to `features`; the other racer of a head-to-model race
+        does not (models trained for a time trial race head to head with the vector they know)."""
+        return self.objects is not None and not self.objects.racers
+
+    @property
     def feature_size(self) -> int:
-        """Length of the `features` vector; in a race with objects it ends with the nearest objects ahead."""
-        return self._track_features + (2 * FEATURE_OBJECTS if self.objects is not None else 0)
+        """Length of the `features` vector; with boxes or bot cars it ends with the nearest objects ahead."""
+        return self._track_features + (2 * FEATURE_OBJECTS if self._object_features else 0)
 
     # ---- views -------------------------------------------------------------------------------
     @property

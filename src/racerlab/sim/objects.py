@@ -193,11 +193,16 @@ class ObjectSet:
         self._inner_ring = np.vstack([track.center, track.inner[::-1]])
         self._ccw = (track.is_ccw, track_reversed.is_ccw)
         self.bots = race.num_bot_cars > 0
-        m = race.num_bot_cars if self.bots else race.num_obstacles
+        self.racers = race.head_to_model  # each car's one object is the other car of its pair
+        if self.racers and num_cars % 2:
+            raise ConfigError(f"{race.where}: a head_to_model race pairs the cars; use an even number of cars, "
+                              f"not {num_cars}")
+        m = race.num_bot_cars if self.bots else 1 if self.racers else race.num_obstacles
         self.num_objects = m
-        foot = CAR_FOOTPRINT_M if self.bots else BOX_FOOTPRINT_M
+        cars = self.bots or self.racers
+        foot = CAR_FOOTPRINT_M if cars else BOX_FOOTPRINT_M
         self.half = (0.5 * foot[0], 0.5 * foot[1])
-        self.box_size_m = np.array(CAR_FOOTPRINT_M if self.bots else BOX_SIZE_M)
+        self.box_size_m = np.array(CAR_FOOTPRINT_M if cars else BOX_SIZE_M)
         self.speed = race.bot_car_speed if self.bots else 0.0
         self.rev = np.zeros(num_cars, dtype=np.bool_)
         self.xy = np.zeros((num_cars, m, 2))
@@ -225,8 +230,10 @@ class ObjectSet:
         idx = np.asarray(idx, dtype=np.int64)
         for i, rev in zip(idx.tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
             lanes = self.lanes[int(rev)]
-            arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
             self.rev[i] = rev
+            if self.racers:  # the other car is placed by the simulator (`follow`)
+                continue
+            arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
             self.lane[i] = lane
             if self.bots:
                 self.d0[i] = arcs
@@ -304,9 +311,22 @@ class ObjectSet:
         for i in run.tolist():
             self._measure(i)
 
+    def follow(self, x, y, yaw, rows=None) -> None:
+        """Head-to-model: each car's object is the other car of its pair, at base pose (x, y, yaw) (per car of
+        the simulator); `rows` (all by default) are the cars whose object is updated."""
+        rows = np.arange(x.size) if rows is None else np.asarray(rows, dtype=np.int64)
+        other = rows ^ 1
+        self.xy[rows, 0, 0] = x[other]
+        self.xy[rows, 0, 1] = y[other]
+        self.yaw[rows, 0] = yaw[other]
+        for i in rows.tolist():
+            self._measure(i)
+
     def pause(self, rows) -> None:
         """The bots of cars `rows` stop for `penalty_seconds` (one of them rear-ended the car): AWS holds all bot
         cars, moving their clock and lane-change timers on by the penalty."""
+        if not self.bots:
+            return
         rows = np.asarray(rows, dtype=np.int64)
         rows = rows[self.pause_left[rows] <= 0.0]
         self.pause_left[rows] = self.race.penalty_seconds
@@ -322,7 +342,7 @@ class ObjectSet:
         # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
         self.left[i] = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[rev])
         self.order[i] = np.argsort(self.arc[i], kind="stable")
-        if self.bots:  # progress of a bot is that of its front point, as the car's
+        if self.bots or self.racers:  # a car's progress is that of its front point
             yaw = self.yaw[i]
             front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
             self.front_arc[i] = track.project(front).s
@@ -382,7 +402,7 @@ class ObjectSet:
         rows = np.arange(bx.size) if rows is None else np.asarray(rows)
         inside = _inside_rect(cx[:, :, None], cy[:, :, None], self.xy[rows, None, :, 0], self.xy[rows, None, :, 1],
                               self.yaw[rows, None, :], *self.half).any(axis=1)  # (k, m)
-        if not self.bots or car_arc is None:
+        if not (self.bots or self.racers) or car_arc is None:
             return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
         ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
         return (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
