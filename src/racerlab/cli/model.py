@@ -20,8 +20,9 @@ def register(sub) -> None:
     p.add_argument("--cars", type=int, help="cars simulated in parallel")
     p.add_argument("--best-model-metric", choices=BEST_MODEL_METRICS,
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
-    p.add_argument("--race", choices=["time_trial", "object_avoidance"], default="time_trial",
-                   help="object_avoidance: three boxes in [race] and an example reward using objects_*")
+    p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot"], default="time_trial",
+                   help="object_avoidance: three boxes in [race], head_to_bot: three bot cars; both with an example "
+                        "reward using objects_*")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 

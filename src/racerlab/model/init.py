@@ -16,7 +16,10 @@ from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, RaceConfig
 
 EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
 EXAMPLE_REWARDS = {"time_trial": EXAMPLE_REWARD,
-                   "object_avoidance": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
+                   "object_avoidance": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py"),
+                   "head_to_bot": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
+# `init --race head_to_bot`: DRfC's template (DR_H2B_NUMBER_OF_BOT_CARS=3), the simulator's bot defaults
+HEAD_TO_BOT_CARS = 3
 # `init --race object_avoidance`: three fixed boxes that pass the console's rules (first >= 7 %, last <= 90 %,
 # gaps >= 13 % of the lap), alternating lanes
 OBJECT_AVOIDANCE_POSITIONS = ((0.25, 1), (0.5, -1), (0.75, 1))
@@ -75,6 +78,8 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
         raise RacerlabError(f"race must be one of {', '.join(EXAMPLE_REWARDS)}, got {race!r}")
     if race == "object_avoidance":
         cfg = replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
+    elif race == "head_to_bot":
+        cfg = replace(cfg, race=RaceConfig(type=race, number_of_bot_cars=HEAD_TO_BOT_CARS))
     folder.path.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(EXAMPLE_REWARDS[race], folder.reward_path)
     folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
@@ -94,8 +99,11 @@ _TOML_HEADER = """\
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
 #   [logs]   simtrace_every: log every k-th training episode; compress: gzip the simtrace CSVs
-#   [race]   DRfC's race settings: type (time_trial|object_avoidance), number_of_obstacles, obstacle_type,
-#            randomize_obstacle_locations, object_positions ([fraction of the lap, lane 1 inner | -1 outer]),
-#            min_distance_between_obstacles (% of the lap), penalty_seconds, bot car keys (not driven yet)
+#   [race]   DRfC's race settings: type (time_trial|object_avoidance|head_to_bot), number_of_obstacles,
+#            obstacle_type, randomize_obstacle_locations, object_positions ([fraction of the lap, lane 1 inner |
+#            -1 outer]), min_distance_between_obstacles (% of the lap), number_of_bot_cars,
+#            randomize_bot_car_locations, bot_car_speed (m/s), is_lane_change, lower_/upper_lane_change_time (s),
+#            lane_change_distance (m), min_distance_between_bot_cars (m), penalty_seconds (a bot's wait after
+#            it ran into the car)
 
 """

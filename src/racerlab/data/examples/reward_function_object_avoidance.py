@@ -1,7 +1,8 @@
-"""Example reward for an object avoidance race (`racerlab init --race object_avoidance`).
+"""Example reward for an object avoidance or head-to-bot race (`racerlab init --race object_avoidance` or
+`--race head_to_bot`).
 
-Stay on the track, keep near the centre while the road ahead is clear, and when the next box is close and
-in your lane, be in the other lane. Uses the `objects_*` params as the AWS simulator fills them.
+Stay on the track, keep near the centre while the road ahead is clear, and when the next box (or bot car) is
+close and in your lane, be in the other lane. Uses the `objects_*` params as the AWS simulator fills them.
 """
 
 import math
