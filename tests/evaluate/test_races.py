@@ -42,6 +42,32 @@ def test_race_flags_of_evaluate_put_boxes_on_the_track(tmp_path, straight, monke
     assert [m["crash_count"] for m in metrics] == [1]
     trace = pd.read_csv(next((run / "evaluation-simtrace").glob("*.csv")))
     assert trace["obstacle_crash_counter"].max() == 1 and (trace["episode_status"] == "crashed").sum() == 1
+    assert summary["race"]["type"] == "object_avoidance" and summary["race"]["object_positions"] == [[0.5, 1]]
+    # the report finds the track and the race beside the log and draws the crash map with the box
+    from racerlab.analysis.report import log_race, write_report
+
+    html = write_report(run).read_text()
+    assert 'id="objects"' in html and "1 steps judged crashed" in html
+    assert "and the boxes; race: object_avoidance" in html
+    race, _ = log_race(run)
+    assert race.object_positions == ((0.5, 1),)
+
+
+def test_race_layout_is_where_the_simulator_puts_the_objects():
+    from racerlab.sim import Simulator
+    from racerlab.sim.objects import race_layout
+    from racerlab.spec import RaceConfig
+
+    t = load_file(aws_track_path("reInvent2019_track"))
+    for race in (RaceConfig(type="object_avoidance", number_of_obstacles=4),
+                 RaceConfig(type="head_to_bot", number_of_bot_cars=3)):
+        layout = race_layout(race, t)
+        sim = Simulator(t, 1, race=race)
+        assert layout["kind"] == ("bot" if race.num_bot_cars else "box")
+        assert (layout["xy"] == sim.objects.xy[0]).all() and (layout["yaw"] == sim.objects.yaw[0]).all()
+    assert race_layout(RaceConfig(type="object_avoidance", number_of_obstacles=4,
+                                  randomize_obstacle_locations=True), t) is None  # re-drawn every episode
+    assert race_layout(RaceConfig(), t) is None
 
 
 @pytest.mark.parametrize(("flags", "key"), [

@@ -47,6 +47,7 @@ class EvaluationResult:
     steps: int = 0
     wall_seconds: float = 0.0
     run: EvalRun | None = field(default=None, repr=False)
+    race: dict | None = None  # the [race] table the evaluation drove (summary.json "race")
 
     @property
     def text(self) -> str:
@@ -72,7 +73,7 @@ class EvaluationResult:
             "model": self.model, "model_dir": str(self.model_dir), "checkpoint": self.checkpoint,
             "track": self.track, "rules": self.rules.to_json(), "result": self.result.to_json(),
             "laps": [lap.to_json() for lap in self.laps], "steps": self.steps,
-            "wall_seconds": round(self.wall_seconds, 3),
+            "wall_seconds": round(self.wall_seconds, 3), "race": self.race,
             "files": {k: str(v.relative_to(self.out_dir)) for k, v in self.files.items()} if self.out_dir else {},
             "created": datetime.now().isoformat(timespec="seconds"),
         }
@@ -149,8 +150,7 @@ def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate")
     base = model.folder.config().race
     if not race:
         return base
-    table = {k: getattr(base, k) for k in RaceConfig.__dataclass_fields__ if k != "where"}
-    return RaceConfig.from_mapping({**table, **race}, where=where)
+    return RaceConfig.from_mapping({**race_table(base), **race}, where=where)
 
 
 def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, race=None):
@@ -194,10 +194,16 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
     result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
-                              wall_seconds=run.wall_seconds, run=run)
+                              wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race))
     if write:
         _write(result, world, video, progress)
     return result
+
+
+def race_table(race: RaceConfig) -> dict:
+    """A RaceConfig as its [race] table (DRfC's names)."""
+    return {k: list(map(list, v)) if k == "object_positions" else v
+            for k, v in ((k, getattr(race, k)) for k in RaceConfig.__dataclass_fields__ if k != "where")}
 
 
 def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None:

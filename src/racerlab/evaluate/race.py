@@ -115,7 +115,7 @@ def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = Non
     for m, w, run in zip(models, worlds, runs, strict=True):
         res = EvaluationResult(m.folder.path.resolve().name, m.folder.path, m.checkpoint, track_obj.name, rules,
                                run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
-                               wall_seconds=run.wall_seconds, run=run)
+                               wall_seconds=run.wall_seconds, run=run, race={"type": "head_to_model"})
         if write:
             _write(res, w, video, progress)
         results.append(res)

@@ -457,3 +457,18 @@ def base_from_model_point(mx, my, heading_deg):
     """The base pose (x, y, yaw) behind a measured model point (`MODEL_POINT_AHEAD_M` back along the heading)."""
     yaw = np.radians(heading_deg)
     return mx - MODEL_POINT_AHEAD_M * np.cos(yaw), my - MODEL_POINT_AHEAD_M * np.sin(yaw), yaw
+
+
+def race_layout(race: RaceConfig, track: Track) -> dict | None:
+    """Where a race's objects stand at an episode's start, for pictures: {"kind": "box" | "bot", "xy" (m, 2),
+    "yaw" (m,), "size" (length, width) m, "lane" (m,)}; None in a time trial, a head-to-model race or when the
+    layout is random (re-drawn at every reset)."""
+    if not race.has_objects or race.head_to_model:
+        return None
+    if (race.num_bot_cars and race.randomize_bot_car_locations) or \
+            (race.num_obstacles and race.randomize_obstacle_locations and not race.object_positions):
+        return None
+    sim_objects = ObjectSet(race, track, track.reverse(), 1, np.random.default_rng(0))
+    sim_objects.place(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=bool))
+    return {"kind": "bot" if sim_objects.bots else "box", "xy": sim_objects.xy[0].copy(),
+            "yaw": sim_objects.yaw[0].copy(), "size": tuple(sim_objects.box_size_m), "lane": sim_objects.lane[0].copy()}
