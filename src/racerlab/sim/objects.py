@@ -308,8 +308,7 @@ class ObjectSet:
             dd = 0.0 if h > 0 else 0.05  # standing bots: 5 cm along their path
             ahead = self._bot_xy(rows, lanes, c + h, dd) - self._bot_xy(rows, lanes, c - h, -dd)
             self.yaw[rows] = np.arctan2(ahead[..., 1], ahead[..., 0])
-        for i in run.tolist():
-            self._measure(i)
+        self._measure(run)
 
     def follow(self, x, y, yaw, rows=None) -> None:
         """Head-to-model: each car's object is the other car of its pair, at base pose (x, y, yaw) (per car of
@@ -319,8 +318,7 @@ class ObjectSet:
         self.xy[rows, 0, 0] = x[other]
         self.xy[rows, 0, 1] = y[other]
         self.yaw[rows, 0] = yaw[other]
-        for i in rows.tolist():
-            self._measure(i)
+        self._measure(rows)
 
     def pause(self, rows) -> None:
         """The bots of cars `rows` stop for `penalty_seconds` (one of them rear-ended the car): AWS holds all bot
@@ -331,23 +329,37 @@ class ObjectSet:
         rows = rows[self.pause_left[rows] <= 0.0]
         self.pause_left[rows] = self.race.penalty_seconds
 
-    def _measure(self, i: int) -> None:
-        """The static params of car i's objects at their current poses."""
-        rev = int(self.rev[i])
-        xy = self.xy[i]
-        track = self.lanes[rev].track
-        proj = track.project(xy)
-        self.arc[i] = proj.s
-        self.dfc[i] = np.abs(proj.lateral)
-        # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
-        self.left[i] = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[rev])
-        self.order[i] = np.argsort(self.arc[i], kind="stable")
-        if self.bots or self.racers:  # a car's progress is that of its front point
-            yaw = self.yaw[i]
-            front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
-            self.front_arc[i] = track.project(front).s
-        self._lists[i] = (xy.tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
-                          self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
+    def _measure(self, rows) -> None:
+        """The static params of the objects of cars `rows` (an index, or an array of them) at their current poses;
+        their params lists are made again when next asked for."""
+        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        m = self.num_objects
+        for rev in (False, True):
+            sel = rows[self.rev[rows] == rev]
+            if sel.size == 0:
+                continue
+            track = self.lanes[int(rev)].track
+            xy = self.xy[sel].reshape(-1, 2)
+            proj = track.project(xy)
+            self.arc[sel] = proj.s.reshape(-1, m)
+            self.dfc[sel] = np.abs(proj.lateral).reshape(-1, m)
+            # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
+            inner = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[int(rev)])
+            self.left[sel] = inner.reshape(-1, m)
+            if self.bots or self.racers:  # a car's progress is that of its front point
+                yaw = self.yaw[sel].reshape(-1)
+                front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+                self.front_arc[sel] = track.project(front).s.reshape(-1, m)
+        self.order[rows] = np.argsort(self.arc[rows], axis=1, kind="stable")
+        for i in rows.tolist():
+            self._lists[i] = None
+
+    def _params_lists(self, i: int) -> tuple:
+        """Car i's per-object params as lists, made once per layout (boxes stand still between resets)."""
+        if self._lists[i] is None:
+            self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
+                              self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
+        return self._lists[i]
 
     def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
         """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
@@ -422,10 +434,10 @@ class ObjectSet:
         prev_obj = order[rows, prv]
         next_obj = order[rows, nxt]
         in_cam = self.in_camera(idx, next_obj, base_pose)
-        lists = [self._lists[i] for i in idx.tolist()]
+        lists = [self._params_lists(i) for i in idx.tolist()]
         return {
             "closest_objects": (prev_obj.tolist(), next_obj.tolist()),
-            "objects_location": [[[*p] for p in t[0]] for t in lists],
+            "objects_location": [[[*p] for p in t[0]] for t in lists],  # fresh lists: the dicts own them
             "objects_left_of_center": [t[1] for t in lists],
             "objects_distance": [t[2] for t in lists],
             "objects_distance_from_center": [t[3] for t in lists],
