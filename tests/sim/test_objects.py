@@ -532,3 +532,42 @@ def test_head_to_model_crash_is_the_car_behind(aws_track):
     assert sim.status_names(sim.step(0.0, 0.0)) == ["in_progress", "in_progress"]
     with pytest.raises(ConfigError, match="even number of cars"):
         Simulator(t, 3, race=RaceConfig(type="head_to_model"))
+
+
+def test_head_to_model_evaluation_crash_holds_the_car_behind_in_place(aws_track):
+    from racerlab.evaluate.rules import RaceRules, pause_steps
+    from racerlab.evaluate.runner import run_head_to_model
+    from racerlab.model import ContinuousActions, ModelMetadata
+    from racerlab.sim import World
+    from racerlab.sim.pursuit import PurePursuit
+
+    t = aws_track(TRACK)
+    meta = ModelMetadata(ContinuousActions(-30.0, 30.0, 0.5, 4.0), ("LIDAR",), "MLP")
+    a = World(t, 2, meta, None, "lidar", max_episode_steps=100_000, seed=0, race={"type": "head_to_model"})
+    b = World(None, 2, meta, None, "lidar", sim=a.sim)
+    inner = 0.5 * (t.center + t.inner)
+    slow, fast = PurePursuit(inner, speed=0.5), PurePursuit(inner, speed=2.5)
+
+    def driver(pp, car):
+        def policy(obs):  # both follow the inner lane: the fast car laps the slow one and runs into it
+            steer, v = pp(a.sim)
+            return np.stack([steer[car:car + 1] / 30.0, (v[car:car + 1] - 0.5) / 1.75 - 1.0], axis=1)
+        return policy
+
+    runs = run_head_to_model([a, b], [driver(slow, 0), driver(fast, 1)],
+                             RaceRules(trials=2, collision_penalty=1.0, max_resets=2))
+    tr, x = runs[1].trace, runs[1].extra
+    crash = np.flatnonzero(tr["episode_status"] == "crashed")
+    assert crash.size >= 1 and (runs[0].trace["episode_status"] == "crashed").sum() == 0  # the car behind
+    i = crash[0]
+    pause = np.arange(i + 1, i + 1 + pause_steps(1.0))
+    assert np.all(tr["episode_status"][pause] == "pause") and np.all(tr["obstacle_crash_counter"] == 0)
+    np.testing.assert_allclose(x["base_x"][pause], x["base_x"][i], atol=1e-12)  # held where it was
+    np.testing.assert_allclose(x["base_y"][pause], x["base_y"][i], atol=1e-12)
+    # one clock: the slow car drove on while the fast one was held (29 steps at up to 0.5 m/s, slower in the bend)
+    slow_x = runs[0].extra
+    assert runs[0].trace["tstamp"][pause[-1]] == tr["tstamp"][pause[-1]]
+    moved = math.hypot(slow_x["base_x"][pause[-1]] - slow_x["base_x"][pause[0]],
+                       slow_x["base_y"][pause[-1]] - slow_x["base_y"][pause[0]])
+    assert 0.2 < moved <= 0.5 * 29 / 15 * 1.05
+    assert runs[1].laps[-1].status == "crashed" and runs[1].laps[-1].counts["crashed"] == 3  # resets used up

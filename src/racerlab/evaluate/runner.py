@@ -224,9 +224,10 @@ class _Driver:
         ep.resets += 1
         penalty = self.rules.penalty(status)
         self.trace.set_last("pause_duration", penalty)
-        if status == "crashed" and self.sim.objects is not None and self.sim.objects.bots:
-            self._stop_in_place()  # simapp: after hitting a bot car the car waits where it is
-        elif status == "crashed" and self.sim.objects is not None:
+        objects = self.sim.objects
+        if status == "crashed" and objects is not None and (objects.bots or objects.racers):
+            self._stop_in_place()  # simapp: after hitting a bot car (or another racer) the car waits where it is
+        elif status == "crashed" and objects is not None:
             ep.obstacle_crashes += 1
             self.trace.set_last("obstacle_crash_counter", ep.obstacle_crashes)
             self._put_behind_obstacle(before)
