@@ -571,3 +571,22 @@ def test_head_to_model_evaluation_crash_holds_the_car_behind_in_place(aws_track)
                        slow_x["base_y"][pause[-1]] - slow_x["base_y"][pause[0]])
     assert 0.2 < moved <= 0.5 * 29 / 15 * 1.05
     assert runs[1].laps[-1].status == "crashed" and runs[1].laps[-1].counts["crashed"] == 3  # resets used up
+
+
+def test_crashed_ranks_before_off_track(aws_track):
+    """A car facing a box across the outer border: no wheel on the road, a front corner inside the box's
+    footprint. AWS's status order (lap_complete, crashed, off_track, ...) makes it `crashed`."""
+    t = aws_track(TRACK)
+    sim = oa_sim(t, [(0.02, -1)])
+    box = sim.objects.xy[0, 0]
+    centre = nearest_on(t.center, box)[0]
+    n = (box - centre) / np.hypot(*(box - centre))  # outwards, across the lane
+    base = box + 0.355 * n  # front corners 0.355 - 0.16176 = 0.193 m from the box centre: inside its 0.2 m half-width
+    yaw = math.atan2(-n[1], -n[0])  # facing the box
+    fwd, left = -n, np.array([n[1], -n[0]])
+    wheels = [base + ax * fwd + side * left for ax in (-0.081663, 0.082311) for side in (0.08, -0.08)]
+    assert not t.contains(np.array(wheels)).any()  # every wheel centre off the road
+    for race, want in ((sim, "crashed"), (Simulator(t, 1), "off_track")):
+        race.set_pose(0, *base, yaw)
+        race.step(0.0, 0.1)
+        assert race.status_names(race.step(0.0, 0.1)) == [want]
