@@ -52,12 +52,12 @@ class Leaderboard:
         width = max([5, *(len(e.model) for e in self.entries)])
         avg = f"avg {self.ranking_laps}"
         lines = [f"{'rank':>4}  {'model':<{width}}  {'best lap':>8}  {avg:>8}  {'laps':>5}  {'off-track':>9}  "
-                 f"{'resets':>6}  result"]
+                 f"{'crashes':>7}  {'resets':>6}  result"]
         for row in self.rows():
             laps = f"{row['laps_completed']}/{row['laps']}"
             lines.append(f"{row['rank']:>4}  {row['model']:<{width}}  {sec(row['best_lap']):>8}  "
-                         f"{sec(row['ranking_average']):>8}  {laps:>5}  {row['off_track']:>9}  {row['resets']:>6}  "
-                         f"{row['result']}")
+                         f"{sec(row['ranking_average']):>8}  {laps:>5}  {row['off_track']:>9}  {row['crashes']:>7}  "
+                         f"{row['resets']:>6}  {row['result']}")
         return "\n".join(lines)
 
 
