@@ -50,20 +50,24 @@ def test_each_race_type_through_gymnasium_make(name):
     assert statuses <= {"prepare", "in_progress", "off_track", "crashed", "immobilized", "reversed", "lap_complete"}
     assert checked > 10 or n_objects == 0
 
-def test_head_to_bot_from_the_command_line(tmp_path, capsys):
-    """init --race head_to_bot, a short training, an evaluation and a race with the [race] flags."""
-    model = tmp_path / "h2b"
+@pytest.mark.parametrize(("race", "toml", "flags"), [
+    ("object_avoidance", "object_positions = [[0.25, 1], [0.5, -1], [0.75, 1]]",
+     ["--race-type", "object_avoidance", "--number-of-obstacles", "4", "--randomize-obstacle-locations"]),
+    ("head_to_bot", "number_of_bot_cars = 3", ["--bot-car-speed", "0.6", "--is-lane-change"]),
+])
+def test_race_types_from_the_command_line(tmp_path, capsys, race, toml, flags):
+    """init --race, a short training, an evaluation, and a race with other settings from the [race] flags."""
+    model = tmp_path / race
     track = str(aws_track_path("reInvent2019_track"))
-    assert main(["init", str(model), "--track", track, "--race", "head_to_bot", "--sensor", "features"]) == 0
-    toml = (model / "training.toml").read_text()
-    assert 'type = "head_to_bot"' in toml and "number_of_bot_cars = 3" in toml
+    assert main(["init", str(model), "--track", track, "--race", race, "--sensor", "features"]) == 0
+    text = (model / "training.toml").read_text()
+    assert f'type = "{race}"' in text and toml in text
     assert main(["train", str(model), "--iterations", "1", "--cars", "4"]) == 0
     assert "stopped: iteration limit of 1" in capsys.readouterr().out
     assert main(["evaluate", str(model), "--trials", "1", "--max-resets", "3", "--checkpoint", "last"]) == 0
     run = sorted(model.glob("evaluation-*"))[-1]
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["laps"] and "crashes" in summary["result"]
-    # the model's bots, faster and changing lanes, in a race of one from the flags
-    assert main(["race", str(model), "--trials", "1", "--max-resets", "2", "--checkpoint", "last",
-                 "--bot-car-speed", "0.6", "--is-lane-change", "--out", str(tmp_path / "b.json")]) == 0
-    assert json.loads((tmp_path / "b.json").read_text())["leaderboard"][0]["model"] == "h2b"
+    assert summary["laps"] and "crashes" in summary["result"] and summary["race"]["type"] == race
+    assert main(["race", str(model), "--trials", "1", "--max-resets", "2", "--checkpoint", "last", *flags,
+                 "--out", str(tmp_path / "b.json")]) == 0
+    assert json.loads((tmp_path / "b.json").read_text())["leaderboard"][0]["model"] == race

@@ -18,9 +18,16 @@ converts the stored value again at every reset (the value shrinks by L/100 each 
 0.025 m ... on reInvent2019), so from the third episode on its random layouts have no minimum gap; racerlab
 keeps the intended minimum (the difference is written down in docs/objects.md).
 
+Bot cars (`BotCarsCtrl`, next_capabilities §A.2) start like boxes (min distance in metres, their own
+`randomize_bot_car_locations`) and drive their lane keyed by centre-line distance, changing lanes every
+U(lower, upper) s over `lane_change_distance` m; they pause `penalty_seconds` after one ran into the car. In a
+head-to-model race each car's one object is the other car of its pair. docs/objects.md has the details and the
+differences from AWS.
+
 Crash rule (facts §2, next_capabilities §A.4): a car has crashed when one of the four corners of its footprint
 (0.32352 m long x 0.1961 m wide, centred on the base pose) lies strictly inside an object's footprint (a box's
-is 0.5 m along its lane x 0.4 m across, the box plus 0.1 m). Only the car's corners are tested.
+is 0.5 m along its lane x 0.4 m across, the box plus 0.1 m; a car's is its own). Only the car's corners are
+tested; a car (bot or racer) counts only when it is ahead: the car ran into it.
 """
 
 from __future__ import annotations
@@ -180,7 +187,8 @@ def camera_frustum_contains(cam_x, cam_y, cam_z, yaw, px, py, pz) -> np.ndarray:
 
 
 class ObjectSet:
-    """The objects of every car of a simulator: per car `m` boxes with pose and their static params.
+    """The objects of every car of a simulator: per car `m` boxes, bot cars (`bots`, driven by `advance`) or,
+    in a head-to-model race (`racers`), the other car of its pair (set by `follow`), with their params.
 
     Arrays (car axis first): `xy` (n, m, 2), `yaw` (n, m), `arc` (n, m: centre-line projection in the car's
     driving direction, the param `objects_distance`), `dfc` (n, m), `left` (n, m).
