@@ -232,10 +232,17 @@ class ObjectSet:
         speed = self.speed
         self.change_s = race.lane_change_distance / speed if speed > 0 else np.inf
         self.lane_changes = self.bots and race.is_lane_change and speed > 0
+        # fixed and evenly spaced boxes stand in the same places every episode: each direction's layout is
+        # placed once and then copied, so that a reset costs microseconds instead of a millisecond per car
+        self._layouts: dict | None = ({} if (race.object_positions or not race.randomize_obstacle_locations)
+                                      and not self.bots else None)
 
     def place(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """New layouts for cars `idx` (each in its driving direction `reversed_`)."""
         idx = np.asarray(idx, dtype=np.int64)
+        if self._layouts is not None:
+            self._copy_layouts(idx, np.asarray(reversed_, dtype=bool))
+            return
         for i, rev in zip(idx.tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
             lanes = self.lanes[int(rev)]
             self.rev[i] = rev
@@ -369,13 +376,36 @@ class ObjectSet:
                               self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
         return self._lists[i]
 
+    def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
+        """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array)."""
+        n = self.xy.shape[0]
+        for rev in (False, True):
+            rows = idx[reversed_ == rev]
+            if rows.size == 0:
+                continue
+            one = self._layouts.get(rev)
+            if one is None:
+                one = ObjectSet(self.race, self.lanes[0].track, self.lanes[1].track, 1, self.rng)
+                one._layouts = None
+                one.place([0], [rev])
+                self._layouts[rev] = one
+            for name, value in vars(one).items():
+                mine = getattr(self, name)
+                if isinstance(value, np.ndarray) and value.shape[:1] == (1,) and mine.shape[:1] == (n,):
+                    mine[rows] = value[0]
+            for i in rows.tolist():
+                self._lists[i] = one._lists[0]
+
     def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
         """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
         the car's objects onto the lane on the other side of that object, as AWS starts a training episode."""
-        for j, (i, rev) in enumerate(zip(np.asarray(idx).tolist(), np.asarray(reversed_).tolist(), strict=True)):
+        idx, reversed_ = np.asarray(idx), np.asarray(reversed_)
+        if self.num_objects == 0 or idx.size == 0:
+            return
+        gap = np.hypot(self.xy[idx, :, 0] - pts[:, :1], self.xy[idx, :, 1] - pts[:, 1:2]).min(axis=1)
+        for j in np.flatnonzero(gap < CLOSEST_OBJ_GAP_M).tolist():  # a few starts: the loop is over those only
+            i, rev = int(idx[j]), bool(reversed_[j])
             d = np.hypot(*(self.xy[i] - pts[j]).T)
-            if d.size == 0 or d.min() >= CLOSEST_OBJ_GAP_M:
-                continue
             lanes = self.lanes[int(rev)]
             lane = lanes.outer if self.lane[i, int(np.argmin(d))] == 1 else lanes.inner
             proj = lane.project(pts[j:j + 1])

@@ -6,9 +6,11 @@ right side, and ray 63 looks 30° right; the 60° gap is ahead, where the camera
 Gaussian noise (σ = 0.01 m) and are clipped to [0.15, 1.0] m; a ray that hits nothing reads 1.0.
 
 What the rays hit:
-- objects: oriented rectangles `[x, y, yaw_rad, length_m, width_m]` set with `Lidar.set_objects`
-  (none by default; object avoidance and head-to-bot races pass their obstacles and bot cars,
-  and may say which car sees which, for cars that each run their own race);
+- the race's objects: each car's own boxes or bot cars (the simulator's `ObjectSet`, read at every
+  scan: they move at resets, and bot cars drive), as oriented rectangles of the box model
+  (0.40 × 0.30 m) or the car's footprint;
+- other rectangles `[x, y, yaw_rad, length_m, width_m]` set with `Lidar.set_objects` (none by
+  default), seen by every car or as a `visible` mask says;
 - the track borders, as walls, only with `walls=True`. AWS's tracks are flat paint with no
   walls, so its lidar sees nothing there and reads 1.0; walls are a racerlab option for
   lidar-only experiments.
@@ -108,12 +110,14 @@ def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
 @njit(cache=True, inline="always")
 def _cast_box(ox, oy, base, step, nrays, reach, box, best):
     """Cast the four sides of an oriented rectangle [x, y, yaw, length, width]; range 0 from inside it."""
-    cb = math.cos(box[2])
-    sb = math.sin(box[2])
     hl = 0.5 * box[3]
     hw = 0.5 * box[4]
     px = ox - box[0]
     py = oy - box[1]
+    if px * px + py * py > (reach + hl + hw) ** 2:  # out of reach whatever its yaw (hl + hw >= half diagonal)
+        return
+    cb = math.cos(box[2])
+    sb = math.sin(box[2])
     if abs(cb * px + sb * py) <= hl and abs(-sb * px + cb * py) <= hw:
         best[:] = 0.0
         return
@@ -126,13 +130,13 @@ def _cast_box(ox, oy, base, step, nrays, reach, box, best):
 
 
 @njit(cache=True)
-def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, boxes, visible, walls, edges, grid, reach,
+def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, own, boxes, visible, walls, edges, grid, reach,
          out):
     """Raw ranges (inf = nothing within `reach`) of cars `cars` into out[car, ray].
 
-    Ray k looks at first_angle + k·step from the car's heading. boxes (M, 5) [x, y, yaw, length, width]
-    are seen by car i where visible[i, m]; with `walls` the road edges (E, 4) listed for the car's grid
-    cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
+    Ray k looks at first_angle + k·step from the car's heading. Rectangles [x, y, yaw, length, width]:
+    car i sees its own `own[i]` (B, K, 5) and those of boxes (M, 5) where visible[i, m]; with `walls` the
+    road edges (E, 4) listed for the car's grid cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
     """
     cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
     nrays = out.shape[1]
@@ -145,6 +149,8 @@ def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, boxes, visi
         base = pose_yaw[i] + first_angle
         best = out[i]
         best[:] = np.inf
+        for m in range(own.shape[1]):
+            _cast_box(ox, oy, base, step, nrays, reach, own[i, m], best)
         for m in range(boxes.shape[0]):
             if visible[i, m]:
                 _cast_box(ox, oy, base, step, nrays, reach, boxes[m], best)
@@ -198,13 +204,11 @@ class Lidar:
             else (np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int64), 0.0, 0.0, 1.0, 1, 1)
         self.set_objects(None)
         objects = getattr(sim, "objects", None)
-        if objects is not None and objects.num_objects:
-            # each car sees its own boxes: one row per car and box, visible on the car's block only
-            m = objects.num_objects
-            sizes = np.tile(objects.box_size_m, (sim.num_cars * m, 1))
-            boxes = np.hstack([np.zeros((sim.num_cars * m, 3)), sizes])
-            self.set_objects(boxes, np.kron(np.eye(sim.num_cars, dtype=np.bool_), np.ones((1, m), dtype=np.bool_)))
-        self._objects = objects if self.boxes.shape[0] else None
+        self._objects = objects if objects is not None and objects.num_objects else None
+        m = self._objects.num_objects if self._objects is not None else 0
+        self.own = np.zeros((sim.num_cars, m, 5))  # each car's objects: x, y, yaw from the ObjectSet, its model's size
+        if m:
+            self.own[:, :, 3:] = objects.box_size_m
         self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
         self.ranges = np.full((sim.num_cars, LIDAR_RAYS), self.max_range_m, dtype=np.float32)
         self._all = np.arange(sim.num_cars, dtype=np.int64)
@@ -229,13 +233,14 @@ class Lidar:
         Ranges are clipped to [0.15, max_range_m]; a ray that hits nothing reads max_range_m.
         """
         idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
-        if self._objects is not None:  # the boxes move at every reset
-            self.boxes[:, :2] = self._objects.xy.reshape(-1, 2)
-            self.boxes[:, 2] = self._objects.yaw.ravel()
-        if self.boxes.shape[0] or self.walls:
+        if self._objects is not None:  # objects move at every reset (and bot cars at every step)
+            self.own[:, :, :2] = self._objects.xy
+            self.own[:, :, 2] = self._objects.yaw
+        if self.own.shape[1] or self.boxes.shape[0] or self.walls:
             car = self.sim.car
             scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD,
-                 self.step, self.boxes, self.visible, self.walls, self.edges, self.grid, self.reach_m, self.raw)
+                 self.step, self.own, self.boxes, self.visible, self.walls, self.edges, self.grid, self.reach_m,
+                 self.raw)
             raw = self.raw[idx]
             hit = np.isfinite(raw)
             if self.noise_sigma_m > 0.0 and hit.any():
