@@ -170,3 +170,21 @@ def test_lidar_hits_the_near_face_of_a_box_beside_the_car(straight):
     expected = 0.45 / math.cos(math.radians(angles[k] - 90.0))
     assert r[k] == pytest.approx(expected, abs=1e-6)
     assert r[int(np.argmin(np.abs(angles + 90.0)))] == pytest.approx(1.0)  # nothing on the right
+
+
+def test_copied_layouts_equal_placing_each_car(aws_track):
+    """Fixed and evenly spaced layouts are placed once per direction and copied: the same arrays and params."""
+    from racerlab.sim.objects import ObjectSet
+
+    track = aws_track("reInvent2019_track")
+    race = RaceConfig(type="object_avoidance", number_of_obstacles=4)
+    fast = ObjectSet(race, track, track.reverse(), 3, np.random.default_rng(0))
+    slow = ObjectSet(race, track, track.reverse(), 3, np.random.default_rng(0))
+    slow._layouts = None
+    rev = np.array([False, True, False])
+    fast.place([0, 1, 2], rev)
+    slow.place([0, 1, 2], rev)
+    for name in ("xy", "yaw", "arc", "dfc", "left", "lane", "order", "rev"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name)), name
+    assert fast._lists == slow._lists
+    assert not np.array_equal(fast.xy[0], fast.xy[1])  # the reversed direction has its own layout

@@ -402,15 +402,19 @@ class ObjectSet:
         idx, reversed_ = np.asarray(idx), np.asarray(reversed_)
         if self.num_objects == 0 or idx.size == 0:
             return
-        gap = np.hypot(self.xy[idx, :, 0] - pts[:, :1], self.xy[idx, :, 1] - pts[:, 1:2]).min(axis=1)
-        for j in np.flatnonzero(gap < CLOSEST_OBJ_GAP_M).tolist():  # a few starts: the loop is over those only
-            i, rev = int(idx[j]), bool(reversed_[j])
-            d = np.hypot(*(self.xy[i] - pts[j]).T)
+        d = np.hypot(self.xy[idx, :, 0] - pts[:, :1], self.xy[idx, :, 1] - pts[:, 1:2])  # (k, m)
+        near = np.flatnonzero(d.min(axis=1) < CLOSEST_OBJ_GAP_M)
+        if near.size == 0:
+            return
+        box_lane = self.lane[idx[near], np.argmin(d[near], axis=1)]
+        for rev in (False, True):
             lanes = self.lanes[int(rev)]
-            lane = lanes.outer if self.lane[i, int(np.argmin(d))] == 1 else lanes.inner
-            proj = lane.project(pts[j:j + 1])
-            pts[j] = lane.point_at(proj.s)[0]
-            yaw[j] = proj.heading[0]
+            for flag, lane in ((1, lanes.outer), (-1, lanes.inner)):  # the lane on the box's other side
+                sel = near[(reversed_[near].astype(bool) == rev) & (box_lane == flag)]
+                if sel.size:
+                    proj = lane.project(pts[sel])
+                    pts[sel] = lane.point_at(proj.s).reshape(-1, 2)
+                    yaw[sel] = proj.heading
 
     def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
         """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc

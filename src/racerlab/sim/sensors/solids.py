@@ -28,7 +28,7 @@ from racerlab.sim.sensors.geometry import HAZE_FAR_M, HAZE_NEAR_M
 
 BOX_MODEL_M = (0.40, 0.30, 0.25)  # box_obstacle / amazon_box_obstacle model.sdf (x along the lane, y, z)
 BOT_CAR_HEIGHT_M = 0.20  # the bot car drawn as a box of its footprint: about the DeepRacer's height with its lidar
-NEAR_M = 0.01  # corners nearer the camera plane than this make an object cover the whole image (conservative)
+NEAR_M = 0.01  # the camera sees objects from this far ahead of its plane
 LIGHT_DIR = (math.cos(math.radians(35.0)), math.sin(math.radians(35.0)))  # world frame, horizontal part
 AMBIENT, DIFFUSE, TOP = 0.6, 0.4, 1.0  # a face's grey: albedo · (AMBIENT + DIFFUSE · (1 + n·l) / 2)
 FACES = 5  # +x, -x, +y, -y (in the object's frame), top
@@ -52,14 +52,15 @@ def face_greys(yaw, grey, out):
 def object_bounds(ex, ey, c, s, ox, oy, oyaw, hl, hw, h, cam_z, cp, sp, f, width, height, out):
     """Pixel rows and columns (out = r0, r1, c0, c1, inclusive) whose centres may see an upright box (centre ox, oy,
     turned by oyaw, half sizes hl, hw, height h) from a camera at (ex, ey, cam_z) looking along (c, s), pitched
-    down (cp = cos, sp = sin). Returns False when the box is behind the camera or outside the image."""
+    down (cp = cos, sp = sin). Returns False when the box is behind the camera or outside the image.
+
+    The bounds are those of the box's part in front of the plane NEAR_M ahead of the camera: its corners there,
+    and where its edges cross that plane."""
     co = math.cos(oyaw)
     so = math.sin(oyaw)
-    umin = 1e30
-    umax = -1e30
-    vmin = 1e30
-    vmax = -1e30
-    behind = 0
+    fwd = np.empty(8)  # along the optical axis
+    right = np.empty(8)
+    down = np.empty(8)
     for q in range(8):
         a = hl if q & 1 else -hl
         b = hw if q & 2 else -hw
@@ -67,39 +68,41 @@ def object_bounds(ex, ey, c, s, ox, oy, oyaw, hl, hw, h, cam_z, cp, sp, f, width
         wx = ox + co * a - so * b - ex
         wy = oy + so * a + co * b - ey
         fx = c * wx + s * wy
-        fwd = fx * cp - fz * sp
-        if fwd <= NEAR_M:
-            behind += 1
-            continue
-        u = (s * wx - c * wy) / fwd * f + 0.5 * width  # right of the optical axis
-        v = (-fx * sp - fz * cp) / fwd * f + 0.5 * height
-        umin = min(umin, u)
-        umax = max(umax, u)
-        vmin = min(vmin, v)
-        vmax = max(vmax, v)
-    if behind == 8:
+        fwd[q] = fx * cp - fz * sp
+        right[q] = s * wx - c * wy
+        down[q] = -fx * sp - fz * cp
+    lim = np.array([1e30, -1e30, 1e30, -1e30])  # u min, u max, v min, v max
+    for q in range(8):
+        if fwd[q] > NEAR_M:
+            _extend(lim, right[q] / fwd[q], down[q] / fwd[q])
+        for bit in (1, 2, 4):  # the edges from this corner that cross the near plane
+            p = q | bit
+            if p != q and (fwd[q] > NEAR_M) != (fwd[p] > NEAR_M):
+                w = (NEAR_M - fwd[q]) / (fwd[p] - fwd[q])
+                _extend(lim, (right[q] + w * (right[p] - right[q])) / NEAR_M,
+                        (down[q] + w * (down[p] - down[q])) / NEAR_M)
+    if lim[0] > lim[1]:
         return False
-    if behind:  # a corner beside or behind the camera: the projection is unbounded, search the whole image
-        out[0], out[1], out[2], out[3] = 0, height - 1, 0, width - 1
-        return True
     # pixel k's centre is at k + 0.5: the centres inside [min, max]
-    out[0] = max(int(math.ceil(vmin - 0.5)), 0)
-    out[1] = min(int(math.floor(vmax - 0.5)), height - 1)
-    out[2] = max(int(math.ceil(umin - 0.5)), 0)
-    out[3] = min(int(math.floor(umax - 0.5)), width - 1)
+    out[0] = max(int(math.ceil(max(lim[2] * f + 0.5 * height, -1.0) - 0.5)), 0)
+    out[1] = min(int(math.floor(min(lim[3] * f + 0.5 * height, height + 1.0) - 0.5)), height - 1)
+    out[2] = max(int(math.ceil(max(lim[0] * f + 0.5 * width, -1.0) - 0.5)), 0)
+    out[3] = min(int(math.floor(min(lim[1] * f + 0.5 * width, width + 1.0) - 0.5)), width - 1)
     return out[0] <= out[1] and out[2] <= out[3]
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _slab(o, d, lo, hi):
-    """(t_in, t_out, entered_low) of a ray o + t·d through the slab lo..hi of one axis."""
-    if d > 0.0:
-        return (lo - o) / d, (hi - o) / d, True
-    if d < 0.0:
-        return (hi - o) / d, (lo - o) / d, False
-    if lo <= o <= hi:
-        return -FAR, FAR, False
-    return FAR, -FAR, False
+def _extend(lim, u, v):
+    lim[0] = min(lim[0], u)
+    lim[1] = max(lim[1], u)
+    lim[2] = min(lim[2], v)
+    lim[3] = max(lim[3], v)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _nonzero(d):
+    """d moved off zero (the kernels are compiled with fastmath, which assumes no infinities from 1 / 0)."""
+    return d if abs(d) > 1e-12 else 1e-12
 
 
 @njit(cache=True, fastmath=True)
@@ -109,27 +112,39 @@ def trace_row(dxr, dz, c0, c1, u0, du, lx, ly, oz, ca, sa, hl, hw, h, shades, zb
 
     The ray of column k is (dxr, -(u0 + k·du), dz) in the car frame (x ahead, y left, z up), from the camera at
     (lx, ly, oz) in the box's frame, which is the car frame turned by (ca, sa) = cos, sin(car yaw − box yaw).
-    The box spans [-hl, hl] × [-hw, hw] × [0, h].
+    The box spans [-hl, hl] × [-hw, hw] × [0, h]. Slabs: the ray is inside the box between the largest entry
+    and the smallest exit of the three axes' slabs; the axis of the largest entry is the face it meets.
     """
+    iz = 1.0 / _nonzero(dz)  # the z slab is the same for the whole row
+    za = (0.0 - oz) * iz
+    zb = (h - oz) * iz
+    tz0 = min(za, zb)
+    tz1 = max(za, zb)
+    dx0 = ca * dxr + sa * u0  # the ray's box-frame x and y are linear in the column
+    dy0 = sa * dxr - ca * u0
+    ddx = sa * du
+    ddy = -ca * du
     for k in range(c0, c1 + 1):
-        dyc = -(u0 + k * du)
-        dx = ca * dxr - sa * dyc
-        dy = sa * dxr + ca * dyc
-        tx0, tx1, xlow = _slab(lx, dx, -hl, hl)
-        ty0, ty1, ylow = _slab(ly, dy, -hw, hw)
-        tz0, tz1, _ = _slab(oz, dz, 0.0, h)
-        t_in = tx0
-        face = 1 if xlow else 0
-        if ty0 > t_in:
-            t_in = ty0
-            face = 3 if ylow else 2
-        if tz0 > t_in:
-            t_in = tz0
-            face = 4
-        t_out = min(tx1, min(ty1, tz1))
+        dx = _nonzero(dx0 + k * ddx)
+        dy = _nonzero(dy0 + k * ddy)
+        ix = 1.0 / dx
+        iy = 1.0 / dy
+        xa = (-hl - lx) * ix
+        xb = (hl - lx) * ix
+        ya = (-hw - ly) * iy
+        yb = (hw - ly) * iy
+        tx0 = min(xa, xb)
+        ty0 = min(ya, yb)
+        t_in = max(tx0, max(ty0, tz0))
+        t_out = min(max(xa, xb), min(max(ya, yb), tz1))
         if 0.0 < t_in <= t_out and t_in < zbuf[k]:
             zbuf[k] = t_in
-            val[k] = shades[face]
+            if t_in == tz0:
+                val[k] = shades[4]
+            elif t_in == tx0:
+                val[k] = shades[1] if dx > 0.0 else shades[0]
+            else:
+                val[k] = shades[3] if dy > 0.0 else shades[2]
 
 
 @njit(cache=True, fastmath=True)
