@@ -36,6 +36,7 @@ import functools
 import math
 
 import numpy as np
+from numba import njit
 
 from racerlab.errors import ConfigError
 from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
@@ -145,15 +146,30 @@ class Lanes:
         return xy, yaw
 
 
-def _inside_rect(px, py, cx, cy, yaw, half_len, half_wid):
-    """Strictly inside a rectangle centred at (cx, cy) turned by yaw; broadcasts."""
-    dx = px - cx
-    dy = py - cy
-    c = np.cos(yaw)
-    s = np.sin(yaw)
-    u = dx * c + dy * s
-    v = -dx * s + dy * c
-    return (np.abs(u) < half_len) & (np.abs(v) < half_wid)
+@njit(cache=True)
+def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
+    """(k, m) bool: a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx[j], by[j], yaw[j]) lies
+    strictly inside object q's footprint rectangle (half sizes half_len, half_wid around oxy[rows[j], q], turned by
+    oyaw[rows[j], q]). Compiled: it runs for every car at every step."""
+    hl = 0.5 * CAR_FOOTPRINT_M[0]
+    hw = 0.5 * CAR_FOOTPRINT_M[1]
+    k = bx.size
+    m = oxy.shape[1]
+    out = np.zeros((k, m), dtype=np.bool_)
+    for j in range(k):
+        c = math.cos(yaw[j])
+        s = math.sin(yaw[j])
+        i = rows[j]
+        for q in range(m):
+            co = math.cos(oyaw[i, q])
+            so = math.sin(oyaw[i, q])
+            for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
+                dx = bx[j] + a * c - b * s - oxy[i, q, 0]
+                dy = by[j] + a * s + b * c - oxy[i, q, 1]
+                if abs(dx * co + dy * so) < half_len and abs(-dx * so + dy * co) < half_wid:
+                    out[j, q] = True
+                    break
+    return out
 
 
 def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
@@ -378,7 +394,6 @@ class ObjectSet:
 
     def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array)."""
-        n = self.xy.shape[0]
         for rev in (False, True):
             rows = idx[reversed_ == rev]
             if rows.size == 0:
@@ -389,12 +404,20 @@ class ObjectSet:
                 one._layouts = None
                 one.place([0], [rev])
                 self._layouts[rev] = one
-            for name, value in vars(one).items():
-                mine = getattr(self, name)
-                if isinstance(value, np.ndarray) and value.shape[:1] == (1,) and mine.shape[:1] == (n,):
-                    mine[rows] = value[0]
+            for mine, value in self._per_car_arrays(one):
+                mine[rows] = value[0]
             for i in rows.tolist():
                 self._lists[i] = one._lists[0]
+
+    def _per_car_arrays(self, one: ObjectSet) -> list:
+        """(this set's array, the one-car set's array) for every per-car array (car axis first; names listed once)."""
+        key = ("arrays", id(one))
+        if key not in self._layouts:
+            n = self.xy.shape[0]
+            self._layouts[key] = [k for k, v in vars(one).items()
+                                  if isinstance(v, np.ndarray) and v.shape[:1] == (1,)
+                                  and getattr(self, k).shape[:1] == (n,)]
+        return [(getattr(self, k), getattr(one, k)) for k in self._layouts[key]]
 
     def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
         """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
@@ -447,15 +470,9 @@ class ObjectSet:
         inside one of its objects' footprints is a crash; with bot cars only when the bot is ahead of the car (its
         front point within half a lap ahead of the car's centre-line arc `car_arc`): the car ran into it. A bot
         behind the car ran into the car: `rear_ended`, not the car's crash (AWS compares the two progresses)."""
-        hl, hw = 0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]
-        c, s = np.cos(yaw), np.sin(yaw)
-        ox = np.array([hl, hl, -hl, -hl])
-        oy = np.array([hw, -hw, hw, -hw])
-        cx = bx[:, None] + ox * c[:, None] - oy * s[:, None]  # (k, 4)
-        cy = by[:, None] + ox * s[:, None] + oy * c[:, None]
-        rows = np.arange(bx.size) if rows is None else np.asarray(rows)
-        inside = _inside_rect(cx[:, :, None], cy[:, :, None], self.xy[rows, None, :, 0], self.xy[rows, None, :, 1],
-                              self.yaw[rows, None, :], *self.half).any(axis=1)  # (k, m)
+        rows = np.arange(bx.size) if rows is None else np.asarray(rows, dtype=np.int64)
+        inside = _corners_inside(np.asarray(bx, dtype=np.float64), np.asarray(by, dtype=np.float64),
+                                 np.asarray(yaw, dtype=np.float64), rows, self.xy, self.yaw, *self.half)  # (k, m)
         if not (self.bots or self.racers) or car_arc is None:
             return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
         ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
