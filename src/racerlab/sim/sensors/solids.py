@@ -1,4 +1,5 @@
-"""Solid objects the sensors see: the boxes of an object avoidance race and the bot cars of a head-to-bot race.
+"""Solid objects the sensors see: the boxes of an object avoidance race, the bot cars of a head-to-bot race and the
+other car of a head-to-model race.
 
 Each is an upright box standing on the ground: `Solids` packs every car's objects (the car axis first, read
 from the simulator's `ObjectSet` at each frame, because objects move at resets and bot cars drive) with one
@@ -6,9 +7,9 @@ model per object: half length (along its yaw), half width, height, and its grey 
 
 - A box is AWS's `box_obstacle` model, 0.40 × 0.30 × 0.25 m (next_capabilities §A.1), in the look's `box`
   colour (cardboard, light against the dark road).
-- A bot car is a box of the car's crash footprint, 0.324 × 0.196 m, `BOT_CAR_HEIGHT_M` high, in the look's
-  darker `bot_car` colour (racerlab's choice: AWS renders the DeepRacer car model, whose shell racerlab does
-  not draw).
+- A bot car (or the other racer) is a box of the car's crash footprint, 0.324 × 0.196 m, `BOT_CAR_HEIGHT_M`
+  high, in the look's darker `bot_car` colour (racerlab's choice: AWS renders the DeepRacer car model, whose
+  shell racerlab does not draw).
 
 The camera renderer (`_render.render`) traces each pixel's ray against the objects whose projected corners
 cover it (`object_bounds`, `trace_row`): the nearest face wins. The ground is flat and the objects stand on
@@ -166,7 +167,8 @@ class Solids:
         self.grey = np.zeros(m)
         if m:
             length, width = (float(v) for v in self.objects.box_size_m)
-            bots = bool(getattr(self.objects, "bots", False))
+            o = self.objects
+            bots = bool(getattr(o, "bots", False) or getattr(o, "racers", False))  # bot cars, or the other racer
             self.dims[:] = (0.5 * length, 0.5 * width, BOT_CAR_HEIGHT_M if bots else BOX_MODEL_M[2])
             self.grey[:] = look.object_grey(bots)
 
