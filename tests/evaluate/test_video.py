@@ -46,3 +46,24 @@ def test_video_with_a_camera_inset(tmp_path, aws_track):
     top_right = np.asarray(frames[5])[20:200, -300:-30]
     assert (top_right > 240).all(axis=-1).mean() > 0.8  # the white camera picture, twice its size
     assert not list(tmp_path.glob(".*partial*"))
+
+
+def test_video_draws_the_race_s_boxes(tmp_path, aws_track):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    from racerlab.evaluate.video import BOX_FILL
+    from racerlab.sim import World
+    from racerlab.spec import RaceConfig
+    from tests.evaluate.test_runner import META
+
+    track = aws_track("reInvent2019_wide")
+    race = RaceConfig(type="object_avoidance", object_positions=[[0.5, 1]])
+    w = World(track, 1, META, None, "features", max_episode_steps=300, seed=0, race=race)
+    run = run_evaluation(w, pursuit(w, 1.0), RaceRules(trials=1), keep_frames=True)
+    assert run.objects is not None and len(run.objects["pose"]) == run.rows and not run.objects["cars"]
+    (bx, by, _), = run.objects["pose"][0]
+    path = render_video(tmp_path / "v.mp4", track, run, width_px=640)
+    frame = np.asarray(imageio.mimread(path, memtest=False)[0]).astype(int)
+    c = TrackCanvas(track, width_px=640)
+    col, row = (int(round(float(v))) for v in c.px(bx, by))
+    assert np.abs(frame[row, col] - np.array(BOX_FILL[:3])).max() < 25  # the box's cardboard, at its place

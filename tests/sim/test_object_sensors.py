@@ -188,3 +188,19 @@ def test_copied_layouts_equal_placing_each_car(aws_track):
         assert np.array_equal(getattr(fast, name), getattr(slow, name)), name
     assert fast._lists == slow._lists
     assert not np.array_equal(fast.xy[0], fast.xy[1])  # the reversed direction has its own layout
+
+
+def test_sim_view_draws_a_race_s_boxes(tmp_path, capsys):
+    from racerlab.cli import main
+    from racerlab.sim.sensors.view import BOX_COLOR, sensor_view
+    from racerlab.track import load
+
+    out = tmp_path / "view.png"
+    assert main(["sim", "view", "lab_technical", "--out", str(out), "--cars", "2", "--object-positions",
+                 "0.1,1;0.6,-1"]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "wrote" in capsys.readouterr().out
+    fig = sensor_view(load("lab_technical"), 2, race={"type": "object_avoidance", "object_positions": ["0.1,1"]})
+    top, lidar = fig.axes[0], fig.axes[2]
+    boxes = [p for p in top.patches if p.get_facecolor()[:3] == pytest.approx([0xC8 / 255, 0xA0 / 255, 0x6E / 255])]
+    assert len(boxes) == 2 and BOX_COLOR == "#c8a06e"  # car 1's and car 2's box, at the same place
+    assert "boxes per car: 1" in fig._suptitle.get_text() and lidar.patches

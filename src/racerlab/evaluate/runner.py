@@ -51,6 +51,9 @@ class EvalRun:
     frames: list | None = None  # the observation's camera image per row, when asked for
     wall_seconds: float = 0.0
     dt: float = STEP_S
+    # the race's objects as the car saw them, per row, when frames were kept: {"pose": [(m, 3) x, y, yaw], "size":
+    # (length, width) m, "cars": bot cars or the other racer (not boxes)}
+    objects: dict | None = None
 
     @property
     def rows(self) -> int:
@@ -126,6 +129,7 @@ class _Driver:
         self.trace = _Trace()
         self.laps: list[Lap] = []
         self.frames = [] if keep_frames else None
+        self.object_poses = [] if keep_frames and self.sim.objects is not None else None
         self.image_of = image_of
         self.on_lap = on_lap
         self.discrete = world.discrete
@@ -300,6 +304,16 @@ class _Driver:
         self.ep.prev = (row["progress"], row["X"], row["Y"], row["yaw"])
         if self.frames is not None:
             self.frames.append(self.image_of(obs) if self.image_of else None)
+        if self.object_poses is not None:
+            self.object_poses.append(np.column_stack([sim.objects.xy[i], sim.objects.yaw[i]]))
+
+    def objects_record(self) -> dict | None:
+        """The objects' poses per row with their size, for a video (`EvalRun.objects`)."""
+        if self.object_poses is None:
+            return None
+        o = self.sim.objects
+        return {"pose": self.object_poses, "size": tuple(float(v) for v in o.box_size_m),
+                "cars": bool(getattr(o, "bots", False) or getattr(o, "racers", False))}
 
 
 def run_evaluation(world, policy: Callable, rules: RaceRules | None = None, *, keep_frames: bool = False,
@@ -316,7 +330,8 @@ def run_evaluation(world, policy: Callable, rules: RaceRules | None = None, *, k
     driver = _Driver(world, policy, rules, keep_frames, image_of, on_lap)
     driver.run()
     trace, extra = driver.trace.arrays(continuous_actions=not driver.discrete)
-    return EvalRun(driver.laps, trace, extra, driver.frames, time.perf_counter() - t0, world.sim.dt)
+    return EvalRun(driver.laps, trace, extra, driver.frames, time.perf_counter() - t0, world.sim.dt,
+                   objects=driver.objects_record())
 
 
 # ---- head to model ------------------------------------------------------------------------------------------
@@ -368,7 +383,7 @@ def run_head_to_model(worlds, policies, rules: RaceRules | None = None, *, keep_
     runs = []
     for d in drivers:
         trace, extra = d.trace.arrays(continuous_actions=not d.discrete)
-        runs.append(EvalRun(d.laps, trace, extra, d.frames, wall, sim.dt))
+        runs.append(EvalRun(d.laps, trace, extra, d.frames, wall, sim.dt, objects=d.objects_record()))
     return runs
 
 
