@@ -273,15 +273,21 @@ def test_init_object_avoidance_writes_a_race_and_a_reward_that_reads_objects(tmp
         if world.done(codes)[0].any():
             world.sim.reset(world.done(codes)[0])
     assert len(world.params[0]["objects_location"]) == 3 and all(x >= 0 for x in rewards)
-    # the example reward: a box ahead in the car's lane lowers the reward as the car closes in
     from racerlab.model.reward import load_reward_function
 
     fn = load_reward_function(tmp_path / "oa" / "reward_function.py")
     base = dict(world.params[0], is_offtrack=False, is_crashed=False, all_wheels_on_track=True, x=0.0, y=0.0,
                 distance_from_center=0.0, is_left_of_center=True, closest_objects=[0, 0],
                 objects_location=[[1.0, 0.0]], objects_left_of_center=[True])
-    assert fn(base) < fn(dict(base, objects_location=[[1.4, 0.0]])) < fn(dict(base, objects_location=[[3.0, 0.0]]))
-    assert fn(dict(base, objects_left_of_center=[False])) > fn(dict(base, objects_location=[[3.0, 0.0]]))
+    # the example reward: with the next box on the left, the right lane line pays most, the box's lane least
+    w = base["track_width"]
+    right, centre, left = (fn(dict(base, distance_from_center=d, is_left_of_center=side))
+                           for d, side in ((0.25 * w, False), (0.0, True), (0.25 * w, True)))
+    assert right > centre > left
+    # a box just passed (0.3 m behind, on the left) still counts until the car's tail is clear, then the next one
+    two = dict(base, closest_objects=[0, 1], objects_location=[[-0.3, 0.0], [3.0, 0.0]],
+               objects_left_of_center=[True, False], distance_from_center=0.25 * w, is_left_of_center=False)
+    assert fn(two) > fn(dict(two, objects_location=[[-1.0, 0.0], [3.0, 0.0]]))
 
 
 def test_features_end_with_the_nearest_boxes_ahead_in_the_car_frame(aws_track):
