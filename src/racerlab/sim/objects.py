@@ -251,7 +251,7 @@ class ObjectSet:
         # fixed and evenly spaced boxes stand in the same places every episode: each direction's layout is
         # placed once and then copied, so that a reset costs microseconds instead of a millisecond per car
         self._layouts: dict | None = ({} if (race.object_positions or not race.randomize_obstacle_locations)
-                                      and not self.bots else None)
+                                      and not (self.bots or self.racers) else None)
 
     def place(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """New layouts for cars `idx` (each in its driving direction `reversed_`)."""
