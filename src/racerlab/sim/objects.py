@@ -393,11 +393,14 @@ class ObjectSet:
         return self._lists[i]
 
     def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
-        """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array)."""
+        """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
+        A car that already holds its direction's layout keeps it: nothing moves boxes between resets."""
+        holds = self._layouts.setdefault("holds", np.full(self.xy.shape[0], -1, dtype=np.int64))
         for rev in (False, True):
-            rows = idx[reversed_ == rev]
+            rows = idx[(reversed_ == rev) & (holds[idx] != int(rev))]
             if rows.size == 0:
                 continue
+            holds[rows] = int(rev)
             one = self._layouts.get(rev)
             if one is None:
                 one = ObjectSet(self.race, self.lanes[0].track, self.lanes[1].track, 1, self.rng)
