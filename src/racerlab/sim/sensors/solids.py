@@ -15,7 +15,11 @@ The camera renderer (`_render.render`) traces each pixel's ray against the objec
 cover it (`object_bounds`, `trace_row`): the nearest face wins. The ground is flat and the objects stand on
 it, so a ray that meets an object meets it before the ground: an object always hides the road behind it and
 never hides the road in front of it. Faces are shaded by a fixed light (`face_greys`): the top brightest,
-each side by how much it faces the light, and far objects fade into the haze as the ground does.
+each side by how much it faces the light (half-Lambert, so that no two sides look alike), and far objects
+fade into the haze as the ground does.
+
+Numba caches `_render.render` with these kernels compiled in, keyed on `_render.py` alone: after editing this
+file, delete `sensors/__pycache__/_render.*.nbi` (or touch `_render.py`), or the renderer keeps the old code.
 """
 
 from __future__ import annotations
