@@ -7,6 +7,10 @@ Prints one JSON line per measurement:
 - `stereo_render`: both eyes, 64 cars;
 - `lidar_env`: the vector env with the lidar observation at 256 cars, as AWS (no walls, no objects), with the
   borders as walls, and with 6 box obstacles; budget >= 100 000 car-steps/s;
+- `objects_vs_time_trial`: side by side in this process, the vector env with 6 boxes per car (an object
+  avoidance race, `number_of_obstacles = 6`: boxes placed as AWS does, crash rule, objects_* params, the
+  sensors see the boxes) against the time trial: camera at 64 cars and lidar at 256 cars, with the ratios
+  (target >= 0.70 each). The trials alternate between the two, so that a load change hits both alike;
 - `carracing_v3`: Gymnasium's CarRacing-v3 (96×96 RGB, Box2D, random actions) steps/s, and our 64-car camera
   rate divided by it (goal >= 50×). Needs `pip install "racerlab[bench]"`; skipped with a note otherwise.
 
@@ -14,7 +18,7 @@ Each rate is the best of several short trials (the machine may be shared; the be
 idle core), with the median alongside. The process is pinned to one core; `load_avg` is the 1-minute load
 average at the end, for judging how busy the machine was.
 
-Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3]
+Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--only objects]
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import numpy as np  # noqa: E402
 from racerlab.sim.core import Simulator  # noqa: E402
 from racerlab.sim.env import DeepRacerVectorEnv  # noqa: E402
 from racerlab.sim.sensors import build_observation  # noqa: E402
+from racerlab.spec import RaceConfig  # noqa: E402
 
 TRIALS = 10
 
@@ -67,8 +72,9 @@ def camera_render(track, cars: int, name: str, seconds: float) -> tuple[float, f
     return rates(obs, cars, seconds)
 
 
-def env_rate(track, cars: int, observation: str, seconds: float, boxes: int = 0) -> tuple[float, float]:
-    env = DeepRacerVectorEnv(cars, track, observation=observation)
+def env_stepper(track, cars: int, observation: str, boxes: int = 0, race=None):
+    """A function that steps a vector env of `cars` cars once with random actions."""
+    env = DeepRacerVectorEnv(cars, track, observation=observation, race=race)
     env.reset(seed=0)
     if boxes:
         _place_boxes(env, boxes)
@@ -80,7 +86,38 @@ def env_rate(track, cars: int, observation: str, seconds: float, boxes: int = 0)
         env.step(actions[k[0] % 64])
         k[0] += 1
 
-    return rates(step, cars, seconds)
+    return step
+
+
+def env_rate(track, cars: int, observation: str, seconds: float, boxes: int = 0) -> tuple[float, float]:
+    return rates(env_stepper(track, cars, observation, boxes), cars, seconds)
+
+
+def side_by_side(fns: dict, units_per_call: float, seconds: float) -> dict[str, tuple[float, float]]:
+    """(best, median) rate of each function, their trials interleaved."""
+    for fn in fns.values():
+        fn()
+    out: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(TRIALS):
+        for key, fn in fns.items():
+            calls = 0
+            t0 = time.perf_counter()
+            while (elapsed := time.perf_counter() - t0) < seconds / TRIALS or calls == 0:
+                fn()
+                calls += 1
+            out[key].append(units_per_call * calls / elapsed)
+    return {k: (max(v), statistics.median(v)) for k, v in out.items()}
+
+
+def objects_vs_time_trial(track, seconds: float) -> None:
+    race = RaceConfig(type="object_avoidance", number_of_obstacles=6)
+    for observation, cars in (("camera", 64), ("lidar", 256)):
+        r = side_by_side({"time_trial": env_stepper(track, cars, observation),
+                          "6_boxes": env_stepper(track, cars, observation, race=race)}, cars, seconds)
+        emit({"bench": "objects_vs_time_trial", "observation": observation, "cars": cars,
+              "time_trial_car_steps_per_s": round(r["time_trial"][0]), "boxes_car_steps_per_s": round(r["6_boxes"][0]),
+              "ratio": round(r["6_boxes"][0] / r["time_trial"][0], 3),
+              "ratio_of_medians": round(r["6_boxes"][1] / r["time_trial"][1], 3), "target": ">= 0.70"})
 
 
 def _place_boxes(env, n: int) -> None:
@@ -117,10 +154,14 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--track", default="lab_technical")
     ap.add_argument("--seconds", type=float, default=3.0)
+    ap.add_argument("--only", choices=["objects"], help="only the objects-vs-time-trial comparison")
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     sec = args.seconds
+    if args.only == "objects":
+        objects_vs_time_trial(args.track, 2 * sec)
+        return
     cam64 = None
     for name in ("camera", "camera:dr"):
         for cars in (1, 64):
@@ -139,6 +180,7 @@ def main():
         best, med = env_rate(args.track, 256, obs, sec, boxes)
         emit({"bench": "lidar_env", "variant": label, "cars": 256, "car_steps_per_s": round(best),
               "median": round(med), "budget": ">= 100000"})
+    objects_vs_time_trial(args.track, 2 * sec)
     cr = carracing(sec)
     if cr is not None:
         emit({"bench": "carracing_v3", "steps_per_s": round(cr[0]), "median": round(cr[1]),

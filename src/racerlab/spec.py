@@ -9,6 +9,8 @@ Every other part reads these names from here (a leaf module: it imports nothing 
   adds racerlab's dynamic limits (grip, acceleration, braking, lags), calibrated in `racerlab.sim.car`.
 - Episode statuses: the simtrace's `episode_status` strings (in the simulator's code order) and the labels
   of the metrics JSON (facts §7).
+- Races (next_capabilities §A): `RaceConfig`, a race's settings with DRfC's names and defaults (object
+  avoidance boxes, bot cars, the crash penalty), read from the `[race]` table of training.toml.
 - Reward params: `REWARD_PARAMS`, the 27 keys of the AWS params dict in AWS order with type, unit and
   meaning (facts §1), and `ParamsMaker`, the one place that turns columns of values into those dicts.
 """
@@ -16,11 +18,14 @@ Every other part reads these names from here (a leaf module: it imports nothing 
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+
+from racerlab.errors import ConfigError
 
 # ---- time -------------------------------------------------------------------------------------------------
 STEPS_PER_SECOND = 15
@@ -77,6 +82,127 @@ STATUS_NAMES = ("in_progress", "lap_complete", "crashed", "off_track", "immobili
 STATUS_LABELS = {"prepare": "Prepare", "in_progress": "In progress", "off_track": "Off track",
                  "crashed": "Crashed", "immobilized": "Immobilized", "reversed": "Reversed",
                  "lap_complete": "Lap complete", "pause": "Pause", "park": "Park", "time_up": "Time Up"}
+
+
+# ---- races ------------------------------------------------------------------------------------------------
+RACE_TYPES = ("time_trial", "object_avoidance", "head_to_bot", "head_to_model")
+OBSTACLE_TYPES = ("box_obstacle", "deepracer_box_obstacle", "amazon_box_obstacle")
+
+
+def _parse_position(item, where: str) -> tuple[float, int]:
+    """(fraction, lane) from DRfC's "0.2,1" string or a [0.2, 1] pair."""
+    if isinstance(item, str):
+        parts = item.replace(";", ",").split(",")
+    else:
+        parts = list(item) if isinstance(item, list | tuple) else [item]
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        frac, lane = float(parts[0]), float(parts[1])
+    except (TypeError, ValueError):
+        raise ConfigError(f"{where}: object_positions entry {item!r} is not a (fraction of the lap, lane) pair; "
+                          f"write e.g. [0.25, 1] or \"0.25,1\"") from None
+    if not 0.0 <= frac < 1.0:
+        raise ConfigError(f"{where}: object_positions fraction {frac} is outside [0, 1); give the box's place as "
+                          "a fraction of the lap")
+    if lane not in (1.0, -1.0):
+        raise ConfigError(f"{where}: object_positions lane {parts[1]!r} must be 1 (inner lane) or -1 (outer lane)")
+    return frac, int(lane)
+
+
+@dataclass(frozen=True)
+class RaceConfig:
+    """A race's settings with DRfC's names (lower case); `where` names the source in error messages.
+
+    `type` is "time_trial", "object_avoidance", "head_to_bot" or "head_to_model" (cars race in pairs).
+    Obstacles: `number_of_obstacles`, `obstacle_type`, `randomize_obstacle_locations`, `object_positions`
+    (overrides the two before it), `min_distance_between_obstacles` (% of the lap). Bot cars:
+    `number_of_bot_cars`, `randomize_bot_car_locations`, `bot_car_speed` (m/s), `is_lane_change`,
+    `lower_lane_change_time` / `upper_lane_change_time` (s), `lane_change_distance` (m),
+    `min_distance_between_bot_cars` (m). `penalty_seconds`: how long bots wait after one ran into the car.
+    """
+
+    type: str = "time_trial"
+    number_of_obstacles: int = 0
+    obstacle_type: str = "box_obstacle"
+    randomize_obstacle_locations: bool = False
+    object_positions: tuple = ()
+    min_distance_between_obstacles: float = 2.0
+    number_of_bot_cars: int = 0
+    randomize_bot_car_locations: bool = False
+    bot_car_speed: float = 0.2
+    is_lane_change: bool = False
+    lower_lane_change_time: float = 3.0
+    upper_lane_change_time: float = 5.0
+    lane_change_distance: float = 1.0
+    min_distance_between_bot_cars: float = 2.0
+    penalty_seconds: float = 2.0
+    where: str = field(default="race", compare=False)
+
+    def __post_init__(self):
+        w = self.where
+        if self.type not in RACE_TYPES:
+            raise ConfigError(f"{w}: type {self.type!r} is not one of {', '.join(RACE_TYPES)}")
+        if self.obstacle_type not in OBSTACLE_TYPES:
+            raise ConfigError(f"{w}: obstacle_type {self.obstacle_type!r} is not one of {', '.join(OBSTACLE_TYPES)}")
+        for key in ("randomize_obstacle_locations", "randomize_bot_car_locations", "is_lane_change"):
+            if not isinstance(getattr(self, key), bool):
+                raise ConfigError(f"{w}: {key} must be true or false, got {getattr(self, key)!r}")
+        for key in ("number_of_obstacles", "number_of_bot_cars"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ConfigError(f"{w}: {key} must be a whole number >= 0, got {v!r}")
+        for key in ("min_distance_between_obstacles", "min_distance_between_bot_cars", "penalty_seconds",
+                    "lower_lane_change_time", "upper_lane_change_time", "lane_change_distance", "bot_car_speed"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                raise ConfigError(f"{w}: {key} must be a number >= 0, got {v!r}")
+        if self.lower_lane_change_time > self.upper_lane_change_time:
+            raise ConfigError(f"{w}: lower_lane_change_time {self.lower_lane_change_time} is above "
+                              f"upper_lane_change_time {self.upper_lane_change_time}; swap them")
+        positions = tuple(_parse_position(p, w) for p in self.object_positions)
+        object.__setattr__(self, "object_positions", positions)
+        if self.number_of_obstacles * self.min_distance_between_obstacles >= 100.0:
+            raise ConfigError(f"{w}: number_of_obstacles {self.number_of_obstacles} boxes at least "
+                              f"min_distance_between_obstacles {self.min_distance_between_obstacles} % of the lap "
+                              "apart do not fit on one lap; use fewer boxes or a smaller distance")
+
+    @property
+    def num_obstacles(self) -> int:
+        """Boxes on the track: the fixed positions when given, else `number_of_obstacles` (in an object
+        avoidance race; a time trial has none)."""
+        if self.type != "object_avoidance":
+            return 0
+        return len(self.object_positions) or self.number_of_obstacles
+
+    @property
+    def num_bot_cars(self) -> int:
+        """Bot cars on the track (in a head-to-bot race)."""
+        return self.number_of_bot_cars if self.type == "head_to_bot" else 0
+
+    @property
+    def head_to_model(self) -> bool:
+        """Cars race in pairs (0 and 1, 2 and 3, ...): each pair's cars are each other's object."""
+        return self.type == "head_to_model"
+
+    @property
+    def has_objects(self) -> bool:
+        return self.num_obstacles + self.num_bot_cars > 0 or self.head_to_model
+
+    def table(self) -> dict:
+        """These settings as a `[race]` table (DRfC's names)."""
+        return {k: [list(p) for p in getattr(self, k)] if k == "object_positions" else getattr(self, k)
+                for k in self.__dataclass_fields__ if k != "where"}
+
+    @classmethod
+    def from_mapping(cls, table, where: str = "race") -> RaceConfig:
+        """From a `[race]` table (keys as DRfC names them, lower case); unknown keys are one clear error."""
+        known = set(cls.__dataclass_fields__) - {"where"}
+        for key in table:
+            if key not in known:
+                raise ConfigError(f"{where}: unknown key {key!r}; the race keys are {', '.join(sorted(known))}")
+        return cls(**{k: tuple(v) if k == "object_positions" else v for k, v in table.items()}, where=where)
+
 
 
 # ---- reward params ----------------------------------------------------------------------------------------

@@ -71,3 +71,24 @@ def test_laps_end_at_progress_100_whatever_the_status():
                                          "lap_complete"]),
              "progress": np.array([0.0, 50.0, 100.0, 3.0, 100.0, 100.0])}
     assert lap_ends(trace).tolist() == [False, False, True, False, False, True]
+
+
+def test_video_draws_the_race_s_boxes(tmp_path, aws_track):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    from racerlab.evaluate.video import BOX_FILL
+    from racerlab.sim import World
+    from racerlab.spec import RaceConfig
+    from tests.evaluate.test_runner import META
+
+    track = aws_track("reInvent2019_wide")
+    race = RaceConfig(type="object_avoidance", object_positions=[[0.5, 1]])
+    w = World(track, 1, META, None, "features", max_episode_steps=300, seed=0, race=race)
+    run = run_evaluation(w, pursuit(w, 1.0), RaceRules(trials=1), keep_frames=True)
+    assert run.objects is not None and len(run.objects["pose"]) == run.rows and not run.objects["cars"]
+    (bx, by, _), = run.objects["pose"][0]
+    path = render_video(tmp_path / "v.mp4", track, run, width_px=640)
+    frame = np.asarray(imageio.mimread(path, memtest=False)[0]).astype(int)
+    c = TrackCanvas(track, width_px=640)
+    col, row = (int(round(float(v))) for v in c.px(bx, by))
+    assert np.abs(frame[row, col] - np.array(BOX_FILL[:3])).max() < 25  # the box's cardboard, at its place

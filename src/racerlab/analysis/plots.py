@@ -14,6 +14,7 @@
   iteration.
 - `reward_vs_lap_time(comparison)`: old and new episode rewards against lap time (reward re-scoring).
 - `reward_map_figure(reward_map)`: a reward over the track surface (`racerlab.analysis.reward_tools`).
+- `crash_map(df, track, layout)`: where cars crashed, with the race's boxes or bot cars' starts.
 """
 
 from __future__ import annotations
@@ -583,3 +584,42 @@ def reward_map_figure(rm, *, cmap: str = "viridis", best_line: bool = True, titl
 __all__ = ["STATS", "action_usage", "cell_statistic", "episode_paths", "lap_time_distribution",
            "reward_map_figure", "reward_vs_lap_time", "save_png", "track_heatmap", "training_progress",
            "waypoint_of_rows", "waypoint_profile"]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# crashes and objects
+
+
+def crash_map(df: pd.DataFrame, track: Track, layout: dict | None = None, *, note: str = "",
+              title: str | None = None):
+    """Every step judged `crashed` in `df` (a red cross at the model point) on the track, with the race's
+    objects from `racerlab.sim.objects.race_layout` (boxes as their footprint on the track, bot cars at their
+    start with an arrow along their lane); `note` is printed under the title (e.g. why no objects are drawn)."""
+    from matplotlib.patches import Polygon as Patch
+
+    status = df["episode_status"].astype(str) if "episode_status" in df else pd.Series("", index=df.index)
+    hits = df[status == "crashed"]
+    head = title or f"crashes: {len(hits)} in {df['unique_episode'].nunique() if 'unique_episode' in df else 1} " \
+                    "episodes"
+    fig, ax = _track_ax(track, head + (f"\n{note}" if note else ""))
+    if layout is not None:
+        length, width = layout["size"]
+        colour = "#e08a1e" if layout["kind"] == "box" else "#2a6fd6"
+        corners = np.array([[0.5, 0.5], [0.5, -0.5], [-0.5, -0.5], [-0.5, 0.5]]) * [length, width]
+        for k, ((x, y), yaw) in enumerate(zip(layout["xy"], layout["yaw"], strict=True)):
+            c, s_ = math.cos(yaw), math.sin(yaw)
+            pts = np.c_[x + corners[:, 0] * c - corners[:, 1] * s_, y + corners[:, 0] * s_ + corners[:, 1] * c]
+            ax.add_patch(Patch(pts, closed=True, facecolor=colour, edgecolor="black", lw=0.8, zorder=3,
+                               label=("box" if layout["kind"] == "box" else "bot car at the start") if k == 0
+                               else None))
+            ax.annotate(str(k), (x, y), xytext=(6, 6), textcoords="offset points", fontsize=8, zorder=5)
+            if layout["kind"] == "bot":
+                ax.arrow(x, y, 0.35 * c, 0.35 * s_, width=0.02, color=colour, zorder=4)
+    if len(hits):
+        ax.scatter(hits["x"], hits["y"], marker="X", s=60, color="#d62728", edgecolor="black", linewidths=0.5,
+                   zorder=6, label=f"crash ({len(hits)})")
+    else:
+        _no_data(ax, "no crashes")
+    if len(hits) or layout is not None:
+        ax.legend(loc="upper right", fontsize=8)
+    return fig

@@ -30,6 +30,7 @@ from racerlab.analysis.episodes import episode_summary, iteration_summary, run_m
 from racerlab.errors import RacerlabError
 from racerlab.logs.atomic import atomic_write_text
 from racerlab.model import ModelFolder, resolve_track
+from racerlab.spec import RaceConfig
 from racerlab.track import Track
 
 PNG_DPI = 90
@@ -58,6 +59,9 @@ def log_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
             return resolve_track(path, default=False), "from the model folder's training.toml"
         except RacerlabError as exc:
             return None, f"the model folder's track cannot be loaded ({exc}); pass --track"
+    evaluated = _evaluation_track(Path(path))
+    if evaluated is not None:
+        return evaluated, "named in the evaluation's summary.json"
     found, same = _tracks_of_length(df)
     if len(found) == 1:
         alias = f"; {', '.join(same)} {'is' if len(same) == 1 else 'are'} the same geometry" if same else ""
@@ -66,6 +70,26 @@ def log_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
         names = ", ".join(t.name for t in found)
         return None, f"several known tracks are {_track_len(df):.2f} m long ({names}); pass --track"
     return None, "the log does not name its track; pass --track NAME_OR_FILE for the track figures"
+
+
+def _evaluation_track(folder: Path) -> Track | None:
+    """The track an evaluation folder's summary.json names: a known track of that name, else the model folder's
+    (the folder above) when its training track has that name."""
+    from racerlab import track as tracks
+
+    try:
+        name = json.loads((folder / "summary.json").read_text())["track"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    try:
+        return tracks.load(name)
+    except RacerlabError:
+        pass
+    try:
+        trk = resolve_track(folder.parent, default=False)
+    except RacerlabError:
+        return None
+    return trk if trk.name == name else None
 
 
 def _track_len(df: pd.DataFrame) -> float:
@@ -229,6 +253,11 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
         toc += [("track", "On the track"), ("paths", "Episode paths")]
         _track_views(doc, rows_on_track(df, trk).assign(true_speed=kin["true_speed"], slide=kin["slide"]),
                      trk, eps)
+    race, race_note = log_race(path)
+    crashes = int((df["episode_status"].astype(str) == "crashed").sum()) if "episode_status" in df else 0
+    if trk is not None and (crashes or (race is not None and race.has_objects)):
+        toc.append(("objects", "Objects and crashes"))
+        _objects(doc, rows_on_track(df, trk), trk, race, race_note)
     toc += [("actions", "Actions"), ("waypoints", "Per waypoint")]
     doc.h2("Action space usage", "actions")
     doc.figure(P.action_usage(df.assign(iteration=df["iteration"] + 1)),
@@ -254,6 +283,8 @@ def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Tr
         "best lap": f"{laps.min():.3f} s (episode {int(laps.idxmin())})" if len(laps) else "none yet",
         "mean progress": f"{eps['progress'].mean():.1f} %",
         "outcomes": ", ".join(f"{k} {v}" for k, v in eps["outcome"].value_counts().items()),
+        "crashes": f"{int((df['episode_status'].astype(str) == 'crashed').sum()):,} steps judged crashed"
+        if "episode_status" in df else "not logged",
         "track": f"{trk.name} ({trk.length:.2f} m), {note}" if trk is not None else f"none: {note}",
         "made": f"{time.strftime('%Y-%m-%d %H:%M:%S')} by racerlab {__version__}",
     }
@@ -263,6 +294,52 @@ def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Tr
         doc.p(f"Logs in radians were converted to degrees: {', '.join(df.attrs['converted_to_degrees'])}", "note")
     if trk is None:
         doc.p(f"Track figures left out: {note}.", "note")
+
+
+def log_race(path) -> tuple[RaceConfig | None, str]:
+    """The race a log was driven in, and where that came from: an evaluation folder's summary.json "race", else
+    the [race] of the model folder's training.toml (the folder itself or one of the two above it)."""
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    summary = folder / "summary.json"
+    if summary.is_file():
+        try:
+            table = json.loads(summary.read_text()).get("race")
+            if table:
+                return RaceConfig.from_mapping(table, where=str(summary)), "from the evaluation's summary.json"
+        except (OSError, ValueError, RacerlabError):
+            pass
+    for candidate in (folder, folder.parent, folder.parent.parent):
+        try:
+            return ModelFolder(candidate).config().race, "from the model folder's training.toml [race]"
+        except (RacerlabError, OSError):
+            continue
+    return None, "no race settings found beside the log"
+
+
+def _objects(doc: _Doc, df: pd.DataFrame, trk: Track, race: RaceConfig | None, note: str) -> None:
+    from racerlab.sim.objects import race_layout
+
+    doc.h2("Objects and crashes", "objects")
+    layout = race_layout(race, trk) if race is not None else None
+    if race is None:
+        why = note
+    elif race.head_to_model:
+        why = "head to model: the other car moves, it is not drawn"
+    elif layout is None and race.has_objects:
+        why = "random layout, re-drawn every episode: objects not drawn"
+    else:
+        why = ""
+    what = {"box": "boxes", "bot": "bot cars at their start (arrow: driving direction)"}.get(
+        layout["kind"] if layout else "", "")
+    doc.figure(P.crash_map(df, trk, layout, note=why),
+               f"Every crashed step (red cross at the car's model point){' and the ' + what if what else ''}; "
+               f"race: {race.type if race else 'unknown'} ({note})")
+    status = df["episode_status"].astype(str)
+    per = df.assign(crash=status == "crashed").groupby("unique_episode")["crash"].sum()
+    if per.any():
+        doc.table(per[per > 0].sort_values(ascending=False).head(TABLE_ROWS).to_frame("crashes"),
+                  "Episodes with the most crashes")
 
 
 def _iteration_table(its: pd.DataFrame) -> pd.DataFrame:
@@ -381,4 +458,4 @@ def _chosen_episodes(eps: pd.DataFrame) -> list[tuple[list[int], str]]:
     return out
 
 
-__all__ = ["count_iterations_from_one", "log_track", "png_data_uri", "rows_on_track", "write_report"]
+__all__ = ["count_iterations_from_one", "log_race", "log_track", "png_data_uri", "rows_on_track", "write_report"]

@@ -25,6 +25,51 @@ def _rule_flags(p) -> None:
     p.add_argument("--device", default="cpu", help="torch device for the network (default cpu)")
 
 
+# the [race] keys of training.toml as flags (DRfC's names): (key, type, help); booleans take --x / --no-x
+RACE_FLAGS = (
+    ("race_type", str, "time_trial, object_avoidance or head_to_bot (default: the model's training.toml [race])"),
+    ("number_of_obstacles", int, "evenly spaced boxes"),
+    ("obstacle_type", str, "box_obstacle, deepracer_box_obstacle or amazon_box_obstacle"),
+    ("randomize_obstacle_locations", bool, "re-draw the boxes between their neighbours, random lane"),
+    ("object_positions", str, "fixed boxes as 'fraction,lane;...' (lane 1 inner, -1 outer), e.g. '0.25,1;0.5,-1'"),
+    ("min_distance_between_obstacles", float, "% of the lap"),
+    ("number_of_bot_cars", int, "bot cars (head_to_bot)"),
+    ("randomize_bot_car_locations", bool, "re-draw the bots between their neighbours, random lane"),
+    ("bot_car_speed", float, "m/s"),
+    ("is_lane_change", bool, "bots change lanes"),
+    ("lower_lane_change_time", float, "s"),
+    ("upper_lane_change_time", float, "s"),
+    ("lane_change_distance", float, "m"),
+    ("min_distance_between_bot_cars", float, "m"),
+    ("penalty_seconds", float, "s a bot waits after running into the car"),
+)
+
+
+def _race_flags(p) -> None:
+    g = p.add_argument_group("race", "override keys of the model's training.toml [race] (DRfC's names)")
+    for key, kind, text in RACE_FLAGS:
+        flag = "--" + key.replace("_", "-")
+        if kind is bool:
+            g.add_argument(flag, dest=f"race_{key}", action=argparse.BooleanOptionalAction, default=None, help=text)
+        else:
+            g.add_argument(flag, dest=f"race_{key}", type=kind, default=None, metavar=kind.__name__.upper(),
+                           help=text)
+
+
+def race_overrides(args) -> dict:
+    """The [race] keys given as flags ({} when none): `race_type` is the table's `type`, `object_positions`
+    the ';'-separated "fraction,lane" pairs DRfC's DR_OA_OBJECT_POSITIONS takes."""
+    out = {}
+    for key, _, _ in RACE_FLAGS:
+        value = getattr(args, f"race_{key}", None)
+        if value is None:
+            continue
+        if key == "object_positions":
+            value = [v.strip() for v in value.split(";") if v.strip()]
+        out["type" if key == "race_type" else key] = value
+    return out
+
+
 def register(sub) -> None:
     p = sub.add_parser("evaluate", help="evaluate a model under race rules (trials, penalties, resets)",
                        description="Drive a model's checkpoint with greedy actions under AWS race rules (DRfC "
@@ -32,6 +77,7 @@ def register(sub) -> None:
                                    "evaluation simtrace, EvalMetrics.json and summary.json into the model folder.")
     p.add_argument("model", type=Path, help="model folder")
     _rule_flags(p)
+    _race_flags(p)
     p.set_defaults(func=run_evaluate)
 
     p = sub.add_parser("race", help="evaluate several models under the same rules and rank them",
@@ -39,8 +85,11 @@ def register(sub) -> None:
                                    "leaderboard ranked as DeepRacer ranks (best average of consecutive laps).")
     p.add_argument("models", type=Path, nargs="+", help="model folders")
     _rule_flags(p)
+    _race_flags(p)
     p.add_argument("--out", type=Path,
                    help="leaderboard JSON file (default race-<stamp>.json in the first model's folder)")
+    p.add_argument("--head-to-model", action="store_true",
+                   help="race two models on the track at once, each seeing the other (crashes between them count)")
     p.set_defaults(func=run_race)
 
 
@@ -60,7 +109,8 @@ def run_evaluate(args) -> int:
     from racerlab.evaluate import evaluate
 
     res = evaluate(args.model, track=args.track, rules=_rules(args), checkpoint=args.checkpoint, video=args.video,
-                   ranking_laps=args.ranking_laps, device=args.device, progress=True, on_lap=_print_lap)
+                   ranking_laps=args.ranking_laps, device=args.device, progress=True, on_lap=_print_lap,
+                   race=race_overrides(args) or None)
     print(res.report())
     names = ", ".join(str(p.relative_to(res.out_dir)) for p in res.files.values())
     print(f"written to {res.out_dir}: {names}")
@@ -68,17 +118,26 @@ def run_evaluate(args) -> int:
 
 
 def run_race(args) -> int:
-    from racerlab.evaluate import race
+    from racerlab.errors import RacerlabError
+    from racerlab.evaluate import head_to_model, race
 
     def done(res):
         print(f"{res.model}: {res.text}", file=sys.stderr, flush=True)
 
-    board = race(args.models, track=args.track, rules=_rules(args), checkpoint=args.checkpoint,
-                 ranking_laps=args.ranking_laps, out=args.out, video=args.video, progress=True, on_result=done,
-                 device=args.device)
+    common = dict(track=args.track, rules=_rules(args), checkpoint=args.checkpoint, ranking_laps=args.ranking_laps,
+                  out=args.out, video=args.video, progress=True, on_result=done, device=args.device)
+    if args.head_to_model:
+        if len(args.models) != 2:
+            raise RacerlabError(f"race --head-to-model races two models, got {len(args.models)}; name two folders")
+        if race_overrides(args):
+            raise RacerlabError("race --head-to-model puts only the two cars on the track; drop the [race] flags")
+        board = head_to_model(*args.models, **common)
+    else:
+        board = race(args.models, race=race_overrides(args) or None, **common)
     r = board.rules
-    print(f"race on {board.track}: {r.trials} {'continuous laps' if r.continuous else 'trials'}, off-track penalty "
-          f"{r.off_track_penalty:g} s, up to {r.max_resets} resets")
+    how = "head to model, " if args.head_to_model else ""
+    print(f"race on {board.track}: {how}{r.trials} {'continuous laps' if r.continuous else 'trials'}, off-track "
+          f"penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
     print(board.table())
     print(f"leaderboard written to {board.path}")
     return 0

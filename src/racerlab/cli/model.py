@@ -27,6 +27,9 @@ def register(sub) -> None:
     p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
                    help="reward template: example (centre, heading and speed), centre_line, progress (progress "
                         "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
+    p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot"], default="time_trial",
+                   help="object_avoidance: three boxes in [race], head_to_bot: three bot cars; both with an example "
+                        "reward using objects_* (with --reward example)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -59,7 +62,7 @@ def run_init(args) -> int:
 
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
-                        best_model_metric=args.best_model_metric, force=args.force)
+                        best_model_metric=args.best_model_metric, force=args.force, race=args.race)
     if args.reward != "example":
         from racerlab.rewards import top_speed, write_reward
 

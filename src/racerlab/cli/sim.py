@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from racerlab.cli.evaluate import _race_flags, race_overrides
+
 
 def register(sub) -> None:
     p = sub.add_parser("sim", help="look at the simulator's sensors",
@@ -21,6 +23,7 @@ def register(sub) -> None:
     v.add_argument("--walls", action="store_true",
                    help="the lidar sees the track borders as walls (AWS tracks have none: every ray reads 1 m)")
     v.add_argument("--seed", type=int, default=0)
+    _race_flags(v)  # e.g. --race-type object_avoidance --number-of-obstacles 6: the boxes are drawn and seen
     v.set_defaults(func=run_view)
 
 
@@ -33,7 +36,11 @@ def run_view(args) -> int:
         raise RacerlabError(f"--cars must be between 1 and 8, got {args.cars}")
     t = tracks.load(args.track)
     out = args.out or Path(f"sim-view-{t.name}.png")
-    fig = sensor_view(t, args.cars, randomize=args.dr, walls=args.walls, seed=args.seed)
+    race = race_overrides(args)
+    if race and "type" not in race:  # object keys alone say which race
+        bots = any(k.endswith("bot_cars") or k.startswith("bot_") for k in race)
+        race["type"] = "head_to_bot" if bots else "object_avoidance"
+    fig = sensor_view(t, args.cars, randomize=args.dr, walls=args.walls, seed=args.seed, race=race or None)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")

@@ -6,6 +6,7 @@
     >>> res.text                             # "3 laps, average 9.613 s"
     >>> board = race(["a", "b", "c"], track="reInvent2019_track")
     >>> print(board.table())
+    >>> board = head_to_model("a", "b")      # both on the track at once, each seeing the other
 
 Parts: `rules` (RaceRules, where a car is put back), `runner` (driving one car under the rules),
 `results` (laps, DeepRacer's ranking numbers), `api` (model folders in, evaluation folders out),
@@ -13,10 +14,10 @@ Parts: `rules` (RaceRules, where a car is put back), `runner` (driving one car u
 """
 
 from racerlab.evaluate.api import EvaluationResult, evaluate
-from racerlab.evaluate.race import Leaderboard, race
+from racerlab.evaluate.race import Leaderboard, head_to_model, race
 from racerlab.evaluate.results import Lap, RaceResult, race_result
 from racerlab.evaluate.rules import RaceRules
-from racerlab.evaluate.runner import EvalRun, run_evaluation
+from racerlab.evaluate.runner import EvalRun, run_evaluation, run_head_to_model
 
-__all__ = ["EvalRun", "EvaluationResult", "Lap", "Leaderboard", "RaceResult", "RaceRules", "evaluate", "race",
-           "race_result", "run_evaluation"]
+__all__ = ["EvalRun", "EvaluationResult", "Lap", "Leaderboard", "RaceResult", "RaceRules", "evaluate",
+           "head_to_model", "race", "race_result", "run_evaluation", "run_head_to_model"]

@@ -25,6 +25,7 @@ from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation
 from racerlab.model import ModelFolder, nonfinite_tensors, parse_model_metadata, resolve_track
+from racerlab.spec import RaceConfig
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -46,6 +47,7 @@ class EvaluationResult:
     steps: int = 0
     wall_seconds: float = 0.0
     run: EvalRun | None = field(default=None, repr=False)
+    race: dict | None = None  # the [race] table the evaluation drove (summary.json "race")
 
     @property
     def text(self) -> str:
@@ -71,7 +73,7 @@ class EvaluationResult:
             "model": self.model, "model_dir": str(self.model_dir), "checkpoint": self.checkpoint,
             "track": self.track, "rules": self.rules.to_json(), "result": self.result.to_json(),
             "laps": [lap.to_json() for lap in self.laps], "steps": self.steps,
-            "wall_seconds": round(self.wall_seconds, 3),
+            "wall_seconds": round(self.wall_seconds, 3), "race": self.race,
             "files": {k: str(v.relative_to(self.out_dir)) for k, v in self.files.items()} if self.out_dir else {},
             "created": datetime.now().isoformat(timespec="seconds"),
         }
@@ -144,16 +146,27 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
     return agent.policy
 
 
-def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None):
+def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate"):
+    """The race an evaluation drives: the model's training.toml [race]; a `RaceConfig` replaces it, a dict of
+    [race] keys overrides those keys of it (`where` names the source in a bad key's one-line error)."""
+    if isinstance(race, RaceConfig):
+        return race
+    base = model.folder.config().race
+    if not race:
+        return base
+    return RaceConfig.from_mapping({**race_table(base), **race}, where=where)
+
+
+def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None, race=None):
     """The race world. The model folder's reward_function.py is never imported (racing someone's model must
     not run their code): the reward column is 0, as AWS's evaluation logs it, unless `reward` (a callable or
-    a path the user chose) is given."""
+    a path the user chose) is given. `race` (a RaceConfig, or [race] keys over the model's): see `race_config`."""
     from racerlab.sim import StartRules, World
 
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
     return World(track, 1, model.metadata, reward, model.observation, start=start,
-                 max_episode_steps=rules.max_episode_steps, seed=seed)
+                 max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race))
 
 
 # ---- evaluate -------------------------------------------------------------------------------------
@@ -163,7 +176,7 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
              collision_penalty: float = 5.0, max_resets: int = 100, checkpoint: str | int = "best",
              reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
              ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
-             progress: bool = False, on_lap=None, reward=None) -> EvaluationResult:
+             progress: bool = False, on_lap=None, reward=None, race=None) -> EvaluationResult:
     """Evaluate the model in `model_dir` under race rules (DRfC defaults) and write its evaluation folder.
 
     `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
@@ -171,12 +184,14 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     the run is written too (`progress` shows rendering progress on stderr). `write=False` keeps
     everything in memory. `on_lap(lap)` is called as each lap ends. The folder's reward_function.py is not
     run: the reward column is 0 (as AWS logs evaluations) unless `reward` (a callable or a file) is given.
+    `race` (a RaceConfig, or a dict of [race] keys over the model's training.toml [race]): boxes crash the car,
+    which restarts 1 m behind the box; a bot car crash holds the car where it is.
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
     track_obj = resolve_track(model.folder, track)
-    world = make_world(model, track_obj, rules, reward=reward)
+    world = make_world(model, track_obj, rules, reward=reward, race=race)
     policy = make_policy(model, world, device)
     image_of = None
     if video:
@@ -186,10 +201,15 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
     result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
-                              wall_seconds=run.wall_seconds, run=run)
+                              wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race))
     if write:
         _write(result, world, video, progress)
     return result
+
+
+def race_table(race: RaceConfig) -> dict:
+    """A RaceConfig as its [race] table (DRfC's names)."""
+    return race.table()
 
 
 def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 from racerlab import logs
 from racerlab.errors import RacerlabError
 from racerlab.evaluate.api import EvaluationResult, evaluate
-from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, rank_key
+from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, race_result, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
 from racerlab.model import resolve_track
@@ -35,7 +35,8 @@ class Leaderboard:
             out.append({"rank": rank, "model": e.model, "model_dir": str(e.model_dir), "checkpoint": e.checkpoint,
                         "result": r.text, "best_lap": r.best_lap, "ranking_average": r.ranking_average,
                         "mean_lap": r.mean_lap, "laps_completed": r.laps_completed, "laps": r.laps,
-                        "completed_streak": r.completed_streak, "off_track": r.off_track, "resets": r.resets,
+                        "completed_streak": r.completed_streak, "off_track": r.off_track, "crashes": r.crashes,
+                        "resets": r.resets,
                         "total_time": r.total_time, "mean_progress": round(r.mean_progress, 2),
                         "evaluation": str(e.out_dir) if e.out_dir else None})
         return out
@@ -51,22 +52,23 @@ class Leaderboard:
         width = max([5, *(len(e.model) for e in self.entries)])
         avg = f"avg {self.ranking_laps}"
         lines = [f"{'rank':>4}  {'model':<{width}}  {'best lap':>8}  {avg:>8}  {'laps':>5}  {'off-track':>9}  "
-                 f"{'resets':>6}  result"]
+                 f"{'crashes':>7}  {'resets':>6}  result"]
         for row in self.rows():
             laps = f"{row['laps_completed']}/{row['laps']}"
             lines.append(f"{row['rank']:>4}  {row['model']:<{width}}  {sec(row['best_lap']):>8}  "
-                         f"{sec(row['ranking_average']):>8}  {laps:>5}  {row['off_track']:>9}  {row['resets']:>6}  "
-                         f"{row['result']}")
+                         f"{sec(row['ranking_average']):>8}  {laps:>5}  {row['off_track']:>9}  {row['crashes']:>7}  "
+                         f"{row['resets']:>6}  {row['result']}")
         return "\n".join(lines)
 
 
 def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
          ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
-         on_result=None, device: str = "cpu") -> Leaderboard:
+         on_result=None, device: str = "cpu", race=None) -> Leaderboard:
     """Evaluate every model on `track` (default: the first model's training track) under `rules` and
     rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the first model's
     folder, never the current directory; `out=False` writes nothing). No model's reward_function.py is run.
-    `on_result(result)` is called after each model."""
+    `on_result(result)` is called after each model. `race` is passed to each `evaluate` (a RaceConfig, or
+    [race] keys over each model's own)."""
     model_dirs = [Path(m) for m in model_dirs]
     if not model_dirs:
         raise RacerlabError("race needs at least one model folder")
@@ -76,15 +78,60 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
     results = []
     for m in model_dirs:
         res = evaluate(m, track=track, rules=rules, checkpoint=checkpoint, ranking_laps=ranking_laps, video=video,
-                       progress=progress, device=device)
+                       progress=progress, device=device, race=race)
         results.append(res)
         if on_result:
             on_result(res)
+    return _board(results, rules, out, model_dirs[0])
+
+
+def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
+                  ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
+                  on_result=None, on_lap=None, device: str = "cpu", write: bool = True) -> Leaderboard:
+    """Two models on the track at once (`racerlab race A B --head-to-model`): one world, a car each, each car's
+    sensors and `objects_*` params seeing the other car, crashes between them judged by the crash rule (the car
+    behind crashed). Each model's evaluation folder gets its simtrace, EvalMetrics and summary (and video); the
+    leaderboard ranks the two as `race` does. `on_lap(k, lap)` is called as car k ends a lap."""
+    from racerlab.evaluate.api import _write, load_model, make_policy
+    from racerlab.evaluate.runner import run_head_to_model
+    from racerlab.sim import StartRules, World
+    from racerlab.spec import RaceConfig
+
+    rules = rules or RaceRules()
+    dirs = [Path(model_a), Path(model_b)]
+    models = [load_model(m, checkpoint) for m in dirs]
+    track_obj = resolve_track(models[0].folder, track)
+    first = World(track_obj, 2, models[0].metadata, None, models[0].observation,
+                  start=StartRules(reverse=rules.reverse), max_episode_steps=rules.max_episode_steps, seed=0,
+                  race=RaceConfig(type="head_to_model", where="racerlab race --head-to-model"))
+    worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim)]
+    policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
+    image_of = None
+    if video:
+        from racerlab.evaluate.video import camera_image
+
+        image_of = camera_image
+    runs = run_head_to_model(worlds, policies, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
+    results = []
+    for m, w, run in zip(models, worlds, runs, strict=True):
+        res = EvaluationResult(m.folder.path.resolve().name, m.folder.path, m.checkpoint, track_obj.name, rules,
+                               run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
+                               wall_seconds=run.wall_seconds, run=run, race={"type": "head_to_model"})
+        if write:
+            _write(res, w, video, progress)
+        results.append(res)
+        if on_result:
+            on_result(res)
+    return _board(results, rules, out, dirs[0])
+
+
+def _board(results: list[EvaluationResult], rules: RaceRules, out, home: Path) -> Leaderboard:
+    """Rank `results`; the JSON goes to `out`, or `race-<stamp>.json` in `home` (the first model's folder)."""
     _disambiguate(results)
     board = Leaderboard(results[0].track, rules, results[0].result.ranking_laps,
                         sorted(results, key=lambda r: rank_key(r.result)))
     if out is not False:
-        path = Path(out) if out else model_dirs[0] / f"race-{datetime.now().strftime(STAMP_FORMAT)}.json"
+        path = Path(out) if out else home / f"race-{datetime.now().strftime(STAMP_FORMAT)}.json"
         board.path = logs.atomic_write_json(path, logs.finite_json(board.to_json()), indent=2)
     return board
 

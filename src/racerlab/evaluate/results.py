@@ -120,6 +120,7 @@ class RaceResult:
     resets: int
     mean_progress: float  # %, over all laps
     text: str
+    crashes: int = 0  # crashes into boxes, bot cars or the other racer
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -136,7 +137,7 @@ def race_result(laps: list[Lap], ranking_laps: int = DEFAULT_RANKING_LAPS) -> Ra
         total_time=sum(lap.time_ms for lap in laps) / 1000,
         off_track=sum(lap.counts["off_track"] for lap in laps), resets=sum(lap.resets for lap in laps),
         mean_progress=sum(min(lap.progress, 100.0) for lap in laps) / len(laps) if laps else 0.0,
-        text=result_text(laps))
+        text=result_text(laps), crashes=sum(lap.counts["crashed"] for lap in laps))
 
 
 def rank_key(r: RaceResult) -> tuple:
@@ -155,13 +156,14 @@ def _seconds(x: float | None) -> str:
 
 
 def lap_table(laps: list[Lap]) -> str:
-    """Each lap's time, how it ended, progress, off-tracks and resets, as aligned text."""
-    head = f"{'lap':>4}  {'time (s)':>9}  {'status':<13}  {'progress':>9}  {'off-track':>9}  {'resets':>6}"
+    """Each lap's time, how it ended, progress, off-tracks, crashes and resets, as aligned text."""
+    head = (f"{'lap':>4}  {'time (s)':>9}  {'status':<13}  {'progress':>9}  {'off-track':>9}  {'crashes':>7}  "
+            f"{'resets':>6}")
     lines = [head]
     for lap in laps:
         label = STATUS_LABELS.get(lap.status, lap.status).lower()
         lines.append(f"{lap.trial:>4}  {lap.time:>9.3f}  {label:<13}  {lap.progress:>8.1f}%  "
-                     f"{lap.counts['off_track']:>9}  {lap.resets:>6}")
+                     f"{lap.counts['off_track']:>9}  {lap.counts['crashed']:>7}  {lap.resets:>6}")
     return "\n".join(lines)
 
 
@@ -170,5 +172,5 @@ def result_lines(r: RaceResult) -> list[str]:
            else "")
     parts = [f"best lap {_seconds(r.best_lap)}", avg,
              f"{r.completed_streak} completed in a row" if r.laps_completed else "",
-             f"{r.off_track} off-track", f"total {r.total_time:.3f} s"]
+             f"{r.off_track} off-track", f"{r.crashes} crashes" if r.crashes else "", f"total {r.total_time:.3f} s"]
     return [" | ".join(p for p in parts if p), f"result: {r.text}"]

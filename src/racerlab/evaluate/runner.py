@@ -33,13 +33,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from racerlab.evaluate.results import Lap
-from racerlab.evaluate.rules import INCIDENTS, Lanes, RaceRules, pause_steps
+from racerlab.evaluate.rules import INCIDENTS, Lanes, RaceRules, pause_steps, project_on_polyline
 from racerlab.logs import SIMTRACE_COLUMNS
 from racerlab.sim import STATUS_NAMES, Status
 from racerlab.spec import MODEL_POINT_AHEAD_M, STEP_S
 
-ACTIVE = np.ones(1, dtype=bool)
-CAR = np.zeros(1, dtype=np.int64)  # the one car, as an index array
 # per-row values kept beside the simtrace for videos and checks: the car's base pose and ground
 # speed after the step, and the running lap clock (s since the lap started)
 EXTRA_COLUMNS = ("base_x", "base_y", "base_yaw", "speed", "lap_clock")
@@ -55,6 +53,9 @@ class EvalRun:
     frames: list | None = None  # the observation's camera image per row, when asked for
     wall_seconds: float = 0.0
     dt: float = STEP_S
+    # the race's objects as the car saw them, per row, when frames were kept: {"pose": [(m, 3) x, y, yaw], "size":
+    # (length, width) m, "cars": bot cars or the other racer (not boxes)}
+    objects: dict | None = None
 
     @property
     def rows(self) -> int:
@@ -98,13 +99,31 @@ class _Episode:
     resets: int = 0
     counts: dict = field(default_factory=lambda: dict.fromkeys(INCIDENTS, 0))
     prev: tuple | None = None  # (progress, model x, model y, heading °) of the previous row
+    obstacle_crashes: int = 0  # the simtrace's obstacle_crash_counter
+
+
+def observation_row(obs, i: int):
+    """Car i's observation as a batch of one (arrays, or dicts / tuples of them)."""
+    if isinstance(obs, dict):
+        return {k: observation_row(v, i) for k, v in obs.items()}
+    if isinstance(obs, tuple):
+        return tuple(observation_row(v, i) for v in obs)
+    return obs[i:i + 1]
 
 
 class _Driver:
+    """One car (`car`, 0 by default) of `world` under race rules: a step is `act` (the policy's action), the
+    world's step, then `after` (the row, laps and incidents); a held car's steps are pause rows."""
+
     def __init__(self, world, policy: Callable, rules: RaceRules, keep_frames: bool,
-                 image_of: Callable | None, on_lap: Callable | None):
+                 image_of: Callable | None, on_lap: Callable | None, car: int = 0):
         self.world = world
         self.sim = world.sim
+        self.i = car
+        self.car = np.array([car], dtype=np.int64)  # the car, as an index array
+        self.active = np.zeros(self.sim.num_cars, dtype=bool)
+        self.active[car] = True
+        self.hold: tuple | None = None  # (steps left, penalty, steps done, obs, actions) while held
         self.policy = policy
         self.rules = rules
         self.track = self.sim.track_reversed if rules.reverse else self.sim.track
@@ -112,6 +131,7 @@ class _Driver:
         self.trace = _Trace()
         self.laps: list[Lap] = []
         self.frames = [] if keep_frames else None
+        self.object_poses = [] if keep_frames and self.sim.objects is not None else None
         self.image_of = image_of
         self.on_lap = on_lap
         self.discrete = world.discrete
@@ -128,25 +148,46 @@ class _Driver:
     def _episode(self, laps: int) -> None:
         sim = self.sim
         sim.reset(start_ndist=0.0, reverse=self.rules.reverse)
-        self.ep = _Episode(laps_left=laps, lap_start=sim.time, first_row=len(self.trace))
+        self.begin(laps)
         while not self._step():
             pass
+        self.finish()
+
+    def begin(self, laps: int) -> None:
+        """A new episode of `laps` laps from where the car was just reset."""
+        self.ep = _Episode(laps_left=laps, lap_start=self.sim.time, first_row=len(self.trace))
+        self.hold = None
+
+    def finish(self) -> None:
         self.trace.set_last("done", True)
 
     def _step(self) -> bool:
         """One environment step; True when the episode is over."""
+        if self.hold is not None:
+            self.sim.pause_step(self.car)
+            return self.held()
+        obs, actions = self.act()
+        codes, rewards = self.world.step(actions, self.active)
+        return self.after(codes, rewards, obs, actions)
+
+    def act(self) -> tuple:
+        """The car's observation and the policy's action for it."""
         obs = self.world.observe()
-        actions = self.policy(obs)
-        codes, rewards = self.world.step(actions, ACTIVE)
-        code = int(codes[0])
+        if self.sim.num_cars > 1:
+            obs = observation_row(obs, self.i)
+        return obs, self.policy(obs)
+
+    def after(self, codes, rewards, obs, actions) -> bool:
+        """The car's row of a step it drove; True when its episode is over."""
+        code = int(codes[self.i])
         status = STATUS_NAMES[code]
         before = self.ep.prev
-        self._add_row(self.sim.trace_columns(CAR), actions, float(rewards[0]), status, obs)
+        self._add_row(self.sim.trace_columns(self.car), actions, float(rewards[self.i]), status, obs)
         if code == Status.LAP_COMPLETE:
             return self._lap_complete()
         if status in INCIDENTS:
             return self._incident(status, before)
-        if self.sim.truncated[0]:
+        if self.sim.truncated[self.i]:
             self._close_lap("time_up")
             return True
         return False
@@ -168,8 +209,8 @@ class _Driver:
     def _restart_progress(self) -> None:
         """Continuous laps: progress counts from the start line again (simapp sets prev_progress to 0
         after a 100 %), and the reset rules start afresh."""
-        self.sim.restart_lap(0)
-        self.ep.prev = (float(self.sim.state.progress[0]), *self.ep.prev[1:])
+        self.sim.restart_lap(self.i)
+        self.ep.prev = (float(self.sim.state.progress[self.i]), *self.ep.prev[1:])
 
     def _close_lap(self, status: str) -> None:
         ep = self.ep
@@ -190,7 +231,15 @@ class _Driver:
         ep.resets += 1
         penalty = self.rules.penalty(status)
         self.trace.set_last("pause_duration", penalty)
-        self._put_back(before)
+        objects = self.sim.objects
+        if status == "crashed" and objects is not None and (objects.bots or objects.racers):
+            self._stop_in_place()  # simapp: after hitting a bot car (or another racer) the car waits where it is
+        elif status == "crashed" and objects is not None:
+            ep.obstacle_crashes += 1
+            self.trace.set_last("obstacle_crash_counter", ep.obstacle_crashes)
+            self._put_behind_obstacle(before)
+        else:
+            self._put_back(before)
         self._hold(penalty)
         return False
 
@@ -199,24 +248,43 @@ class _Driver:
         sim = self.sim
         progress, mx, my, heading = before
         length = self.track.length
-        s = (sim.state.start[0] + progress / 100.0) * length
+        s = (sim.state.start[self.i] + progress / 100.0) * length
         s = s % length if self.track.closed else min(max(s, 0.0), length)
         yaw = math.radians(heading)
         base = (mx - MODEL_POINT_AHEAD_M * math.cos(yaw), my - MODEL_POINT_AHEAD_M * math.sin(yaw))
         x, y, new_yaw = self.lanes.reset_pose(s, base)
         # measure the new pose against the progress the car is put back at, not where it left the road
-        sim.relocate(0, x, y, new_yaw, progress=progress)
+        sim.relocate(self.i, x, y, new_yaw, progress=progress)
+
+    def _stop_in_place(self) -> None:
+        car, i = self.sim.state, self.i
+        self.sim.relocate(i, float(car.x[i]), float(car.y[i]), float(car.yaw[i]))
+
+    def _put_behind_obstacle(self, before: tuple) -> None:
+        """After hitting a box: 1 m behind it in the other lane (simapp's obstacle reset), progress moved back
+        by the centre-line distance between the two points."""
+        sim = self.sim
+        progress, mx, my, _ = before
+        length = self.track.length
+        s_before = (sim.state.start[self.i] + progress / 100.0) * length
+        x, y, yaw, s = sim.objects.reset_behind(self.i, bool(sim.state.reversed[self.i]), mx, my)
+        back = (s_before - s) % length if self.track.closed else s_before - s
+        sim.relocate(self.i, x, y, yaw, progress=progress - 100.0 * back / length)
 
     def _hold(self, penalty: float) -> None:
-        """The pause rows: the car stands still for the penalty; the sim clock runs on."""
-        sim = self.sim
-        obs = self.world.observe()
-        actions = self.policy(obs)  # held still, the car sees the same picture each step
-        for k in range(1, pause_steps(penalty, sim.dt) + 1):
-            sim.pause_step(CAR)  # simapp counts pause steps
-            # the held car's row shows where it was put back (its current pose), not the incident's
-            self._add_row(sim.trace_columns(CAR, judged=False), actions, 0.0, "pause", obs,
-                          pause=max(penalty - k * sim.dt, 0.0))
+        """The car stands still for the penalty (pause rows, one per step); the sim clock runs on."""
+        obs, actions = self.act()  # held still, the car sees the same picture each step
+        self.hold = (pause_steps(penalty, self.sim.dt), penalty, 0, obs, actions)
+
+    def held(self) -> bool:
+        """The pause row of a step in which the car was held (its step counter counted it, as simapp counts
+        pause steps); the row shows where it was put back (its current pose), not the incident's."""
+        left, penalty, k, obs, actions = self.hold
+        k += 1
+        self._add_row(self.sim.trace_columns(self.car, judged=False), actions, 0.0, "pause", obs,
+                      pause=max(penalty - k * self.sim.dt, 0.0))
+        self.hold = (left - 1, penalty, k, obs, actions) if left > 1 else None
+        return False
 
     # ---- rows ---------------------------------------------------------------------------------
     def _add_row(self, cols: dict, actions, reward: float, status: str, obs, pause: float = 0.0) -> None:
@@ -226,19 +294,29 @@ class _Driver:
         if status == "prepare":
             steer, speed = np.zeros(1), np.zeros(1)
         action = int(actions[0]) if self.discrete else [float(steer[0]), float(speed[0])]
-        car = sim.state
+        car, i = sim.state, self.i
         row = {c: v[0].item() for c, v in cols.items()}
         row.update({
             "episode": len(self.laps), "steer": float(steer[0]), "throttle": float(speed[0]), "action": action,
             "reward": reward, "done": False, "track_len": self.track.length, "episode_status": status,
-            "pause_duration": pause, "obstacle_crash_counter": 0, "wall_clock": time.time(),
-            "base_x": float(car.x[0]), "base_y": float(car.y[0]), "base_yaw": float(car.yaw[0]),
-            "speed": float(car.speed[0]), "lap_clock": sim.time - self.ep.lap_start,
+            "pause_duration": pause, "obstacle_crash_counter": self.ep.obstacle_crashes, "wall_clock": time.time(),
+            "base_x": float(car.x[i]), "base_y": float(car.y[i]), "base_yaw": float(car.yaw[i]),
+            "speed": float(car.speed[i]), "lap_clock": sim.time - self.ep.lap_start,
         })
         self.trace.add(row)
         self.ep.prev = (row["progress"], row["X"], row["Y"], row["yaw"])
         if self.frames is not None:
             self.frames.append(self.image_of(obs) if self.image_of else None)
+        if self.object_poses is not None:
+            self.object_poses.append(np.column_stack([sim.objects.xy[i], sim.objects.yaw[i]]))
+
+    def objects_record(self) -> dict | None:
+        """The objects' poses per row with their size, for a video (`EvalRun.objects`)."""
+        if self.object_poses is None:
+            return None
+        o = self.sim.objects
+        return {"pose": self.object_poses, "size": tuple(float(v) for v in o.box_size_m),
+                "cars": bool(getattr(o, "bots", False) or getattr(o, "racers", False))}
 
 
 def run_evaluation(world, policy: Callable, rules: RaceRules | None = None, *, keep_frames: bool = False,
@@ -255,4 +333,86 @@ def run_evaluation(world, policy: Callable, rules: RaceRules | None = None, *, k
     driver = _Driver(world, policy, rules, keep_frames, image_of, on_lap)
     driver.run()
     trace, extra = driver.trace.arrays(continuous_actions=not driver.discrete)
-    return EvalRun(driver.laps, trace, extra, driver.frames, time.perf_counter() - t0, world.sim.dt)
+    return EvalRun(driver.laps, trace, extra, driver.frames, time.perf_counter() - t0, world.sim.dt,
+                   objects=driver.objects_record())
+
+
+# ---- head to model ------------------------------------------------------------------------------------------
+def grid_poses(track, num_cars: int) -> list[tuple[float, float, float]]:
+    """Start poses (x, y, yaw rad) of a head-to-model race: on the start line, car 0 on the inner lane, car 1 on
+    the outer one, each heading along its lane."""
+    lanes = Lanes(track)
+    c = track.point_at(0.0)
+    out = []
+    for k in range(num_cars):
+        foot, yaw = project_on_polyline(lanes.lines[k % 2], c)
+        out.append((float(foot[0]), float(foot[1]), yaw))
+    return out
+
+
+def _park(sim, car: int) -> None:
+    """A car whose race is over leaves the track (AWS parks it), so the other car drives on alone."""
+    lo = np.minimum(sim.track.outer.min(axis=0), sim.track.inner.min(axis=0))
+    sim.relocate(car, float(lo[0]) - 10.0 - 2.0 * car, float(lo[1]) - 10.0, 0.0)
+
+
+def run_head_to_model(worlds, policies, rules: RaceRules | None = None, *, keep_frames: bool = False,
+                      image_of: Callable | None = None, on_lap: Callable | None = None) -> list[EvalRun]:
+    """Two models racing in one world: `worlds[k]` (sharing one simulator whose race is head_to_model) drives car
+    k with `policies[k]`; each car sees the other (its object: the lidar, `objects_*`), crashes into it by the
+    crash rule, and is judged, held and put back under `rules` on its own while the other drives on. Both
+    start on the start line, car 0 on the inner lane and car 1 on the outer one; a car whose race is over is
+    parked off the track. `on_lap(k, lap)` is called as car k ends a lap. Returns each car's `EvalRun`."""
+    rules = rules or RaceRules()
+    sim = worlds[0].sim
+    n = len(worlds)
+    if sim.num_cars != n or any(w.sim is not sim for w in worlds) or sim.objects is None or not sim.objects.racers:
+        raise ValueError("run_head_to_model drives worlds that share one head_to_model simulator, a car each")
+    t0 = time.perf_counter()
+    drivers = [_Driver(w, p, rules, keep_frames, image_of, (lambda lap, k=k: on_lap(k, lap)) if on_lap else None,
+                       car=k) for k, (w, p) in enumerate(zip(worlds, policies, strict=True))]
+    track = drivers[0].track
+    episodes = [rules.trials] if rules.continuous and track.closed else [1] * rules.trials
+    for laps in episodes:
+        sim.reset(start_ndist=0.0, reverse=rules.reverse)
+        for k, (x, y, yaw) in enumerate(grid_poses(track, n)):
+            sim.set_pose(k, x, y, yaw, start_ndist=0.0, reverse=rules.reverse)
+        for d in drivers:
+            d.begin(laps)
+        _race_episode(sim, worlds, drivers)
+        for d in drivers:
+            d.finish()
+    wall = time.perf_counter() - t0
+    runs = []
+    for d in drivers:
+        trace, extra = d.trace.arrays(continuous_actions=not d.discrete)
+        runs.append(EvalRun(d.laps, trace, extra, d.frames, wall, sim.dt, objects=d.objects_record()))
+    return runs
+
+
+def _race_episode(sim, worlds, drivers) -> None:
+    """Step every car still racing together until each one's episode is over."""
+    n = len(drivers)
+    done = [False] * n
+    while not all(done):
+        driving = [k for k in range(n) if not done[k] and drivers[k].hold is None]
+        held = [k for k in range(n) if not done[k] and drivers[k].hold is not None]
+        steer, speed = np.zeros(n), np.zeros(n)
+        acts = {}
+        for k in driving:
+            obs, actions = drivers[k].act()
+            acts[k] = (obs, actions)
+            st, sp = worlds[k].commands(actions)
+            steer[k], speed[k] = st[0], sp[0]
+        active = np.zeros(n, dtype=bool)
+        active[driving] = True
+        codes = sim.step(steer, speed, active).copy()
+        if held:
+            sim.count_held(np.array(held))
+        for k in held:
+            drivers[k].held()
+        for k in driving:
+            rewards = worlds[k].rewards(codes, drivers[k].active)
+            done[k] = drivers[k].after(codes, rewards, *acts[k])
+            if done[k]:
+                _park(sim, k)

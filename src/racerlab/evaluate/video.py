@@ -3,10 +3,11 @@
 The track is drawn once with matplotlib (`racerlab.track.plot.draw_track`) into an RGB picture;
 each frame copies it, adds the newest piece of the car's trail (coloured by ground speed; the
 trail picture persists, so nothing is redrawn) and then draws the car to scale (0.196 m × 0.324 m,
-AWS's collision box). Beside the track, never over it, a panel holds what the camera saw (camera
-models), the lap timer, speed, progress, every finished lap's time and the trail's colour scale; it
-is as tall as the laps it lists need. During a penalty the car blinks, as in the AWS simulator.
-Frames go to an MP4 through imageio's ffmpeg writer.
+AWS's collision box), with the race's boxes or bot cars where they were at that step (boxes in cardboard,
+bot cars and the other racer of a head-to-model race in blue). Beside the track, never over it, a panel
+holds what the camera saw (camera models), the lap timer, speed, progress, every finished lap's time and
+the trail's colour scale; it is as tall as the laps it lists need. During a penalty the car blinks, as in
+the AWS simulator. Frames go to an MP4 through imageio's ffmpeg writer.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ CAR_LENGTH_M = 0.324  # BOT_CAR_DIMENSION (facts §2), centred on the base pose
 CAR_WIDTH_M = 0.196
 SPEED_CMAP = "plasma"
 MAX_TRAIL_JUMP_M = 0.5  # longer moves between rows are resets: no trail line
+BOX_FILL, BOX_EDGE = (200, 160, 110, 255), (90, 60, 20, 255)  # TrackLook.box
+BOT_FILL, BOT_EDGE = (90, 100, 190, 255), (20, 25, 70, 255)  # TrackLook.bot_car
 TEXT = (20, 20, 20)
 
 
@@ -105,10 +108,11 @@ def _speed_colours(speed: np.ndarray, vmax: float) -> list[tuple[int, int, int]]
     return [tuple(int(round(c * 255)) for c in row) for row in rgb]
 
 
-def car_polygon(canvas: TrackCanvas, x: float, y: float, yaw: float) -> list[tuple[float, float]]:
-    """The car's footprint corners in pixels (front first)."""
+def car_polygon(canvas: TrackCanvas, x: float, y: float, yaw: float, size=(CAR_LENGTH_M, CAR_WIDTH_M)
+                ) -> list[tuple[float, float]]:
+    """The corners in pixels (front first) of the car's footprint, or of a rectangle of `size` (length, width)."""
     c, s = math.cos(yaw), math.sin(yaw)
-    hl, hw = 0.5 * CAR_LENGTH_M, 0.5 * CAR_WIDTH_M
+    hl, hw = 0.5 * size[0], 0.5 * size[1]
     corners = [(hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw)]
     xs = [x + a * c - b * s for a, b in corners]
     ys = [y + a * s + b * c for a, b in corners]
@@ -188,7 +192,10 @@ def render_video(path, track: Track, run, *, title: str = "", max_speed: float =
             if lap_end[i]:
                 lap_times.append(f"lap {len(lap_times) + 1}: {extra['lap_clock'][i]:.3f} s")
             frame = side.frame(trail)
-            _draw_car(ImageDraw.Draw(frame, "RGBA"), canvas, extra, trace, i)
+            shapes = ImageDraw.Draw(frame, "RGBA")
+            if run.objects is not None:
+                draw_objects(shapes, canvas, run.objects["pose"][i], run.objects["size"], run.objects["cars"])
+            _draw_car(shapes, canvas, extra, trace, i)
             draw = ImageDraw.Draw(frame)
             hud.draw(draw, _hud_lines(hud, trace, extra, i, lap_times, bool(lap_end[i])), side.x0, side.text_y)
             hud.speed_bar(draw, side.x0, side.width, side.height, bar)
@@ -262,6 +269,17 @@ def _draw_car(draw, canvas: TrackCanvas, extra, trace, i: int) -> None:
     draw.polygon(poly, fill=fill, outline=edge)
     (fx1, fy1), (fx2, fy2) = poly[0], poly[1]
     draw.line((fx1, fy1, fx2, fy2), fill=(255, 255, 255, 255), width=2)  # the front
+
+
+def draw_objects(draw, canvas: TrackCanvas, poses, size, cars: bool) -> None:
+    """The race's objects (rows x, y, yaw) to scale: boxes, or bot cars with a white front edge."""
+    fill, edge = (BOT_FILL, BOT_EDGE) if cars else (BOX_FILL, BOX_EDGE)
+    for x, y, yaw in np.asarray(poses, dtype=np.float64).tolist():
+        poly = car_polygon(canvas, x, y, yaw, size)
+        draw.polygon(poly, fill=fill, outline=edge)
+        if cars:
+            (fx1, fy1), (fx2, fy2) = poly[0], poly[1]
+            draw.line((fx1, fy1, fx2, fy2), fill=(255, 255, 255, 255), width=2)
 
 
 def _inset(frame, image: np.ndarray, x0: int, scale: int) -> None:

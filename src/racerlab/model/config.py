@@ -13,6 +13,7 @@ from pathlib import Path
 from racerlab.errors import ConfigError
 from racerlab.logs.metrics import BEST_MODEL_METRICS
 from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
+from racerlab.spec import RaceConfig
 
 REWARD_ORDERS = ("aws", "after_action")
 
@@ -68,6 +69,7 @@ class TrainingConfig:
     stop: StopSettings = field(default_factory=StopSettings)
     evaluation: EvaluationSettings = field(default_factory=EvaluationSettings)
     logs: LogSettings = field(default_factory=LogSettings)
+    race: RaceConfig = field(default_factory=RaceConfig)  # [race]: DRfC's names (racerlab.spec.RaceConfig)
     source: str = "training.toml"
     # [[worker]] tables: what rollout worker k changes for itself ({section: {key: value}}), DRfC's multi-config
     workers: tuple[dict, ...] = ()
@@ -80,6 +82,8 @@ class TrainingConfig:
             out.append(f"[{f.name}]")
             section = getattr(self, f.name)
             for sf in fields(section):
+                if sf.name == "where":
+                    continue
                 out.append(f"{sf.name} = {_toml_value(getattr(section, sf.name))}")
             out.append("")
         for overlay in self.workers:
@@ -93,7 +97,8 @@ class TrainingConfig:
         if index >= len(self.workers):
             return replace(self, workers=())
         where = f"{self.source} [[worker]] {index + 1}"
-        changed = {name: _parse_section(where, name, keys, getattr(self, name))
+        changed = {name: RaceConfig.from_mapping({**self.race.table(), **keys}, where=f"{where}: race")
+                   if name == "race" else _parse_section(where, name, keys, getattr(self, name))
                    for name, keys in self.workers[index].items()}
         cfg = replace(self, **changed, workers=())
         _validate(replace(cfg, source=where))
@@ -150,17 +155,21 @@ def parse_training_config(data: dict, source: str = "training.toml") -> Training
     for name, section in data.items():
         if name == "worker":
             continue
-        if name not in SECTIONS:
-            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}, [[worker]]")
+        if name not in SECTIONS and name != "race":
+            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}, race, [[worker]]")
+        if name == "race":
+            if not isinstance(section, dict):
+                raise ConfigError(f"{source}: race must be a [section]")
+            sections[name] = RaceConfig.from_mapping(section, where=f"{source} [race]")
+            continue
         sections[name] = _parse_section(source, name, section, SECTIONS[name]())
     workers = []
     for k, overlay in enumerate(overlays):
         where = f"{source} [[worker]] {k + 1}"
-        for name, section in overlay.items():
-            if name not in SECTIONS:
+        for name in overlay:
+            if name not in SECTIONS and name != "race":
                 raise ConfigError(f"{where}: unknown section {name}; a worker may change "
-                                  f"{', '.join(SECTIONS)} (for example track.names = [\"...\"])")
-            _parse_section(where, name, section, SECTIONS[name]())
+                                  f"{', '.join(SECTIONS)}, race (for example track.names = [\"...\"])")
         workers.append({name: dict(section) for name, section in overlay.items()})
     cfg = TrainingConfig(**sections, source=source, workers=tuple(workers))
     _validate(cfg)

@@ -12,9 +12,17 @@ from racerlab.model.config import TrackSettings, TrainingConfig
 from racerlab.model.folder import ModelFolder
 from racerlab.model.hyperparameters import Hyperparameters
 from racerlab.model.metadata import ContinuousActions, ModelMetadata, default_discrete_actions
-from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED
+from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, RaceConfig
 
 EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
+EXAMPLE_REWARDS = {"time_trial": EXAMPLE_REWARD,
+                   "object_avoidance": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py"),
+                   "head_to_bot": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
+# `init --race head_to_bot`: DRfC's template (DR_H2B_NUMBER_OF_BOT_CARS=3), the simulator's bot defaults
+HEAD_TO_BOT_CARS = 3
+# `init --race object_avoidance`: three fixed boxes that pass the console's rules (first >= 7 %, last <= 90 %,
+# gaps >= 13 % of the lap), alternating lanes
+OBJECT_AVOIDANCE_POSITIONS = ((0.25, 1), (0.5, -1), (0.75, 1))
 SENSORS = {
     "features": (("FEATURES",), "MLP"),
     "camera": (("FRONT_FACING_CAMERA",), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"),
@@ -44,7 +52,7 @@ def make_metadata(sensor: str = "features", action_space: str = "discrete", algo
 
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
-               best_model_metric: str | None = None, force: bool = False) -> ModelFolder:
+               best_model_metric: str | None = None, force: bool = False, race: str = "time_trial") -> ModelFolder:
     folder = ModelFolder(path)
     existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
@@ -66,8 +74,14 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
     if sensor != "features":
         # pixels cost more per step; fewer cars keep an iteration's memory and time moderate
         cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars or 16))
+    if race not in EXAMPLE_REWARDS:
+        raise RacerlabError(f"race must be one of {', '.join(EXAMPLE_REWARDS)}, got {race!r}")
+    if race == "object_avoidance":
+        cfg = replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
+    elif race == "head_to_bot":
+        cfg = replace(cfg, race=RaceConfig(type=race, number_of_bot_cars=HEAD_TO_BOT_CARS))
     folder.path.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(EXAMPLE_REWARD, folder.reward_path)
+    shutil.copyfile(EXAMPLE_REWARDS[race], folder.reward_path)
     folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
     folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
     folder.config_path.write_text(_TOML_HEADER + cfg.to_toml())
@@ -89,5 +103,13 @@ _TOML_HEADER = """\
 #            as plain CSV (deepracer-utils reads those), older ones gzipped; max_mb: the budget of
 #            training-simtrace/ + metrics/, past which the oldest gzipped iterations are thinned (0 = none);
 #            compress: gzip all
+#   [race]   DRfC's race settings: type (time_trial|object_avoidance|head_to_bot), number_of_obstacles,
+#            obstacle_type, randomize_obstacle_locations, object_positions ([fraction of the lap, lane 1 inner |
+#            -1 outer]), min_distance_between_obstacles (% of the lap), number_of_bot_cars,
+#            randomize_bot_car_locations, bot_car_speed (m/s), is_lane_change, lower_/upper_lane_change_time (s),
+#            lane_change_distance (m), min_distance_between_bot_cars (m), penalty_seconds (a bot's wait after
+#            it ran into the car)
+#   [[worker]] (racerlab train --workers): one table per rollout worker, changing its settings, e.g.
+#            track.names = ["lab_oval"], track.reverse = true, race.type = "object_avoidance"
 
 """

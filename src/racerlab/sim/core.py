@@ -16,6 +16,7 @@ import numpy as np
 
 from racerlab.sim import _kernels as K
 from racerlab.sim.car import pack as pack_car
+from racerlab.sim.objects import FEATURE_OBJECTS, ObjectSet, RaceConfig, as_race, base_from_model_point
 from racerlab.sim.state import CarState
 from racerlab.spec import STEP_S, CarParams
 from racerlab.track import Track
@@ -51,7 +52,7 @@ class Simulator:
 
     def __init__(self, track: Track | str, num_cars: int = 1, car: CarParams | None = None, *,
                  start: StartRules | None = None, max_episode_steps: int = 10_000, reward_order: str = "aws",
-                 lookahead_m=DEFAULT_LOOKAHEAD_M, seed: int | None = None):
+                 lookahead_m=DEFAULT_LOOKAHEAD_M, seed: int | None = None, race: RaceConfig | None = None):
         if reward_order not in REWARD_ORDERS:
             raise ValueError(f"reward_order must be one of {REWARD_ORDERS}, got {reward_order!r}")
         self.track = track if isinstance(track, Track) else load_track(track)
@@ -78,6 +79,10 @@ class Simulator:
         self._none = np.zeros(n, dtype=np.bool_)
         self._state = CarState(self.car, self.ctr, self.meas)
         self._judged = CarState(self.car, self.ctr, self.params)
+        self.race = as_race(race) or RaceConfig()
+        # each car's boxes (None in a time trial: the step then runs exactly as without objects)
+        self.objects = (ObjectSet(self.race, self.track, self.track_reversed, n, self.rng)
+                        if self.race.has_objects else None)
         self.reset()
 
     # ---- track arrays for the compiled step -----------------------------------------------------
@@ -118,6 +123,8 @@ class Simulator:
             nd = np.broadcast_to(np.asarray(start_ndist, dtype=np.float64), idx.shape)
             rev = np.broadcast_to(np.asarray(r.reverse if reverse is None else reverse, dtype=bool), idx.shape)
         self.ctr[idx, K.KREV] = rev
+        if self.objects is not None:
+            self.objects.place(idx, rev)
         s = nd * self.track.length
         pts = np.empty((idx.size, 2))
         yaw = np.empty(idx.size)
@@ -126,9 +133,12 @@ class Simulator:
             if sel.any():
                 pts[sel] = t.point_at(s[sel])
                 yaw[sel] = t.heading_at(s[sel])
+        if self.objects is not None:
+            self.objects.clear_starts(idx, rev, pts, yaw)
         K.place_many(idx, pts[:, 0].copy(), pts[:, 1].copy(), yaw, np.ascontiguousarray(nd, dtype=np.float64),
                      self.car, self.ctr, self.meas, *self._geom)
         self.episode_start_time[idx] = self.time
+        self._follow()
         return idx
 
     def _place(self, i, x, y, yaw, start_ndist):
@@ -142,9 +152,12 @@ class Simulator:
         t = self.track_reversed if self.ctr[i, K.KREV] else self.track
         if start_ndist is None:
             start_ndist = float(t.project([[x, y]]).s[0] / t.length)
+        if self.objects is not None:
+            self.objects.place([i], [bool(self.ctr[i, K.KREV])])
         self._place(i, x, y, yaw_rad, start_ndist)
         self.car[i, K.CV] = speed
         self.episode_start_time[i] = self.time
+        self._follow()
 
     def relocate(self, i: int, x: float, y: float, yaw_rad: float, progress: float | None = None) -> None:
         """Move car i to a base pose inside its current episode (steps, start and progress continue),
@@ -153,6 +166,7 @@ class Simulator:
         if progress is not None:
             self.meas[i, K.MPROG] = progress
         K.relocate(i, x, y, yaw_rad, self.car, self.ctr, self.meas, *self._geom)
+        self._follow()
 
     def restart_lap(self, i: int) -> None:
         """Car i's progress counts from the start line again and its reset rules start afresh, inside
@@ -168,6 +182,10 @@ class Simulator:
         """A step in which no car moves and the cars in `cars` are held (an evaluation penalty): the clock
         runs on and their step counters count the step, as simapp counts pause steps."""
         self.step(0.0, 0.0, self._none)
+        self.count_held(cars)
+
+    def count_held(self, cars) -> None:
+        """The cars in `cars` were held through the last step: their step counters count it (simapp)."""
         self.ctr[cars, K.KSTEPS] += 1
 
     # ---- stepping -----------------------------------------------------------------------------
@@ -184,8 +202,40 @@ class Simulator:
         K.step_all(act, np.ascontiguousarray(steer), np.ascontiguousarray(spd), self.car, self.ctr, self.meas,
                    self.params, self._car_arr, self.dt, self.after_action, self.max_episode_steps,
                    self.truncated, *self._geom)
+        if self.objects is not None:
+            if self.objects.racers:  # the other car where it was judged (stepped cars) or stands (held ones)
+                x, y, yaw = self.car[:, K.CX].copy(), self.car[:, K.CY].copy(), self.car[:, K.CYAW].copy()
+                p = self.params[act]
+                x[act], y[act], yaw[act] = base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING])
+                self.objects.follow(x, y, yaw)
+            self._judge_crashes(act)
+            self._follow()
         self.time += self.dt
+        if self.objects is not None and self.objects.bots:
+            self.objects.advance(np.arange(n), self.dt)
         return self.ctr[:, K.KSTATUS]
+
+    def _follow(self) -> None:
+        """Head-to-model: each car's object is the other car of its pair where it is now."""
+        if self.objects is not None and self.objects.racers:
+            self.objects.follow(self.car[:, K.CX], self.car[:, K.CY], self.car[:, K.CYAW])
+
+    def _judge_crashes(self, active) -> None:
+        """The crash rule on the judged pose of the stepped cars: status `crashed` where a corner of the car is
+        inside an object, unless the lap was completed on that step (AWS's status order: lap_complete, crashed,
+        off_track, in_progress, immobilized, reversed)."""
+        codes = self.ctr[:, K.KSTATUS]
+        idx = np.flatnonzero(active & (codes != K.STATUS_PREPARE) & (codes != K.LAP_COMPLETE))
+        if idx.size == 0:
+            return
+        p = self.params[idx]
+        crash, rear = self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]),
+                                           rows=idx, car_arc=p[:, K.MS], length=self.track.length)
+        hit = idx[crash]
+        self.ctr[hit, K.KSTATUS] = K.CRASHED
+        if rear.any():  # a bot ran into the car from behind: the bots pause (not the car's crash)
+            self.objects.pause(idx[rear])
+        self.truncated[hit] = False
 
     def features(self, out=None, rows=None) -> np.ndarray:
         """(num_cars, feature_size) `features` observation of the current poses (float64 in `out`).
@@ -196,11 +246,28 @@ class Simulator:
         idx = np.arange(self.num_cars) if rows is None else np.asarray(rows, dtype=np.int64)
         K.features(idx, self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed,
                    self.track.length, self.lookahead, self._car_arr, buf)
+        if self._object_features:
+            c = self.car[idx]
+            near = np.empty((idx.size, 2 * FEATURE_OBJECTS))
+            self.objects.features_ahead(idx, c[:, K.CX], c[:, K.CY], c[:, K.CYAW], self.meas[idx, K.MS],
+                                        self.track.length, near)
+            buf[idx, self._track_features:] = near
         return buf
 
     @property
-    def feature_size(self) -> int:
+    def _track_features(self) -> int:
         return 6 + 2 * len(self.lookahead)
+
+    @property
+    def _object_features(self) -> bool:
+        """Boxes and bot cars add the nearest objects ahead to `features`; the other racer of a head-to-model race
+        does not (models trained for a time trial race head to head with the vector they know)."""
+        return self.objects is not None and not self.objects.racers
+
+    @property
+    def feature_size(self) -> int:
+        """Length of the `features` vector; with boxes or bot cars it ends with the nearest objects ahead."""
+        return self._track_features + (2 * FEATURE_OBJECTS if self._object_features else 0)
 
     # ---- views -------------------------------------------------------------------------------
     @property

@@ -66,10 +66,11 @@ class DeepRacerEnv(gym.Env):
     metadata = {"render_modes": RENDER_MODES, "render_fps": 15}
 
     def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
-                 car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None):
+                 car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None,
+                 race=None):
         self.world = World(track, 1, model_metadata, reward_function, observation, car=car, start=start,
                            max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
-                           keep_params=True)
+                           keep_params=True, race=race)
         self.sim = self.world.sim
         self.action_space = self.world.action_space
         self.observation_space = self.world.observation.space
@@ -124,10 +125,10 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, track=DEFAULT_TRACK, reward_function=None, model_metadata=None,
                  observation=None, *, car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None,
-                 info_params=False, render_mode=None):
+                 info_params=False, render_mode=None, race=None):
         self.world = World(track, num_envs, model_metadata, reward_function, observation, car=car, start=start,
                            max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
-                           keep_params=info_params)
+                           keep_params=info_params, race=race)
         self.sim = self.world.sim
         self.num_envs = num_envs
         self.single_action_space = self.world.action_space

@@ -23,6 +23,7 @@ import numpy as np
 from racerlab.errors import RewardFunctionError
 from racerlab.model.reward import error_location, load_reward_function
 from racerlab.sim import _kernels as K
+from racerlab.sim.objects import base_from_model_point
 from racerlab.spec import NO_OBJECTS, ParamsMaker
 
 MAX_ABS_REWARD = 1e5
@@ -90,6 +91,11 @@ class ParamsBuilder:
                          "closest_waypoints", "track_width", "projection_distance", "is_offtrack"),
                         parts={"closest_waypoints": 2})
 
+    _OBJECT_KEYS = ("closest_objects", "objects_location", "objects_left_of_center", "objects_distance",
+                    "objects_distance_from_center", "objects_heading", "objects_speed", "object_in_camera")
+    _make_objects = ParamsMaker((*_make.per_row, "is_crashed", *_OBJECT_KEYS),
+                                parts={"closest_waypoints": 2, "closest_objects": 2})
+
     def __init__(self, sim):
         self.sim = sim
         self._waypoints = (sim.track.waypoints, sim.track_reversed.waypoints)
@@ -131,7 +137,13 @@ class ParamsBuilder:
         }
         # sim_time of the measured pose: the step's start (AWS order) or its end (after_action)
         t = sim.time if sim.after_action else sim.time - sim.dt
-        return self._make(cols, {**self._constants, "sim_time": t})
+        if sim.objects is None:
+            return self._make(cols, {**self._constants, "sim_time": t})
+        p = sim.params[idx]
+        base = base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING])
+        cols.update(sim.objects.params_columns(idx, p[:, K.MX:K.MY + 1], p[:, K.MS], base))
+        cols["is_crashed"] = (st == K.CRASHED).tolist()
+        return self._make_objects(cols, {"track_length": self._length, "sim_time": t})
 
 
 class RewardCaller:

@@ -50,15 +50,19 @@ class World:
     `reward` a `RewardCaller`, a callable, a path, or None (reward 0 and no params built: the fastest
     path). `observation` names it ("features", "camera", ...); None follows the model's sensors, or
     is "features" when no metadata is given either. `car` and `start` take `CarParams` / `StartRules`
-    or their keyword dicts. With `keep_params`, `params` holds each car's params dict of the last step
-    (None where no reward was called).
+    or their keyword dicts; `race` a `RaceConfig`, its `[race]` table as a dict, or a race type name
+    ("object_avoidance": 6 evenly spaced boxes), None for a time trial. With `keep_params`, `params` holds
+    each car's params dict of the last step (None where no reward was called).
     """
 
     def __init__(self, track, num_cars: int = 1, metadata=None, reward=None, observation: str | None = None, *,
                  car=None, start=None, max_episode_steps: int = 10_000, reward_order: str = "aws",
-                 seed: int | None = None, keep_params: bool = False):
-        self.sim = Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
-                             max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed)
+                 seed: int | None = None, keep_params: bool = False, race=None, sim: Simulator | None = None):
+        # `sim`: drive an existing simulator (another model's cars in the same world); track, num_cars, car,
+        # start, max_episode_steps, reward_order, seed and race are then its own
+        self.sim = sim or Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
+                                    max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
+                                    race=race)
         self.metadata = as_model_metadata(metadata)
         if observation is None and metadata is None:
             observation = "features"
@@ -116,6 +120,12 @@ class World:
             steer_all[idx], speed_all[idx] = steer, speed
             steer, speed = steer_all, speed_all
         codes = sim.step(steer, speed, active).copy()
+        return codes, self.rewards(codes, active)
+
+    def rewards(self, codes, active=None) -> np.ndarray:
+        """The rewards of the last step (0 where a car was not stepped, took its prepare step or no reward
+        function is set), for the cars in `active` (all by default); `params` keeps their dicts when asked."""
+        sim = self.sim
         rewards = np.zeros(sim.num_cars)
         self.params = None
         if self.reward is not None:
@@ -128,7 +138,7 @@ class World:
                 self.params = [None] * sim.num_cars
                 for j, i in enumerate(run.tolist()):
                     self.params[i] = kept[j]
-        return codes, rewards
+        return rewards
 
     def done(self, codes) -> tuple[np.ndarray, np.ndarray]:
         """(terminated, truncated) masks after a step that returned `codes`."""

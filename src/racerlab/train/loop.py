@@ -147,7 +147,7 @@ class Trainer:
                            reverse=r.reverse, alternate_direction=r.alternate_direction)
         return World(self._load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation,
                      start=start, max_episode_steps=self.cfg.run.max_episode_steps,
-                     reward_order=self.cfg.run.reward_order, seed=seed)
+                     reward_order=self.cfg.run.reward_order, seed=seed, race=self.cfg.race)
 
     def _make_worlds(self):
         names = self.cfg.track.names

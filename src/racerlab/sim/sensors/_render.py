@@ -12,6 +12,8 @@ helpers are inlined, because every array passed to a compiled call costs referen
 - plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az
 - raster: grey, ground, center (flat uint8 pyramids), off, stride, wmax, hmax, inv_cell, x0, y0
 - lit: plain, coef, tone, light, noise_amp, noise, noise_off
+- solids: pose (B, M, 3), dims (M, 3), grey (M,), camera (cam_z, focal, cos pitch, sin pitch) — the objects
+  each car sees (`racerlab.sim.sensors.solids`), drawn over the ground and sky where a pixel's ray meets one
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, object_bounds, trace_row
 
 TWO_PI = 2.0 * math.pi
 
@@ -132,7 +136,7 @@ def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, ds
 
 
 @njit(cache=True, fastmath=True)
-def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, out):
+def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids, out):
     """Render cars `cars` into out[car, H, W, eye] (uint8) from base poses (x, y, yaw per car).
 
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
@@ -140,9 +144,17 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, out):
     row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az = plan
     grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
     plain, coef, tone, light, noise_amp, noise, noise_off = lit
+    spose, sdims, sgrey, cam = solids
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
+    m = sgrey.shape[0]
+    bounds = np.empty((m, 4), dtype=np.int64)
+    seen = np.empty(m, dtype=np.int64)
+    shades = np.empty((m, FACES))
+    local = np.empty((m, 4))  # camera x, y in the object's frame, cos / sin (car yaw - object yaw)
+    zbuf = np.empty(width)
+    val = np.empty(width)
     nb = pano.shape[1] - 1
     for k in range(cars.shape[0]):
         i = cars[k]
@@ -156,6 +168,8 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, out):
         for eye in range(eyes.shape[0]):
             ex = pose_x[i] + c * eyes[eye, 0] - s * eyes[eye, 1]
             ey = pose_y[i] + s * eyes[eye, 0] + c * eyes[eye, 1]
+            nseen = _see_objects(i, ex, ey, c, s, pose_yaw[i], spose, sdims, sgrey, cam, coef[i, 0], coef[i, 3],
+                                 width, height, bounds, seen, shades, local)
             for r in range(height):
                 acc[:] = row_haze[r] * coef[i, 3]
                 if row_sky[r] > 0.0:
@@ -192,8 +206,63 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, out):
                                      np.float32(sub_weight[j]), kn, kg, kc, dst, n)
                 if step > 1 and j1 > j0:
                     _spread(tmp, step, acc)
+                if nseen:
+                    _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, height, zbuf, val, acc)
                 if plain[i]:
                     _finish_plain(acc, out[i, r, :, eye])
                 else:
                     _finish_lit(acc, r, height, tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
                                 noise_off[i, eye] + r * width, out[i, r, :, eye])
+
+
+@njit(cache=True, fastmath=True)
+def _see_objects(i, ex, ey, c, s, yaw, spose, sdims, sgrey, cam, gain, haze, width, height, bounds, seen, shades,
+                 local):
+    """Car i's objects in view of the eye at (ex, ey): their indices into `seen`, pixel bounds, face greys (lit
+    by the car's neutral light `gain`, faded into `haze` with distance) and the camera in each one's frame."""
+    cam_z, f, cp, sp = cam
+    n = 0
+    for q in range(sgrey.shape[0]):
+        ox = spose[i, q, 0]
+        oy = spose[i, q, 1]
+        oyaw = spose[i, q, 2]
+        if not object_bounds(ex, ey, c, s, ox, oy, oyaw, sdims[q, 0], sdims[q, 1], sdims[q, 2], cam_z, cp, sp, f,
+                             width, height, bounds[n]):
+            continue
+        face_greys(oyaw, sgrey[q] * gain, shades[n])
+        fade = haze_fade(c * (ox - ex) + s * (oy - ey))
+        for k in range(FACES):
+            shades[n, k] = shades[n, k] * (1.0 - fade) + haze * fade
+        co = math.cos(oyaw)
+        so = math.sin(oyaw)
+        local[n, 0] = co * (ex - ox) + so * (ey - oy)
+        local[n, 1] = -so * (ex - ox) + co * (ey - oy)
+        local[n, 2] = math.cos(yaw - oyaw)
+        local[n, 3] = math.sin(yaw - oyaw)
+        seen[n] = q
+        n += 1
+    return n
+
+
+@njit(cache=True, fastmath=True)
+def _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, height, zbuf, val, acc):
+    """Overwrite row r's pixels whose rays meet one of the objects in view with the nearest one's face grey."""
+    cam_z, f, cp, sp = cam
+    vv = (r + 0.5 - 0.5 * height) / f
+    dxr = cp - vv * sp
+    dz = -sp - vv * cp
+    lo = width
+    hi = -1
+    for n in range(nseen):
+        if bounds[n, 0] <= r <= bounds[n, 1]:
+            if hi < 0:
+                zbuf[:] = FAR
+            q = seen[n]
+            trace_row(dxr, dz, bounds[n, 2], bounds[n, 3], (0.5 - 0.5 * width) / f, 1.0 / f, local[n, 0],
+                      local[n, 1], cam_z, local[n, 2], local[n, 3], sdims[q, 0], sdims[q, 1], sdims[q, 2], shades[n],
+                      zbuf, val)
+            lo = min(lo, bounds[n, 2])
+            hi = max(hi, bounds[n, 3])
+    for k in range(lo, hi + 1):
+        if zbuf[k] < FAR:
+            acc[k] = val[k]

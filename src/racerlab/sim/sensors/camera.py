@@ -12,6 +12,8 @@ simulator's seeded generator; without one every frame has the default look and n
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 
@@ -28,6 +30,7 @@ from racerlab.sim.sensors.geometry import (
     camera_position,
 )
 from racerlab.sim.sensors.look import DomainRandomization, Lighting, TrackLook
+from racerlab.sim.sensors.solids import Solids
 from racerlab.sim.sensors.texture import track_raster
 
 NOISE_TILES = 4  # the noise tile holds this many frames' worth of values; each frame starts at a random offset
@@ -46,6 +49,7 @@ class Camera:
         cam_x = camera_position()[0]
         sides = (STEREO_HALF_BASELINE_M, -STEREO_HALF_BASELINE_M) if stereo else (0.0,)
         self.eyes = np.array([[cam_x, y] for y in sides])
+        self.solids = Solids(sim, self.look)
         self.raster = track_raster(sim.track, self.look)
         self._raster_args = self._pack_raster()
         self.replan()
@@ -74,6 +78,7 @@ class Camera:
         p = self.plan = RowPlan(self.model, cam_z, self.raster.cell, self.raster.num_levels, self.look.filter_px,
                                 **options)
         self.panorama = self.look.panorama(SKY_EL_STEP_RAD, p.sky_el_bins, SKY_AZ_BINS)
+        self._cam_args = (cam_z, self.model.focal_px, math.cos(self.model.pitch_rad), math.sin(self.model.pitch_rad))
         self._plan_args = (p.row_first, p.row_haze, p.row_sky, p.sub_x, p.sub_y0, p.sub_dy, p.sub_level,
                            p.sub_step, p.sub_weight, p.sky_el, p.sky_az)
 
@@ -89,8 +94,11 @@ class Camera:
         lg = self.lighting
         lit = (lg.plain, lg.coef, lg.tone, lg.light, lg.noise_amp, self._noise, self._noise_off)
         car = self.sim.car
+        sol = self.solids
+        sol.update()
         _render.render(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.eyes, self._plan_args,
-                       self._raster_args, self.panorama, lit, self.frames)
+                       self._raster_args, self.panorama, lit, (sol.pose, sol.dims, sol.grey, self._cam_args),
+                       self.frames)
         return self.frames
 
     def _randomize(self, idx: np.ndarray) -> None:

@@ -6,9 +6,11 @@ right side, and ray 63 looks 30° right; the 60° gap is ahead, where the camera
 Gaussian noise (σ = 0.01 m) and are clipped to [0.15, 1.0] m; a ray that hits nothing reads 1.0.
 
 What the rays hit:
-- objects: oriented rectangles `[x, y, yaw_rad, length_m, width_m]` set with `Lidar.set_objects`
-  (none by default; object avoidance and head-to-bot races pass their obstacles and bot cars,
-  and may say which car sees which, for cars that each run their own race);
+- the race's objects: each car's own boxes or bot cars (the simulator's `ObjectSet`, read at every
+  scan: they move at resets, and bot cars drive), as oriented rectangles of the box model
+  (0.40 × 0.30 m) or the car's footprint;
+- other rectangles `[x, y, yaw_rad, length_m, width_m]` set with `Lidar.set_objects` (none by
+  default), seen by every car or as a `visible` mask says;
 - the track borders, as walls, only with `walls=True`. AWS's tracks are flat paint with no
   walls, so its lidar sees nothing there and reads 1.0; walls are a racerlab option for
   lidar-only experiments.
@@ -70,11 +72,20 @@ def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
 @njit(cache=True, inline="always")
 def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
     """Intersect rays lo..hi (indices, clipped to the scan) with segment a-b; keep the nearer hits in best."""
-    for k in range(max(lo, 0), min(hi, nrays - 1) + 1):
-        ang = base + k * step
-        t = _ray_segment(ox, oy, math.cos(ang), math.sin(ang), ax, ay, bx, by)
+    k0 = max(lo, 0)
+    k1 = min(hi, nrays - 1)
+    if k1 < k0:
+        return
+    # ray directions by rotation from the first one: two sines per segment, not two per ray
+    c0 = math.cos(base + k0 * step)
+    s0 = math.sin(base + k0 * step)
+    cs = math.cos(step)
+    ss = math.sin(step)
+    for k in range(k0, k1 + 1):
+        t = _ray_segment(ox, oy, c0, s0, ax, ay, bx, by)
         if t < best[k]:
             best[k] = t
+        c0, s0 = c0 * cs - s0 * ss, s0 * cs + c0 * ss
 
 
 @njit(cache=True, inline="always")
@@ -106,33 +117,43 @@ def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
 
 
 @njit(cache=True, inline="always")
-def _cast_box(ox, oy, base, step, nrays, reach, box, best):
-    """Cast the four sides of an oriented rectangle [x, y, yaw, length, width]; range 0 from inside it."""
-    cb = math.cos(box[2])
-    sb = math.sin(box[2])
-    hl = 0.5 * box[3]
-    hw = 0.5 * box[4]
-    px = ox - box[0]
-    py = oy - box[1]
+def _cast_box(ox, oy, base, step, nrays, reach, bx, by, byaw, length, width, best):
+    """Cast the sides of an oriented rectangle (centre bx, by, turned by byaw) that face (ox, oy); range 0 from
+    inside it."""
+    hl = 0.5 * length
+    hw = 0.5 * width
+    px = ox - bx
+    py = oy - by
+    far = reach + hl + hw  # out of reach whatever its yaw (hl + hw >= the half diagonal)
+    if px * px + py * py > far * far:
+        return
+    cb = math.cos(byaw)
+    sb = math.sin(byaw)
     if abs(cb * px + sb * py) <= hl and abs(-sb * px + cb * py) <= hw:
         best[:] = 0.0
         return
+    # the sensor in the box's frame: only the sides that face it can hold a nearest hit (the box is convex)
+    lu = cb * px + sb * py
+    lv = -sb * px + cb * py
+    facing = (lv > hw, lu < -hl, lv < -hw, lu > hl)  # sides +y, -x, -y, +x, between corners q and q + 1
     cx = (hl, -hl, -hl, hl)
     cy = (hw, hw, -hw, -hw)
     for q in range(4):
+        if not facing[q]:
+            continue
         r = (q + 1) % 4
-        _cast(ox, oy, base, step, nrays, reach, box[0] + cb * cx[q] - sb * cy[q], box[1] + sb * cx[q] + cb * cy[q],
-              box[0] + cb * cx[r] - sb * cy[r], box[1] + sb * cx[r] + cb * cy[r], best)
+        _cast(ox, oy, base, step, nrays, reach, bx + cb * cx[q] - sb * cy[q], by + sb * cx[q] + cb * cy[q],
+              bx + cb * cx[r] - sb * cy[r], by + sb * cx[r] + cb * cy[r], best)
 
 
 @njit(cache=True)
-def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, boxes, visible, walls, edges, grid, reach,
+def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, own, boxes, visible, walls, edges, grid, reach,
          out):
     """Raw ranges (inf = nothing within `reach`) of cars `cars` into out[car, ray].
 
-    Ray k looks at first_angle + k·step from the car's heading. boxes (M, 5) [x, y, yaw, length, width]
-    are seen by car i where visible[i, m]; with `walls` the road edges (E, 4) listed for the car's grid
-    cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
+    Ray k looks at first_angle + k·step from the car's heading. Rectangles [x, y, yaw, length, width]:
+    car i sees its own `own[i]` (B, K, 5) and those of boxes (M, 5) where visible[i, m]; with `walls` the
+    road edges (E, 4) listed for the car's grid cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
     """
     cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
     nrays = out.shape[1]
@@ -145,9 +166,13 @@ def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, boxes, visi
         base = pose_yaw[i] + first_angle
         best = out[i]
         best[:] = np.inf
+        for m in range(own.shape[1]):
+            _cast_box(ox, oy, base, step, nrays, reach, own[i, m, 0], own[i, m, 1], own[i, m, 2], own[i, m, 3],
+                      own[i, m, 4], best)
         for m in range(boxes.shape[0]):
             if visible[i, m]:
-                _cast_box(ox, oy, base, step, nrays, reach, boxes[m], best)
+                _cast_box(ox, oy, base, step, nrays, reach, boxes[m, 0], boxes[m, 1], boxes[m, 2], boxes[m, 3],
+                          boxes[m, 4], best)
         if walls:
             cx = min(max(int((ox - gx0) / gcell), 0), gnx - 1)
             cy = min(max(int((oy - gy0) / gcell), 0), gny - 1)
@@ -157,6 +182,32 @@ def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, boxes, visi
         for a in range(nrays):
             if best[a] > reach:
                 best[a] = np.inf
+
+
+@njit(cache=True)
+def _count_hits(cars, raw):
+    n = 0
+    for i in cars:
+        for a in range(raw.shape[1]):
+            if raw[i, a] < np.inf:
+                n += 1
+    return n
+
+
+@njit(cache=True)
+def _finish(cars, raw, noise, lo, hi, out):
+    """out[car] = raw ranges plus the next noise draw where a ray hit (in scan order), clipped to [lo, hi]; hi where
+    it hit nothing."""
+    q = 0
+    for i in cars:
+        for a in range(raw.shape[1]):
+            v = raw[i, a]
+            if v < np.inf:
+                v += noise[q]
+                q += 1
+                out[i, a] = min(max(v, lo), hi)
+            else:
+                out[i, a] = hi
 
 
 def edge_grid(edges: np.ndarray, reach: float, cell: float = GRID_CELL_M):
@@ -197,6 +248,12 @@ class Lidar:
         self.grid = edge_grid(self.edges, self.reach_m + GRID_CELL_M * math.sqrt(2.0)) if self.walls \
             else (np.zeros(2, dtype=np.int64), np.zeros(0, dtype=np.int64), 0.0, 0.0, 1.0, 1, 1)
         self.set_objects(None)
+        objects = getattr(sim, "objects", None)
+        self._objects = objects if objects is not None and objects.num_objects else None
+        m = self._objects.num_objects if self._objects is not None else 0
+        self.own = np.zeros((sim.num_cars, m, 5))  # each car's objects: x, y, yaw from the ObjectSet, its model's size
+        if m:
+            self.own[:, :, 3:] = objects.box_size_m
         self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
         self.ranges = np.full((sim.num_cars, LIDAR_RAYS), self.max_range_m, dtype=np.float32)
         self._all = np.arange(sim.num_cars, dtype=np.int64)
@@ -221,15 +278,18 @@ class Lidar:
         Ranges are clipped to [0.15, max_range_m]; a ray that hits nothing reads max_range_m.
         """
         idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
-        if self.boxes.shape[0] or self.walls:
+        if self._objects is not None:  # objects move at every reset (and bot cars at every step)
+            self.own[:, :, :2] = self._objects.xy
+            self.own[:, :, 2] = self._objects.yaw
+        if self.own.shape[1] or self.boxes.shape[0] or self.walls:
             car = self.sim.car
             scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD,
-                 self.step, self.boxes, self.visible, self.walls, self.edges, self.grid, self.reach_m, self.raw)
-            raw = self.raw[idx]
-            hit = np.isfinite(raw)
-            if self.noise_sigma_m > 0.0 and hit.any():
-                raw[hit] += self.sim.rng.normal(0.0, self.noise_sigma_m, size=int(hit.sum()))
-            self.ranges[idx] = np.clip(np.where(hit, raw, self.max_range_m), MIN_RANGE_M, self.max_range_m)
+                 self.step, self.own, self.boxes, self.visible, self.walls, self.edges, self.grid, self.reach_m,
+                 self.raw)
+            hits = _count_hits(idx, self.raw)
+            noise = self.sim.rng.normal(0.0, self.noise_sigma_m, size=hits) if self.noise_sigma_m > 0.0 and hits \
+                else np.zeros(hits)
+            _finish(idx, self.raw, noise, MIN_RANGE_M, self.max_range_m, self.ranges)
         return self.ranges
 
 

@@ -43,6 +43,8 @@ class TrackLook:
     sky: tuple = (200, 210, 222)
     skyline: tuple = (84, 90, 96)
     haze: tuple = (165, 175, 180)
+    box: tuple = (200, 160, 110)  # obstacles: cardboard, light against the road
+    bot_car: tuple = (90, 100, 190)  # bot cars: blue, between the road and the box in grey
     skyline_seed: int = 2018
     # effective width of AWS's 640×480 → 160×120 PIL bilinear resize filter, in output pixels
     filter_px: float = 1.4
@@ -55,6 +57,10 @@ class TrackLook:
     def grey(self) -> np.ndarray:
         """(N_MATERIALS,) greyscale value of each material under white light."""
         return self.colors() @ LUMA
+
+    def object_grey(self, bot_car: bool = False) -> float:
+        """Grey under white light of an obstacle box, or of a bot car."""
+        return float(np.asarray(self.bot_car if bot_car else self.box, dtype=np.float64) @ LUMA)
 
     def skyline_profile(self, bins: int = 1024) -> np.ndarray:
         """(bins,) elevation (rad) of the skyline over azimuth 0..2π: a band of blocks and hills."""

@@ -1,5 +1,6 @@
 """A picture of what the sensors see: the track from above with cars at several points of a lap, and
-beside each car its camera frame and its lidar scan (`racerlab sim view`)."""
+beside each car its camera frame and its lidar scan (`racerlab sim view`). In a race with objects the boxes
+or bot cars are drawn from above, in the camera frames (as the camera renders them) and in the lidar panels."""
 
 from __future__ import annotations
 
@@ -17,36 +18,66 @@ from racerlab.track import Track
 
 CAR_COLORS = ("#e4572e", "#4c9be8", "#f3a712", "#7bc950", "#b07bd6", "#2ec4b6", "#ff6f91", "#c0c0c0")
 LIDAR_HIT = "#e4572e"
+BOX_COLOR, BOT_COLOR = "#c8a06e", "#5a64be"  # TrackLook.box, TrackLook.bot_car
 
 
-def place_cars(track: Track, cars: int, seed: int = 0) -> Simulator:
-    """A simulator with `cars` cars on the centre line, evenly spread over the lap from its start."""
-    sim = Simulator(track, cars, seed=seed)
+def place_cars(track: Track, cars: int, seed: int = 0, race=None) -> Simulator:
+    """A simulator with `cars` cars on the centre line, evenly spread over the lap from its start (a start near a
+    box moves to the other lane, as in training)."""
+    sim = Simulator(track, cars, seed=seed, race=race)
     sim.reset(start_ndist=np.arange(cars) / cars)
     return sim
 
 
-def sensor_view(track: Track, cars: int = 4, *, randomize: bool = False, walls: bool = False, seed: int = 0):
-    """A matplotlib Figure: the track with `cars` numbered cars, and per car its camera frame and lidar scan."""
+def sensor_view(track: Track, cars: int = 4, *, randomize: bool = False, walls: bool = False, seed: int = 0,
+                race=None):
+    """A matplotlib Figure: the track with `cars` numbered cars (and the race's objects: `race` as `Simulator`
+    takes it), and per car its camera frame and lidar scan."""
     from matplotlib.figure import Figure
 
     from racerlab.track.plot import draw_track
 
-    sim = place_cars(track, cars, seed)
+    sim = place_cars(track, cars, seed, race)
     frames = Camera(sim, randomization=DomainRandomization() if randomize else None).render()
     ranges = Lidar(sim, walls=walls).scan()
     fig = Figure(figsize=(13.5, max(2.3 * cars, 6.0)))
     grid = fig.add_gridspec(cars, 3, width_ratios=[2.4, 1.6, 1.0], wspace=0.08, hspace=0.25)
     ax = fig.add_subplot(grid[:, 0])
     draw_track(track, ax, waypoint_numbers=False, legend=False)
+    if sim.objects is not None:
+        for i in range(cars):  # each car's own objects (the same for fixed layouts)
+            _draw_objects(ax, sim, i, np.eye(3))
     for i in range(cars):
         _draw_car(ax, sim.car[i], i)
         _draw_frame(fig.add_subplot(grid[i, 1]), frames[i, :, :, 0], i, randomize)
         _draw_scan(fig.add_subplot(grid[i, 2]), sim, i, ranges[i], walls)
     look = "domain-randomized looks" if randomize else "default look"
-    fig.suptitle(f"{track.name}: camera 160×120 greyscale ({look}) and lidar 64 rays "
-                 f"({'track borders as walls' if walls else 'as AWS: no walls, no objects'})", fontsize=11)
+    seen = "track borders as walls" if walls else "as AWS: no walls"
+    if sim.objects is not None:
+        seen += f", {'bot cars' if _cars(sim) else 'boxes'} per car: {sim.objects.num_objects}"
+    fig.suptitle(f"{track.name}: camera 160×120 greyscale ({look}) and lidar 64 rays ({seen})", fontsize=11)
     return fig
+
+
+def _cars(sim) -> bool:
+    return bool(getattr(sim.objects, "bots", False) or getattr(sim.objects, "racers", False))
+
+
+def _draw_objects(ax, sim: Simulator, i: int, frame: np.ndarray) -> None:
+    """Car i's objects to scale; `frame` (3, 3) maps world (x, y, 1) to the drawing's (x, y) (rows 0 and 1)."""
+    from matplotlib.patches import Polygon
+
+    o = sim.objects
+    hl, hw = 0.5 * o.box_size_m
+    color = BOT_COLOR if _cars(sim) else BOX_COLOR
+    corners = np.array([[hl, hw], [-hl, hw], [-hl, -hw], [hl, -hw]])
+    for (x, y), yaw in zip(o.xy[i], o.yaw[i], strict=True):
+        c, s = math.cos(yaw), math.sin(yaw)
+        world = np.column_stack([x + corners[:, 0] * c - corners[:, 1] * s, y + corners[:, 0] * s + corners[:, 1] * c,
+                                 np.ones(4)])
+        xy = world @ frame[:2].T
+        patch = ax.add_patch(Polygon(xy, closed=True, facecolor=color, edgecolor="black", lw=0.6, zorder=4.5))
+        patch.set_clip_path(ax.patch)  # objects beyond the lidar panel's limits stay inside its frame
 
 
 def _draw_car(ax, car, i: int) -> None:
@@ -88,12 +119,19 @@ def _draw_scan(ax, sim: Simulator, i: int, ranges: np.ndarray, walls: bool) -> N
     ax.plot(-MAX_RANGE_M * np.sin(t), mx + MAX_RANGE_M * np.cos(t), color="#9aa5b1", lw=0.6, ls=":")
     ax.add_patch(_car_patch())
     _draw_borders(ax, sim, i)
+    if sim.objects is not None:
+        x, y, yaw = sim.car[i, K.CX], sim.car[i, K.CY], sim.car[i, K.CYAW]
+        c, s = math.cos(yaw), math.sin(yaw)
+        # world -> car frame (fx ahead, fy left) -> screen (-fy, fx)
+        to_screen = np.array([[s, -c, -s * x + c * y], [c, s, -c * x - s * y], [0.0, 0.0, 1.0]])
+        _draw_objects(ax, sim, i, to_screen)
     ax.set_xlim(-1.25, 1.25)
     ax.set_ylim(-1.2, 1.3)
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
-    ax.set_title(f"car {i + 1}: lidar" + ("" if walls else " (nothing to hit)"), fontsize=9)
+    ax.set_title(f"car {i + 1}: lidar" + ("" if walls or sim.objects is not None else " (nothing to hit)"),
+                 fontsize=9)
 
 
 def _car_patch():

@@ -1,0 +1,548 @@
+"""Objects on the track (object avoidance): the race settings, AWS obstacle placement, the crash rule, and the
+`objects_*` reward params.
+
+Every car of a batch has its own objects (`ObjectSet`, arrays with the car axis first), placed again at each
+of its resets as the AWS simulator does (`ObstaclesCtrl.reset_agent`, reference next_capabilities §A.1):
+
+- `object_positions` ((fraction of the lap, lane) pairs) put the boxes where they say: lane 1 is the inner
+  lane, -1 the outer one;
+- otherwise `number_of_obstacles` start evenly spaced at `linspace(min_d, L - 1, N)` metres of arc length,
+  lanes alternating from the inner one; with `randomize_obstacle_locations` each box in a shuffled order is
+  re-drawn uniformly between its neighbours (keeping `min_d` to each, the first at least `min_d` from the
+  start line, the last at most `L - 1`), then every box gets a random lane;
+- a box stands on its lane line (the midline between centre line and border) at the point nearest the centre
+  line's point at that arc length, turned along the lane.
+
+`min_distance_between_obstacles` is a percentage of the lap, `min_d = value / 100 * L`, every episode. AWS
+converts the stored value again at every reset (the value shrinks by L/100 each episode: 0.46 m, 0.107 m,
+0.025 m ... on reInvent2019), so from the third episode on its random layouts have no minimum gap; racerlab
+keeps the intended minimum (the difference is written down in docs/objects.md).
+
+Bot cars (`BotCarsCtrl`, next_capabilities §A.2) start like boxes (min distance in metres, their own
+`randomize_bot_car_locations`) and drive their lane keyed by centre-line distance, changing lanes every
+U(lower, upper) s over `lane_change_distance` m; they pause `penalty_seconds` after one ran into the car. In a
+head-to-model race each car's one object is the other car of its pair. docs/objects.md has the details and the
+differences from AWS.
+
+Crash rule (facts §2, next_capabilities §A.4): a car has crashed when one of the four corners of its footprint
+(0.32352 m long x 0.1961 m wide, centred on the base pose) lies strictly inside an object's footprint (a box's
+is 0.5 m along its lane x 0.4 m across, the box plus 0.1 m; a car's is its own). Only the car's corners are
+tested; a car (bot or racer) counts only when it is ahead: the car ran into it.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+from numba import njit
+
+from racerlab.errors import ConfigError
+from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
+from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
+from racerlab.track import Track
+
+BOX_SIZE_M = (0.40, 0.30)  # the box model (along the lane, across): what the lidar and camera see
+BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX_OBSTACLE_DIMENSION (0.4, 0.5)
+CAR_FOOTPRINT_M = (0.32352, 0.1961)  # (length, width): BOT_CAR_DIMENSION, the agent's crash footprint
+OBSTACLE_Z_M = 0.1
+END_MARGIN_M = 1.0  # the last obstacle stays this far before the end of the lap
+FEATURE_OBJECTS = 2  # the `features` observation gains the nearest objects ahead, (x ahead, y left) / 2 m each
+RESET_BEHIND_DIST_M = 1.0  # evaluation: after a crash the car restarts this far behind the box, other lane
+CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
+CAMERA_HFOV_RAD = 1.13
+CAMERA_ASPECT = 4 / 3  # 640 x 480
+CAMERA_FAR_M = 300.0
+CAMERA_NEAR_M = 0.02
+
+
+def as_race(value) -> RaceConfig | None:
+    """A `RaceConfig`, its keyword dict, a race type name, or None (a time trial)."""
+    if value is None or isinstance(value, RaceConfig):
+        return value
+    if isinstance(value, str):
+        return RaceConfig(type=value, number_of_obstacles=6 if value == "object_avoidance" else 0)
+    return RaceConfig.from_mapping(value)
+
+
+# ---- placement -----------------------------------------------------------------------------------------
+def _spread(n: int, first: float, last: float, min_d: float, randomize: bool, strict: bool,
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """AWS's layout of n objects: evenly spaced over [first, last] with lanes alternating from the inner one;
+    randomised, each object in a shuffled order is re-drawn uniformly between its neighbours keeping `min_d` to
+    each (left in place when there is no room; bots need a non-empty interval, `strict`), then every object gets
+    a random lane."""
+    d = np.linspace(first, last, n)
+    if not randomize:
+        return d, np.where(np.arange(n) % 2 == 0, 1, -1)
+    for i in rng.permutation(n):
+        lo = d[i - 1] + min_d if i > 0 else first
+        hi = d[i + 1] - min_d if i < n - 1 else last
+        if lo < hi or (lo == hi and not strict):
+            d[i] = rng.uniform(lo, hi)
+    return d, rng.choice(np.array([1, -1]), size=n)
+
+
+def obstacle_arcs(race: RaceConfig, length: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(arc lengths along the centre line in m, lanes +1 inner / -1 outer) of one episode's objects."""
+    last = length - END_MARGIN_M
+    if race.num_bot_cars:  # BotCarsCtrl: min distance in metres
+        return _spread(race.num_bot_cars, race.min_distance_between_bot_cars, last,
+                       race.min_distance_between_bot_cars, race.randomize_bot_car_locations, True, rng)
+    if race.object_positions:
+        pos = np.array(race.object_positions, dtype=np.float64)
+        return pos[:, 0] * length, pos[:, 1].astype(np.int64)
+    n = race.num_obstacles
+    min_d = race.min_distance_between_obstacles / 100.0 * length
+    if n and min_d > last:
+        raise ConfigError(f"{race.where}: min_distance_between_obstacles {race.min_distance_between_obstacles} % "
+                          f"of this {length:.2f} m lap leaves no room for obstacles; use a smaller value")
+    return _spread(n, min_d, last, min_d, race.randomize_obstacle_locations, False, rng)
+
+
+def _lane(track: Track, border: np.ndarray) -> Track:
+    """The lane line between the centre line and `border`, as a polyline with arc length and projection."""
+    mid = 0.5 * (track.center + border)
+    return Track("lane", mid, mid, mid, track.closed)
+
+
+class Lanes:
+    """The inner and outer lane lines of a track in one driving direction."""
+
+    def __init__(self, track: Track):
+        self.track = track
+        self.inner = _lane(track, track.inner)
+        self.outer = _lane(track, track.outer)
+
+    @functools.cached_property
+    def by_centre(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Per lane (+1 inner, -1 outer): (u, xy), the lane's points keyed by the centre-line arc length of their
+        projection, sorted and de-duplicated, as AWS keys the lane splines bot cars drive (`TrackSpline`)."""
+        out = {}
+        for flag, lane in ((1, self.inner), (-1, self.outer)):
+            u, first = np.unique(self.track.project(lane.center).s, return_index=True)
+            out[flag] = (u, lane.center[first])
+        return out
+
+    def at_centre_dist(self, flag: int, d: np.ndarray) -> np.ndarray:
+        """Points (k, 2) of lane `flag` at centre-line distances `d` (linear between the lane's points; on a
+        loop the distances wrap around the lap)."""
+        u, xy = self.by_centre[flag]
+        period = self.track.length if self.track.closed else None
+        return np.stack([np.interp(d, u, xy[:, 0], period=period), np.interp(d, u, xy[:, 1], period=period)], -1)
+
+    def poses(self, arcs: np.ndarray, lanes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(xy (m, 2), yaw (m,)) of boxes at centre-line arc lengths `arcs` on `lanes` (+1 inner, -1 outer)."""
+        xy = np.empty((arcs.size, 2))
+        yaw = np.empty(arcs.size)
+        centre = self.track.point_at(arcs).reshape(-1, 2)
+        for flag, lane in ((1, self.inner), (-1, self.outer)):
+            sel = lanes == flag
+            if sel.any():
+                proj = lane.project(centre[sel])
+                xy[sel] = lane.point_at(proj.s)
+                yaw[sel] = proj.heading
+        return xy, yaw
+
+
+@njit(cache=True)
+def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
+    """(k, m) bool: a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx[j], by[j], yaw[j]) lies
+    strictly inside object q's footprint rectangle (half sizes half_len, half_wid around oxy[rows[j], q], turned by
+    oyaw[rows[j], q]). Compiled: it runs for every car at every step."""
+    hl = 0.5 * CAR_FOOTPRINT_M[0]
+    hw = 0.5 * CAR_FOOTPRINT_M[1]
+    k = bx.size
+    m = oxy.shape[1]
+    out = np.zeros((k, m), dtype=np.bool_)
+    for j in range(k):
+        c = math.cos(yaw[j])
+        s = math.sin(yaw[j])
+        i = rows[j]
+        for q in range(m):
+            co = math.cos(oyaw[i, q])
+            so = math.sin(oyaw[i, q])
+            for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
+                dx = bx[j] + a * c - b * s - oxy[i, q, 0]
+                dy = by[j] + a * s + b * c - oxy[i, q, 1]
+                if abs(dx * co + dy * so) < half_len and abs(-dx * so + dy * co) < half_wid:
+                    out[j, q] = True
+                    break
+    return out
+
+
+def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """Even-odd test of points against a closed ring (first == last not required)."""
+    x1, y1 = ring[:, 0], ring[:, 1]
+    x2, y2 = np.roll(x1, -1), np.roll(y1, -1)
+    px = px[:, None]
+    py = py[:, None]
+    crosses = (y1 > py) != (y2 > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xint = x1 + (py - y1) * (x2 - x1) / (y2 - y1)
+    return (crosses & (px < xint)).sum(axis=1) % 2 == 1
+
+
+def camera_frustum_contains(cam_x, cam_y, cam_z, yaw, px, py, pz) -> np.ndarray:
+    """True where the point (px, py, pz) is inside the camera's view frustum (HFOV 1.13 rad, 4:3, pitched
+    down 0.2618 rad, 0.02-300 m); broadcasts over cars and points."""
+    dx = px - cam_x
+    dy = py - cam_y
+    dz = pz - cam_z
+    c, s = np.cos(yaw), np.sin(yaw)
+    fwd = dx * c + dy * s
+    left = -dx * s + dy * c
+    cp, sp = math.cos(CAMERA_PITCH_RAD), math.sin(CAMERA_PITCH_RAD)
+    depth = fwd * cp - dz * sp  # along the optical axis (pitched down)
+    up = fwd * sp + dz * cp
+    tan_h = math.tan(CAMERA_HFOV_RAD / 2)
+    tan_v = tan_h / CAMERA_ASPECT
+    return ((depth > CAMERA_NEAR_M) & (depth < CAMERA_FAR_M) & (np.abs(left) <= depth * tan_h)
+            & (np.abs(up) <= depth * tan_v))
+
+
+class ObjectSet:
+    """The objects of every car of a simulator: per car `m` boxes, bot cars (`bots`, driven by `advance`) or,
+    in a head-to-model race (`racers`), the other car of its pair (set by `follow`), with their params.
+
+    Arrays (car axis first): `xy` (n, m, 2), `yaw` (n, m), `arc` (n, m: centre-line projection in the car's
+    driving direction, the param `objects_distance`), `dfc` (n, m), `left` (n, m).
+    """
+
+    def __init__(self, race: RaceConfig, track: Track, track_reversed: Track, num_cars: int, rng):
+        self.race = race
+        self.rng = rng
+        self.lanes = (Lanes(track), Lanes(track_reversed))
+        self._inner_ring = np.vstack([track.center, track.inner[::-1]])
+        self._ccw = (track.is_ccw, track_reversed.is_ccw)
+        self.bots = race.num_bot_cars > 0
+        self.racers = race.head_to_model  # each car's one object is the other car of its pair
+        if self.racers and num_cars % 2:
+            raise ConfigError(f"{race.where}: a head_to_model race pairs the cars; use an even number of cars, "
+                              f"not {num_cars}")
+        m = race.num_bot_cars if self.bots else 1 if self.racers else race.num_obstacles
+        self.num_objects = m
+        cars = self.bots or self.racers
+        foot = CAR_FOOTPRINT_M if cars else BOX_FOOTPRINT_M
+        self.half = (0.5 * foot[0], 0.5 * foot[1])
+        self.box_size_m = np.array(CAR_FOOTPRINT_M if cars else BOX_SIZE_M)
+        self.speed = race.bot_car_speed if self.bots else 0.0
+        self.rev = np.zeros(num_cars, dtype=np.bool_)
+        self.xy = np.zeros((num_cars, m, 2))
+        self.yaw = np.zeros((num_cars, m))
+        self.arc = np.zeros((num_cars, m))
+        self.dfc = np.zeros((num_cars, m))
+        self.left = np.zeros((num_cars, m), dtype=np.bool_)
+        self.lane = np.zeros((num_cars, m), dtype=np.int64)  # a bot's lane (the one it leaves in a lane change)
+        self.order = np.zeros((num_cars, m), dtype=np.int64)  # objects sorted by `arc`
+        self._lists: list = [None] * num_cars
+        # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
+        # left after a bot rear-ended the car, the current lane change (clock times; inf: none), front-point arc
+        self.d0 = np.zeros((num_cars, m))
+        self.clock = np.zeros(num_cars)
+        self.pause_left = np.zeros(num_cars)
+        self.change_start = np.full((num_cars, m), np.inf)
+        self.change_end = np.full((num_cars, m), np.inf)
+        self.front_arc = np.zeros((num_cars, m))
+        speed = self.speed
+        self.change_s = race.lane_change_distance / speed if speed > 0 else np.inf
+        self.lane_changes = self.bots and race.is_lane_change and speed > 0
+        # fixed and evenly spaced boxes stand in the same places every episode: each direction's layout is
+        # placed once and then copied, so that a reset costs microseconds instead of a millisecond per car
+        self._layouts: dict | None = ({} if (race.object_positions or not race.randomize_obstacle_locations)
+                                      and not (self.bots or self.racers) else None)
+
+    def place(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
+        """New layouts for cars `idx` (each in its driving direction `reversed_`)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if self._layouts is not None:
+            self._copy_layouts(idx, np.asarray(reversed_, dtype=bool))
+            return
+        for i, rev in zip(idx.tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
+            lanes = self.lanes[int(rev)]
+            self.rev[i] = rev
+            if self.racers:  # the other car is placed by the simulator (`follow`)
+                continue
+            arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
+            self.lane[i] = lane
+            if self.bots:
+                self.d0[i] = arcs
+            else:
+                self.xy[i], self.yaw[i] = lanes.poses(arcs, lane)
+                self._measure(i)
+        if self.bots:
+            self.clock[idx] = 0.0
+            self.pause_left[idx] = 0.0
+            self.change_start[idx] = np.inf
+            self.change_end[idx] = 0.0 if self.lane_changes else np.inf  # 0: the first change is drawn at once
+            self._drive(idx)
+
+    def advance(self, idx, dt: float) -> None:
+        """The bot cars of cars `idx` one step of `dt` s on (BotCarsCtrl): paused bots wait out their penalty,
+        the others drive their lane at `bot_car_speed` and change lanes when their next change comes. They never
+        react to the car."""
+        idx = np.asarray(idx, dtype=np.int64)
+        paused = self.pause_left[idx] > 1e-9  # (a penalty of k steps is over after k steps, whatever the rounding)
+        left = self.pause_left[idx[paused]] - dt
+        self.pause_left[idx[paused]] = np.where(left > 1e-9, left, 0.0)
+        run = idx[~paused]
+        if run.size == 0:
+            return
+        self.clock[run] += dt
+        if self.lane_changes:
+            self._schedule_lane_changes(run)
+        self._drive(run)
+
+    def _schedule_lane_changes(self, run: np.ndarray) -> None:
+        """A bot whose lane change has ended is in the other lane; its next change ends U(lower, upper) s plus
+        the change's duration (`lane_change_distance / bot_car_speed`) from now (AWS's timers)."""
+        now = self.clock[run][:, None]
+        due = now >= self.change_end[run]
+        if not due.any():
+            return
+        rows, cols = np.nonzero(due)
+        cars = run[rows]
+        ended = self.change_end[cars, cols] > 0.0
+        self.lane[cars[ended], cols[ended]] *= -1
+        r = self.race
+        end = self.clock[cars] + self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, cars.size)
+        self.change_end[cars, cols] = end + self.change_s
+        self.change_start[cars, cols] = end
+
+    def _bot_xy(self, rows: np.ndarray, lanes: Lanes, clock: np.ndarray, dd: float = 0.0) -> np.ndarray:
+        """Bot positions (k, m, 2) of cars `rows` (one driving direction) at bot clock `clock` (k,): on their lane
+        at `d0 + speed * clock` of centre line, blended into the other lane during a lane change (smoothstep of
+        the change's elapsed share, so the path leaves and joins the lane lines tangentially); `dd` m further on."""
+        d = self.d0[rows] + self.speed * clock[:, None] + dd
+        lane = self.lane[rows]
+        inner, outer = lanes.at_centre_dist(1, d), lanes.at_centre_dist(-1, d)
+        here = np.where((lane == 1)[..., None], inner, outer)
+        if not self.lane_changes:
+            return here
+        there = np.where((lane == 1)[..., None], outer, inner)
+        a = np.clip((clock[:, None] - self.change_start[rows]) / self.change_s, 0.0, 1.0)
+        w = (a * a * (3.0 - 2.0 * a))[..., None]
+        return here + w * (there - here)
+
+    def _drive(self, run: np.ndarray) -> None:
+        """Poses of the bots of cars `run` at their clocks; the yaw is the path's direction (a central difference
+        over +-5 cm of centre line)."""
+        h = 0.05 / self.speed if self.speed > 0 else 0.0  # the clock time of 5 cm
+        for rev in (False, True):
+            rows = run[self.rev[run] == rev]
+            if rows.size == 0:
+                continue
+            lanes = self.lanes[int(rev)]
+            c = self.clock[rows]
+            self.xy[rows] = self._bot_xy(rows, lanes, c)
+            dd = 0.0 if h > 0 else 0.05  # standing bots: 5 cm along their path
+            ahead = self._bot_xy(rows, lanes, c + h, dd) - self._bot_xy(rows, lanes, c - h, -dd)
+            self.yaw[rows] = np.arctan2(ahead[..., 1], ahead[..., 0])
+        self._measure(run)
+
+    def follow(self, x, y, yaw, rows=None) -> None:
+        """Head-to-model: each car's object is the other car of its pair, at base pose (x, y, yaw) (per car of
+        the simulator); `rows` (all by default) are the cars whose object is updated."""
+        rows = np.arange(x.size) if rows is None else np.asarray(rows, dtype=np.int64)
+        other = rows ^ 1
+        self.xy[rows, 0, 0] = x[other]
+        self.xy[rows, 0, 1] = y[other]
+        self.yaw[rows, 0] = yaw[other]
+        self._measure(rows)
+
+    def pause(self, rows) -> None:
+        """The bots of cars `rows` stop for `penalty_seconds` (one of them rear-ended the car): AWS holds all bot
+        cars, moving their clock and lane-change timers on by the penalty."""
+        if not self.bots:
+            return
+        rows = np.asarray(rows, dtype=np.int64)
+        rows = rows[self.pause_left[rows] <= 0.0]
+        self.pause_left[rows] = self.race.penalty_seconds
+
+    def _measure(self, rows) -> None:
+        """The static params of the objects of cars `rows` (an index, or an array of them) at their current poses;
+        their params lists are made again when next asked for."""
+        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        m = self.num_objects
+        for rev in (False, True):
+            sel = rows[self.rev[rows] == rev]
+            if sel.size == 0:
+                continue
+            track = self.lanes[int(rev)].track
+            xy = self.xy[sel].reshape(-1, 2)
+            proj = track.project(xy)
+            self.arc[sel] = proj.s.reshape(-1, m)
+            self.dfc[sel] = np.abs(proj.lateral).reshape(-1, m)
+            # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
+            inner = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[int(rev)])
+            self.left[sel] = inner.reshape(-1, m)
+            if self.bots or self.racers:  # a car's progress is that of its front point
+                yaw = self.yaw[sel].reshape(-1)
+                front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
+                self.front_arc[sel] = track.project(front).s.reshape(-1, m)
+        self.order[rows] = np.argsort(self.arc[rows], axis=1, kind="stable")
+        for i in rows.tolist():
+            self._lists[i] = None
+
+    def _params_lists(self, i: int) -> tuple:
+        """Car i's per-object params as lists, made once per layout (boxes stand still between resets)."""
+        if self._lists[i] is None:
+            self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
+                              self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
+        return self._lists[i]
+
+    def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
+        """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
+        A car that already holds its direction's layout keeps it: nothing moves boxes between resets."""
+        holds = self._layouts.setdefault("holds", np.full(self.xy.shape[0], -1, dtype=np.int64))
+        for rev in (False, True):
+            rows = idx[(reversed_ == rev) & (holds[idx] != int(rev))]
+            if rows.size == 0:
+                continue
+            holds[rows] = int(rev)
+            one = self._layouts.get(rev)
+            if one is None:
+                one = ObjectSet(self.race, self.lanes[0].track, self.lanes[1].track, 1, self.rng)
+                one._layouts = None
+                one.place([0], [rev])
+                self._layouts[rev] = one
+            for mine, value in self._per_car_arrays(one):
+                mine[rows] = value[0]
+            for i in rows.tolist():
+                self._lists[i] = one._lists[0]
+
+    def _per_car_arrays(self, one: ObjectSet) -> list:
+        """(this set's array, the one-car set's array) for every per-car array (car axis first; names listed once)."""
+        key = ("arrays", id(one))
+        if key not in self._layouts:
+            n = self.xy.shape[0]
+            self._layouts[key] = [k for k, v in vars(one).items()
+                                  if isinstance(v, np.ndarray) and v.shape[:1] == (1,)
+                                  and getattr(self, k).shape[:1] == (n,)]
+        return [(getattr(self, k), getattr(one, k)) for k in self._layouts[key]]
+
+    def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
+        """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
+        the car's objects onto the lane on the other side of that object, as AWS starts a training episode."""
+        idx, reversed_ = np.asarray(idx), np.asarray(reversed_)
+        if self.num_objects == 0 or idx.size == 0:
+            return
+        d = np.hypot(self.xy[idx, :, 0] - pts[:, :1], self.xy[idx, :, 1] - pts[:, 1:2])  # (k, m)
+        near = np.flatnonzero(d.min(axis=1) < CLOSEST_OBJ_GAP_M)
+        if near.size == 0:
+            return
+        box_lane = self.lane[idx[near], np.argmin(d[near], axis=1)]
+        for rev in (False, True):
+            lanes = self.lanes[int(rev)]
+            for flag, lane in ((1, lanes.outer), (-1, lanes.inner)):  # the lane on the box's other side
+                sel = near[(reversed_[near].astype(bool) == rev) & (box_lane == flag)]
+                if sel.size:
+                    proj = lane.project(pts[sel])
+                    pts[sel] = lane.point_at(proj.s).reshape(-1, 2)
+                    yaw[sel] = proj.heading
+
+    def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
+        """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
+        s: the nearest objects ahead along the lap, in the car's frame (x ahead, y left) divided by 2 m, as the
+        centre points of `features`; with fewer objects the list repeats from the nearest."""
+        ahead = np.mod(self.arc[rows] - s[:, None], length)
+        order = np.argsort(ahead, axis=1, kind="stable")
+        pick = order[:, np.arange(FEATURE_OBJECTS) % self.num_objects]  # (k, F)
+        dx = self.xy[rows[:, None], pick, 0] - x[:, None]
+        dy = self.xy[rows[:, None], pick, 1] - y[:, None]
+        c, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        out[:, 0::2] = (dx * c + dy * sn) * 0.5
+        out[:, 1::2] = (-dx * sn + dy * c) * 0.5
+
+    def reset_behind(self, i: int, reversed_: bool, mx: float, my: float) -> tuple[float, float, float, float]:
+        """AWS's evaluation reset after car i (model point mx, my) hit a box: (x, y, yaw) on the lane opposite
+        the nearest box, `RESET_BEHIND_DIST_M` of centre line behind it, and that point's centre-line arc."""
+        k = int(np.argmin(np.hypot(self.xy[i, :, 0] - mx, self.xy[i, :, 1] - my)))
+        lanes = self.lanes[int(reversed_)]
+        t = lanes.track
+        s = self.arc[i, k] - RESET_BEHIND_DIST_M
+        s = s % t.length if t.closed else max(s, 0.0)
+        lane = lanes.outer if self.lane[i, k] == 1 else lanes.inner
+        proj = lane.project(t.point_at(s).reshape(1, 2))
+        x, y = lane.point_at(proj.s)[0]
+        return float(x), float(y), float(proj.heading[0]), float(s)
+
+    def crashed(self, bx, by, yaw, rows=None, car_arc=None, length: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Per car (`rows`, all by default) at base pose (bx, by, yaw): (crashed, rear_ended). A corner of the car
+        inside one of its objects' footprints is a crash; with bot cars only when the bot is ahead of the car (its
+        front point within half a lap ahead of the car's centre-line arc `car_arc`): the car ran into it. A bot
+        behind the car ran into the car: `rear_ended`, not the car's crash (AWS compares the two progresses)."""
+        rows = np.arange(bx.size) if rows is None else np.asarray(rows, dtype=np.int64)
+        inside = _corners_inside(np.asarray(bx, dtype=np.float64), np.asarray(by, dtype=np.float64),
+                                 np.asarray(yaw, dtype=np.float64), rows, self.xy, self.yaw, *self.half)  # (k, m)
+        if not (self.bots or self.racers) or car_arc is None:
+            return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
+        ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
+        return (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
+
+    def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
+        """The `objects_*` params columns for cars `idx`: the model point's xy (k, 2) and centre-line arc (k,),
+        and the base pose (x, y, yaw) for the camera test."""
+        idx = np.asarray(idx)
+        arcs = self.arc[idx]
+        order = self.order[idx]
+        sorted_arcs = np.take_along_axis(arcs, order, axis=1)
+        m = self.num_objects
+        nxt = (sorted_arcs <= model_s[:, None]).sum(axis=1)  # bisect_right
+        prv = np.where(nxt - 1 < 0, m - 1, nxt - 1)
+        nxt = np.where(nxt == m, 0, nxt)
+        rows = np.arange(idx.size)
+        prev_obj = order[rows, prv]
+        next_obj = order[rows, nxt]
+        in_cam = self.in_camera(idx, next_obj, base_pose)
+        lists = [self._params_lists(i) for i in idx.tolist()]
+        return {
+            "closest_objects": (prev_obj.tolist(), next_obj.tolist()),
+            "objects_location": [[[*p] for p in t[0]] for t in lists],  # fresh lists: the dicts own them
+            "objects_left_of_center": [t[1] for t in lists],
+            "objects_distance": [t[2] for t in lists],
+            "objects_distance_from_center": [t[3] for t in lists],
+            "objects_heading": [t[4] for t in lists],
+            "objects_speed": [[float(self.speed)] * m] * idx.size,
+            "object_in_camera": in_cam.tolist(),
+        }
+
+    def in_camera(self, idx, obj, base_pose) -> np.ndarray:
+        """Per car: object `obj` (its centre or a footprint corner, at box height) is in the camera frustum."""
+        bx, by, byaw = base_pose
+        cam_ahead, cam_z = camera_position()
+        camx = bx + cam_ahead * np.cos(byaw)
+        camy = by + cam_ahead * np.sin(byaw)
+        ox = self.xy[idx, obj, 0]
+        oy = self.xy[idx, obj, 1]
+        oyaw = self.yaw[idx, obj]
+        hl, hw = self.half
+        du = np.array([0.0, hl, hl, -hl, -hl])
+        dv = np.array([0.0, hw, -hw, hw, -hw])
+        c, s = np.cos(oyaw)[:, None], np.sin(oyaw)[:, None]
+        px = ox[:, None] + du * c - dv * s
+        py = oy[:, None] + du * s + dv * c
+        vis = camera_frustum_contains(camx[:, None], camy[:, None], cam_z, byaw[:, None], px, py, OBSTACLE_Z_M)
+        return vis.any(axis=1)
+
+
+def base_from_model_point(mx, my, heading_deg):
+    """The base pose (x, y, yaw) behind a measured model point (`MODEL_POINT_AHEAD_M` back along the heading)."""
+    yaw = np.radians(heading_deg)
+    return mx - MODEL_POINT_AHEAD_M * np.cos(yaw), my - MODEL_POINT_AHEAD_M * np.sin(yaw), yaw
+
+
+def race_layout(race: RaceConfig, track: Track) -> dict | None:
+    """Where a race's objects stand at an episode's start, for pictures: {"kind": "box" | "bot", "xy" (m, 2),
+    "yaw" (m,), "size" (length, width) m, "lane" (m,)}; None in a time trial, a head-to-model race or when the
+    layout is random (re-drawn at every reset)."""
+    if not race.has_objects or race.head_to_model:
+        return None
+    if (race.num_bot_cars and race.randomize_bot_car_locations) or \
+            (race.num_obstacles and race.randomize_obstacle_locations and not race.object_positions):
+        return None
+    sim_objects = ObjectSet(race, track, track.reverse(), 1, np.random.default_rng(0))
+    sim_objects.place(np.zeros(1, dtype=np.int64), np.zeros(1, dtype=bool))
+    return {"kind": "bot" if sim_objects.bots else "box", "xy": sim_objects.xy[0].copy(),
+            "yaw": sim_objects.yaw[0].copy(), "size": tuple(sim_objects.box_size_m), "lane": sim_objects.lane[0].copy()}

@@ -1,0 +1,206 @@
+"""The camera, stereo and lidar see the race's objects: boxes and bot cars, nearest surface first."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from racerlab.sim import Simulator
+from racerlab.sim.objects import RaceConfig
+from racerlab.sim.sensors import Camera, Lidar
+from racerlab.sim.sensors.geometry import CAMERA_HFOV_RAD, CAMERA_PITCH_RAD, camera_position
+from racerlab.sim.sensors.look import TrackLook
+from racerlab.sim.sensors.solids import AMBIENT, BOT_CAR_HEIGHT_M, DIFFUSE, LIGHT_DIR
+from racerlab.track import from_array
+
+H, W = 120, 160
+F_PX = 0.5 * W / math.tan(0.5 * CAMERA_HFOV_RAD)
+CAM_X, CAM_Z = camera_position()
+BOX_L, BOX_W, BOX_H = 0.40, 0.30, 0.25  # AWS box_obstacle model
+
+
+@pytest.fixture(scope="module")
+def straight():
+    """A straight road along +x from x = -5 to 40, 1 m wide, centred on y = 0."""
+    x = np.linspace(-5.0, 40.0, 91)
+    z = np.zeros_like(x)
+    return from_array(np.column_stack([x, z, x, z + 0.5, x, z - 0.5]), name="straight")
+
+
+def box_sim(track, boxes, cars=1):
+    """A simulator whose cars each have these boxes (x, y, yaw), set by hand; the cars at the origin, heading +x."""
+    positions = [[0.1 + 0.1 * k, 1] for k in range(len(boxes))]
+    sim = Simulator(track, cars, seed=0, race=RaceConfig(type="object_avoidance", object_positions=positions))
+    sim.reset()
+    for i in range(cars):
+        sim.set_pose(i, 0.0, 0.0, 0.0)  # (places the car's boxes again: set them after)
+    sim.objects.xy[:] = np.asarray(boxes, dtype=float)[None, :, :2]
+    sim.objects.yaw[:] = np.asarray(boxes, dtype=float)[None, :, 2]
+    return sim
+
+
+def row_of(elevation_rad):
+    """Image row coordinate (0 = top edge) of a direction `elevation_rad` above the horizontal."""
+    return 0.5 * H - F_PX * math.tan(elevation_rad + CAMERA_PITCH_RAD)
+
+
+def face_grey(nx, ny):
+    """The grey of a box side whose outward normal is (nx, ny) in the world (half-Lambert under LIGHT_DIR)."""
+    g = TrackLook().object_grey()
+    return g * (AMBIENT + DIFFUSE * 0.5 * (1.0 + nx * LIGHT_DIR[0] + ny * LIGHT_DIR[1]))
+
+
+def test_a_box_ahead_covers_the_rows_and_columns_the_camera_model_predicts(straight):
+    ahead = 2.0  # box centre, m ahead of the base; its near face is 1.8 m ahead, 1.8 - CAM_X from the camera
+    sim = box_sim(straight, [(ahead, 0.0, 0.0)])
+    img = Camera(sim).render()[0, :, :, 0].astype(float)
+    d = ahead - 0.5 * BOX_L - CAM_X
+    top = row_of(math.atan2(BOX_H - CAM_Z, d))  # the face's top edge, above the camera (the top face is hidden)
+    bottom = row_of(math.atan2(-CAM_Z, d))
+    assert 14 < top < 18 and 35 < bottom < 38  # 0.12 m above and 0.13 m below the camera, 1.65 m away
+    face = face_grey(-1.0, 0.0)  # we look at the box's back (-x) face
+    col = img[:, W // 2]
+    inside = [r for r in range(H) if top < r + 0.5 < bottom]
+    assert np.all(np.abs(col[inside] - face) <= 1.0)
+    assert abs(col[math.floor(top) - 1] - face) > 20 and abs(col[math.ceil(bottom)] - face) > 20
+    # columns at the row through the face's middle: the face spans +-0.15 m across at depth d along the view
+    r = int(0.5 * (top + bottom))
+    elev = math.atan2(0.5 * H - (r + 0.5), F_PX) - CAMERA_PITCH_RAD
+    depth = d * math.cos(CAMERA_PITCH_RAD + elev) / math.cos(elev)  # along the optical axis
+    half = F_PX * 0.5 * BOX_W / depth
+    seen = np.flatnonzero(np.abs(img[r] - face) <= 1.0)
+    assert seen.min() == math.ceil(0.5 * W - half - 0.5)
+    assert seen.max() == math.floor(0.5 * W + half - 0.5)
+
+
+def test_a_box_behind_another_is_hidden(straight):
+    near, far = (1.5, 0.0, 0.0), (3.0, 0.0, 0.0)
+    both = Camera(box_sim(straight, [near, far])).render()[0]
+    alone = Camera(box_sim(straight, [near, (-20.0, 8.0, 0.0)])).render()[0]  # the second box behind the car
+    far_only = Camera(box_sim(straight, [(-20.0, 8.0, 0.0), far])).render()[0]
+    assert np.array_equal(both, alone)
+    assert (far_only != alone).sum() > 100  # the far box alone is visible, so hiding it was the near box's doing
+    # a box in front of the far one (nearer, lower in the picture) hides it only where they overlap
+    offset = Camera(box_sim(straight, [(1.5, 0.35, 0.0), far])).render()[0]
+    assert (offset != alone).sum() > 100
+
+
+def test_the_box_hides_the_road_behind_it_not_in_front(straight):
+    sim = box_sim(straight, [(2.0, 0.0, 0.0)])
+    img = Camera(sim).render()[0, :, :, 0].astype(float)
+    empty = Camera(box_sim(straight, [(-20.0, 8.0, 0.0)])).render()[0, :, :, 0].astype(float)
+    bottom = row_of(math.atan2(-CAM_Z, 2.0 - 0.5 * BOX_L - CAM_X))
+    below = slice(math.ceil(bottom) + 1, H)
+    assert np.array_equal(img[below], empty[below])  # the road between the car and the box
+    assert (img[: math.floor(bottom)] != empty[: math.floor(bottom)]).any()
+
+
+def test_box_sides_are_shaded_and_far_boxes_fade_into_haze(straight):
+    # turned 45 degrees, the box shows the camera two sides: -x (normal (-1, -1)/sqrt 2) and +y (normal (-1, 1)/sqrt 2)
+    q = math.sqrt(0.5)
+    row = Camera(box_sim(straight, [(2.0, 0.0, math.pi / 4)])).render()[0, 30, :, 0].astype(float)  # mid-box
+    for normal in ((-q, -q), (-q, q)):
+        assert np.abs(row - face_grey(*normal)).min() <= 1.0
+    assert abs(face_grey(-q, -q) - face_grey(-q, q)) > 10
+    far = Camera(box_sim(straight, [(20.0, 0.0, 0.0)])).render()[0, :, :, 0].astype(float)
+    haze = TrackLook().grey()[6]
+    fade = ((20.0 - 0.2 - CAM_X - 4.0) / 26.0) ** 0.7  # the ground's haze ramp, 4 to 30 m
+    expected = face_grey(-1.0, 0.0) * (1.0 - fade) + haze * fade
+    r = int(0.5 * (row_of(math.atan2(BOX_H - CAM_Z, 19.7)) + row_of(math.atan2(-CAM_Z, 19.7))))
+    assert far[r, W // 2] == pytest.approx(expected, abs=1.5)
+
+
+def test_stereo_disparity_matches_the_baseline(straight):
+    ahead = 1.6
+    sim = box_sim(straight, [(ahead, 0.0, 0.0)])
+    st = Camera(sim, stereo=True).render()[0].astype(float)
+    d = ahead - 0.5 * BOX_L - CAM_X
+    top = row_of(math.atan2(BOX_H - CAM_Z, d))
+    bottom = row_of(math.atan2(-CAM_Z, d))
+    r = int(0.5 * (top + bottom))
+    elev = math.atan2(0.5 * H - (r + 0.5), F_PX) - CAMERA_PITCH_RAD
+    depth = d * math.cos(CAMERA_PITCH_RAD + elev) / math.cos(elev)
+    face = face_grey(-1.0, 0.0)
+    left = np.flatnonzero(np.abs(st[r, :, 0] - face) <= 1.0)
+    right = np.flatnonzero(np.abs(st[r, :, 1] - face) <= 1.0)
+    disparity = F_PX * 0.06 / depth  # the left eye sees the box further right
+    assert 0.5 * ((left.min() - right.min()) + (left.max() - right.max())) == pytest.approx(disparity, abs=1.0)
+    assert left.min() > right.min()
+
+
+def test_each_car_sees_only_its_own_boxes(straight):
+    sim = box_sim(straight, [(2.0, 0.0, 0.0)], cars=2)
+    sim.objects.xy[1] = [[-20.0, 8.0]]  # car 1's box is out of its view
+    f = Camera(sim).render()
+    empty = Camera(box_sim(straight, [(-20.0, 8.0, 0.0)])).render()[0]
+    assert np.array_equal(f[1], empty) and not np.array_equal(f[0], empty)
+
+
+def test_boxes_move_with_the_object_set(straight):
+    sim = box_sim(straight, [(2.0, 0.0, 0.0)])
+    cam = Camera(sim)
+    a = cam.render()[0].copy()
+    sim.objects.xy[0, 0] = [2.0, 0.3]
+    b = cam.render()[0]
+    assert not np.array_equal(a, b)
+
+
+def test_a_bot_car_is_lower_and_darker_than_a_box(straight):
+    sim = box_sim(straight, [(2.0, 0.0, 0.0)])
+    sim.objects.bots = True  # a head-to-bot race's object set: car-sized objects
+    sim.objects.box_size_m = np.array([0.32352, 0.1961])
+    img = Camera(sim).render()[0, :, :, 0].astype(float)
+    d = 2.0 - 0.5 * 0.32352 - CAM_X
+    top = row_of(math.atan2(BOT_CAR_HEIGHT_M - CAM_Z, d))
+    grey = TrackLook().object_grey(bot_car=True) * (AMBIENT + DIFFUSE * 0.5 * (1.0 - LIGHT_DIR[0]))
+    col = img[:, W // 2]
+    assert abs(col[math.ceil(top)] - grey) <= 1.0 and abs(col[math.floor(top) - 1] - grey) > 10
+    assert grey < face_grey(-1.0, 0.0) - 30
+
+
+def test_lidar_hits_the_near_face_of_a_box_beside_the_car(straight):
+    # the lidar's ray 15 looks left-behind; a box straight left at 0.6 m: the ray along +y hits y = 0.6 - 0.15
+    sim = box_sim(straight, [(0.029, 0.6, 0.0)])
+    lidar = Lidar(sim, noise_sigma_m=0.0)
+    r = lidar.scan()[0]
+    angles = np.degrees(np.arctan2(np.sin(lidar.angles), np.cos(lidar.angles)))
+    k = int(np.argmin(np.abs(angles - 90.0)))
+    expected = 0.45 / math.cos(math.radians(angles[k] - 90.0))
+    assert r[k] == pytest.approx(expected, abs=1e-6)
+    assert r[int(np.argmin(np.abs(angles + 90.0)))] == pytest.approx(1.0)  # nothing on the right
+
+
+def test_copied_layouts_equal_placing_each_car(aws_track):
+    """Fixed and evenly spaced layouts are placed once per direction and copied: the same arrays and params."""
+    from racerlab.sim.objects import ObjectSet
+
+    track = aws_track("reInvent2019_track")
+    race = RaceConfig(type="object_avoidance", number_of_obstacles=4)
+    fast = ObjectSet(race, track, track.reverse(), 3, np.random.default_rng(0))
+    slow = ObjectSet(race, track, track.reverse(), 3, np.random.default_rng(0))
+    slow._layouts = None
+    rev = np.array([False, True, False])
+    fast.place([0, 1, 2], rev)
+    slow.place([0, 1, 2], rev)
+    for name in ("xy", "yaw", "arc", "dfc", "left", "lane", "order", "rev"):
+        assert np.array_equal(getattr(fast, name), getattr(slow, name)), name
+    assert fast._lists == slow._lists
+    assert not np.array_equal(fast.xy[0], fast.xy[1])  # the reversed direction has its own layout
+
+
+def test_sim_view_draws_a_race_s_boxes(tmp_path, capsys):
+    from racerlab.cli import main
+    from racerlab.sim.sensors.view import BOX_COLOR, sensor_view
+    from racerlab.track import load
+
+    out = tmp_path / "view.png"
+    assert main(["sim", "view", "lab_technical", "--out", str(out), "--cars", "2", "--object-positions",
+                 "0.1,1;0.6,-1"]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "wrote" in capsys.readouterr().out
+    fig = sensor_view(load("lab_technical"), 2, race={"type": "object_avoidance", "object_positions": ["0.1,1"]})
+    top, lidar = fig.axes[0], fig.axes[2]
+    boxes = [p for p in top.patches if p.get_facecolor()[:3] == pytest.approx([0xC8 / 255, 0xA0 / 255, 0x6E / 255])]
+    assert len(boxes) == 2 and BOX_COLOR == "#c8a06e"  # car 1's and car 2's box, at the same place
+    assert "boxes per car: 1" in fig._suptitle.get_text() and lidar.patches
