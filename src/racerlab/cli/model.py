@@ -24,6 +24,9 @@ def register(sub) -> None:
     p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
                    help="reward template: example (centre, heading and speed), centre_line, progress (progress "
                         "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
+    p.add_argument("--preset", choices=["generalise"],
+                   help="training preset: generalise (8 generated tracks, new ones every 5 iterations; a lidar "
+                        "model sees the borders as walls)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -54,7 +57,7 @@ def run_init(args) -> int:
 
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
-                        best_model_metric=args.best_model_metric, force=args.force)
+                        best_model_metric=args.best_model_metric, force=args.force, preset=args.preset)
     if args.reward != "example":
         from racerlab.rewards import top_speed, write_reward
 

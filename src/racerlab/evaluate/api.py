@@ -140,13 +140,13 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
     return agent.policy
 
 
-def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0):
+def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, randomise=None):
     from racerlab.sim import StartRules, World
 
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
     return World(track, 1, model.metadata, model.reward_path, model.observation, start=start,
-                 max_episode_steps=rules.max_episode_steps, seed=seed)
+                 max_episode_steps=rules.max_episode_steps, seed=seed, randomise=randomise)
 
 
 # ---- evaluate -------------------------------------------------------------------------------------
@@ -156,19 +156,20 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
              collision_penalty: float = 5.0, max_resets: int = 100, checkpoint: str | int = "best",
              reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
              ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
-             progress: bool = False, on_lap=None) -> EvaluationResult:
+             progress: bool = False, on_lap=None, randomise=None) -> EvaluationResult:
     """Evaluate the model in `model_dir` under race rules (DRfC defaults) and write its evaluation folder.
 
     `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
     or an iteration number. `rules` replaces the individual rule arguments. With `video` an MP4 of
     the run is written too (`progress` shows rendering progress on stderr). `write=False` keeps
-    everything in memory. `on_lap(lap)` is called as each lap ends.
+    everything in memory. `on_lap(lap)` is called as each lap ends. `randomise` (`RandomiseSettings` or
+    its dict) drives the car under domain randomisation, or with the physical car's speed mapping.
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
     track_obj = resolve_track(model.folder, track)
-    world = make_world(model, track_obj, rules)
+    world = make_world(model, track_obj, rules, randomise=randomise)
     policy = make_policy(model, world, device)
     image_of = None
     if video:

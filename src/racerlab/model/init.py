@@ -42,9 +42,29 @@ def make_metadata(sensor: str = "features", action_space: str = "discrete", algo
     return ModelMetadata(actions, sensors, network, algorithm, 5.0)
 
 
+# training presets of `racerlab init --preset NAME`: training.toml settings laid over the defaults
+PRESETS = {
+    # train over 8 generated circuits, drawn anew every 5 iterations, to drive tracks never seen
+    "generalise": {"track": {"generated": 8, "regenerate_every": 5}},
+}
+
+
+def apply_preset(cfg: TrainingConfig, preset: str | None, sensor: str) -> TrainingConfig:
+    if not preset:
+        return cfg
+    if preset not in PRESETS:
+        raise RacerlabError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    for section, values in PRESETS[preset].items():
+        cfg = replace(cfg, **{section: replace(getattr(cfg, section), **values)})
+    if preset == "generalise" and sensor == "lidar":
+        # AWS tracks are flat paint: a lidar sees nothing there unless the borders count as walls
+        cfg = replace(cfg, run=replace(cfg.run, observation="lidar:walls"))
+    return cfg
+
+
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
-               best_model_metric: str | None = None, force: bool = False) -> ModelFolder:
+               best_model_metric: str | None = None, force: bool = False, preset: str | None = None) -> ModelFolder:
     folder = ModelFolder(path)
     existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
@@ -66,6 +86,7 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
     if sensor != "features":
         # pixels cost more per step; fewer cars keep an iteration's memory and time moderate
         cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars or 16))
+    cfg = apply_preset(cfg, preset, sensor)
     folder.path.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(EXAMPLE_REWARD, folder.reward_path)
     folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
@@ -86,5 +107,11 @@ _TOML_HEADER = """\
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)
 #   [logs]   simtrace_every: log every k-th training episode; compress: gzip the simtrace CSVs
+#   [track]  generated = N trains on N generated circuits (names then holds the evaluation track), drawn
+#            anew every regenerate_every iterations, within the generated_* length / width / radius ranges
+#   [randomise] domain randomisation for the physical car (all off by default; docs/learner.md):
+#            camera_noise, blur, exposure, gamma, lighting, pose_yaw_deg, pose_pitch_deg, pose_shift_m,
+#            lidar_noise_m, latency_steps (0-2), steering_gain, throttle_gain; speed_scale and top_speed
+#            map speeds relative to the action space's top, as the car does; evaluation: also in eval episodes
 
 """
