@@ -148,15 +148,13 @@ def evaluate_tracks(model_dir, tracks, trials: int = 1, checkpoint: str | int = 
     loaded = _load_closed([t for t in tracks if not hasattr(t, "center")]) if tracks else []
     objs = [t for t in tracks if hasattr(t, "center")] + loaded
     rules = RaceRules(trials=trials, continuous=False, max_resets=0, max_episode_steps=int(MAX_LAP_SECONDS * 15))
-    policy = None
     runs = [plain, randomise] if randomise is not None else [plain]
     results: list[list[TrackOutcome]] = [[] for _ in runs]
     for track in objs:
         for k, r in enumerate(runs):
             world = World(track, 1, model.metadata, None, model.observation, start=StartRules(),
                           max_episode_steps=rules.max_episode_steps, seed=seed, randomise=r)
-            policy = policy or make_policy(model, world, device)
-            outcome = _outcome(run_evaluation(world, policy, rules).laps, track.name)
+            outcome = _outcome(run_evaluation(world, make_policy(model, world, device), rules).laps, track.name)
             results[k].append(outcome)
             if on_track is not None:
                 on_track(outcome, k == 1)
