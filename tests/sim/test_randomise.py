@@ -199,3 +199,18 @@ def test_randomisation_does_not_touch_the_observation_of_other_rows():
     again = w.observe(rows=[1])
     assert np.array_equal(again[[0, 2, 3]], w.observation.inner.camera.frames[[0, 2, 3]])
     assert not np.array_equal(again[1], full[1])  # fresh noise for the row rendered
+
+
+def test_the_reward_sees_the_models_action_and_the_car_the_applied_one():
+    seen = []
+
+    def reward(params):
+        seen.append((params["steering_angle"], params["speed"]))
+        return 1.0
+
+    w = World("lab_oval", 1, CONTINUOUS, reward, "features", seed=0,
+              randomise={"latency_steps": 1, "speed_scale": 0.5})
+    w.step(np.array([[0.2, 1.0]]))
+    w.step(np.array([[0.4, 1.0]]))
+    assert seen[-1] == pytest.approx((12.0, 2.0))  # the action chosen at this step, in the action space's m/s
+    assert _applied(w)[0][0] == pytest.approx(6.0) and _applied(w)[1][0] == pytest.approx(1.0)

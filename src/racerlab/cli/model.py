@@ -7,6 +7,7 @@ from pathlib import Path
 
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
+    from racerlab.model.init import PRESETS
     from racerlab.rewards import TEMPLATES as REWARD_TEMPLATES
 
     p = sub.add_parser("init", help="create a model folder with AWS-default files",
@@ -24,7 +25,7 @@ def register(sub) -> None:
     p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
                    help="reward template: example (centre, heading and speed), centre_line, progress (progress "
                         "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
-    p.add_argument("--preset", choices=["generalise"],
+    p.add_argument("--preset", choices=list(PRESETS),
                    help="training preset: generalise (8 generated tracks, new ones every 5 iterations; a lidar "
                         "model sees the borders as walls)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")

@@ -131,7 +131,9 @@ class World:
             speed_all = np.zeros(sim.num_cars)
             steer_all[idx], speed_all[idx] = steer, speed
             steer, speed = steer_all, speed_all
+        chosen = None
         if self.actuation is not None:
+            chosen = (steer, speed)  # the reward sees the model's action, as on AWS; the car drives the applied one
             steer, speed = self.actuation(steer, speed, sim.ctr[:, K.KSTEPS], active)
         codes = sim.step(steer, speed, active).copy()
         rewards = np.zeros(sim.num_cars)
@@ -141,7 +143,7 @@ class World:
             run = np.flatnonzero(stepped if active is None else stepped & active)
             kept = [] if self.keep_params else None
             if run.size:
-                rewards[run] = self.reward(self.builder.each(run), run, kept)
+                rewards[run] = self.reward(self.builder.each(run, actions=chosen), run, kept)
             if kept is not None:
                 self.params = [None] * sim.num_cars
                 for j, i in enumerate(run.tolist()):
