@@ -78,7 +78,7 @@ def run(kind: str, args) -> dict:
             "share_completed": out["share_completed"], "target_share": TARGET_SHARE,
             "randomised_share_completed": out["randomised_share_completed"],
             "drop_under_randomisation": out["drop_under_randomisation"],
-            "randomisation": {k: v for k, v in vars(RANDOMISE[kind]).items() if v != getattr(RandomiseSettings(), k)},
+            "randomisation": RANDOMISE[kind].changed(),
             "lapped": [t["track"] for t in out["per_track"] if t["laps"]],
             "not_lapped": [t["track"] for t in out["per_track"] if not t["laps"]],
             "evaluation_seconds": out["wall_seconds"], "cpu_count": os.cpu_count(),

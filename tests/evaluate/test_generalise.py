@@ -96,3 +96,13 @@ def test_evaluation_takes_speeds_relative_to_the_action_space_top(tmp_path, flag
     assert trace["throttle"].iloc[1:].max() == pytest.approx(2.0)
     driven = np.hypot(np.diff(trace["X"]), np.diff(trace["Y"])) * 15  # m/s between rows, 15 steps a second
     assert throttle * 0.9 < driven.max() <= throttle * 1.02
+
+
+def test_race_under_the_models_randomise_table_says_so(tmp_path, capsys):
+    folder = write_model(tmp_path / "m", aws_track_path("reInvent2019_track"), ((0.0, 1.0),))
+    write_checkpoint(folder)
+    folder.config_path.write_text(folder.config_path.read_text() + "[randomise]\nlatency_steps = 1\n")
+    assert main(["evaluate", str(folder.path), "--trials", "1", "--max-resets", "0", "--randomise"]) == 0
+    assert "randomised (latency_steps 1)" in capsys.readouterr().out
+    summary = json.loads(next(folder.path.glob("evaluation-*/summary.json")).read_text())
+    assert summary["randomise"] == {"latency_steps": 1}

@@ -46,6 +46,7 @@ class EvaluationResult:
     steps: int = 0
     wall_seconds: float = 0.0
     run: EvalRun | None = field(default=None, repr=False)
+    randomise: dict | None = None  # the [randomise] options (or speed mapping) driven under, those set only
 
     @property
     def text(self) -> str:
@@ -56,6 +57,8 @@ class EvaluationResult:
         r = self.rules
         mode = "continuous" if r.continuous else "separate"
         direction = ", reversed" if r.reverse else ""
+        if self.randomise:
+            direction += ", randomised (" + ", ".join(f"{k} {v:g}" for k, v in self.randomise.items()) + ")"
         return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {r.trials} trials, {mode} laps, "
                 f"off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
 
@@ -73,6 +76,7 @@ class EvaluationResult:
             "laps": [lap.to_json() for lap in self.laps], "steps": self.steps,
             "wall_seconds": round(self.wall_seconds, 3),
             "files": {k: str(v.relative_to(self.out_dir)) for k, v in self.files.items()} if self.out_dir else {},
+            "randomise": self.randomise,
             "created": datetime.now().isoformat(timespec="seconds"),
         }
 
@@ -179,7 +183,8 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
     result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
-                              wall_seconds=run.wall_seconds, run=run)
+                              wall_seconds=run.wall_seconds, run=run,
+                              randomise=world.randomise.changed() if world.randomise else None)
     if write:
         _write(result, world, video, progress)
     return result

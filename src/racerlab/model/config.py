@@ -99,7 +99,11 @@ class RandomiseSettings:
     @property
     def active(self) -> bool:
         """True when any option differs from its default (the plain, fastest path otherwise)."""
-        return any(getattr(self, f.name) != f.default for f in fields(self) if f.name != "evaluation")
+        return any(k != "evaluation" for k in self.changed())
+
+    def changed(self) -> dict:
+        """The options that differ from their defaults, by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) != f.default}
 
 
 @dataclass(frozen=True)
