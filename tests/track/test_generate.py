@@ -192,3 +192,19 @@ def test_pure_pursuit_laps_every_bundled_track(name, reverse):
 
 def test_build_matches_load():
     np.testing.assert_allclose(build("lab_oval").as_array(), track.load("lab_oval").as_array(), atol=1e-9)
+
+
+def test_generate_many_draws_valid_tracks_in_the_ranges_and_repeats():
+    from racerlab.track.generate import generate_many
+
+    tracks = generate_many(11, 5, length=(20.0, 40.0), width=(0.8, 1.0), min_radius=0.6)
+    assert len(tracks) == 5 and len({t.name for t in tracks}) == 5
+    for t in tracks:
+        assert t.closed and 20.0 - 1e-6 <= t.length <= 40.0 + 1e-6
+        assert 0.8 - 1e-6 <= t.width <= 1.0 + 1e-6
+        # no bend of the centre line tighter than the radius asked (the generator's own check, 1e-4 slack)
+        assert np.abs(t.curvature).max() <= 1 / 0.6 * (1 + 1e-3)
+    again = generate_many(11, 5, length=(20.0, 40.0), width=(0.8, 1.0), min_radius=0.6)
+    assert all(np.array_equal(a.center, b.center) for a, b in zip(tracks, again, strict=True))
+    other = generate_many(12, 5, length=(20.0, 40.0), width=(0.8, 1.0), min_radius=0.6)
+    assert not np.array_equal(tracks[0].center, other[0].center)

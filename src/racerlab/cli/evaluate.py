@@ -78,6 +78,19 @@ def register(sub) -> None:
     p.add_argument("model", type=Path, help="model folder")
     _rule_flags(p)
     _race_flags(p)
+    p.add_argument("--tracks-from", type=Path, metavar="DIR",
+                   help="generalisation: drive one lap (no resets) on --count tracks of DIR (.npy files) the model "
+                        "never trained on and print the share it completes")
+    p.add_argument("--count", type=int, default=20, help="tracks taken from --tracks-from (default 20)")
+    p.add_argument("--json", type=Path, metavar="FILE", help="with --tracks-from: also write the result as JSON")
+    p.add_argument("--randomise", action="store_true",
+                   help="drive under the [randomise] settings of the model's training.toml; with --tracks-from "
+                        "the tracks are driven with and without it and the drop in lap completion is printed")
+    p.add_argument("--speed-scale", type=float, metavar="F",
+                   help="the physical car's max-speed setting as a fraction: speeds are taken relative to the "
+                        "action space's top speed and scaled by F (default 1)")
+    p.add_argument("--top-speed", type=float, metavar="MPS",
+                   help="m/s that the action space's top speed stands for (default: its own value)")
     p.set_defaults(func=run_evaluate)
 
     p = sub.add_parser("race", help="evaluate several models under the same rules and rank them",
@@ -105,12 +118,62 @@ def _print_lap(lap) -> None:
     print(f"  lap {lap.trial}: {how}", file=sys.stderr, flush=True)
 
 
+def _settings(args):
+    """(plain, randomised) settings the flags ask for: the speed mapping alone (None when not asked), and
+    the model's [randomise] table with that mapping (None without --randomise)."""
+    from dataclasses import replace
+
+    from racerlab.errors import RacerlabError
+    from racerlab.model import ModelFolder
+    from racerlab.model.config import RandomiseSettings
+
+    if (args.speed_scale is not None and args.speed_scale <= 0) or (args.top_speed or 0) < 0:
+        raise RacerlabError("--speed-scale must be > 0 and --top-speed >= 0")
+    speed = {"speed_scale": args.speed_scale or 1.0, "top_speed": args.top_speed or 0.0}
+    plain = RandomiseSettings(**speed)
+    if not args.randomise:
+        return (plain if plain.active else None), None
+    folder = ModelFolder(args.model)
+    r = folder.config().randomise
+    if not r.active:
+        raise RacerlabError(f"{folder.config_path}: [randomise] sets no option; add some (e.g. camera_noise = 4, "
+                            "latency_steps = 1) or leave out --randomise")
+    if plain.active:
+        r = replace(r, **speed)
+    return (plain if plain.active else None), r
+
+
+def run_generalisation(args) -> int:
+    from racerlab.evaluate.generalise import evaluate_tracks, held_out_tracks
+    from racerlab.logs import atomic_write_json, finite_json
+    from racerlab.model import ModelFolder
+
+    plain, randomised = _settings(args)
+    paths = held_out_tracks(args.tracks_from, args.count, exclude=ModelFolder(args.model).config().track.names)
+
+    def done(outcome, is_randomised):
+        how = "randomised " if is_randomised else ""
+        print(f"  {how}{outcome.track}: {outcome.laps}/{outcome.trials} laps, best progress "
+              f"{outcome.best_progress:.0f} %", file=sys.stderr, flush=True)
+
+    res = evaluate_tracks(args.model, paths, trials=args.trials, checkpoint=args.checkpoint, device=args.device,
+                          plain=plain, randomise=randomised, on_track=done)
+    print(res.report())
+    if args.json:
+        atomic_write_json(args.json, finite_json(res.to_json()), indent=2)
+        print(f"written to {args.json}")
+    return 0
+
+
 def run_evaluate(args) -> int:
     from racerlab.evaluate import evaluate
 
+    if args.tracks_from:
+        return run_generalisation(args)
+    plain, randomised = _settings(args)
     res = evaluate(args.model, track=args.track, rules=_rules(args), checkpoint=args.checkpoint, video=args.video,
                    ranking_laps=args.ranking_laps, device=args.device, progress=True, on_lap=_print_lap,
-                   race=race_overrides(args) or None)
+                   race=race_overrides(args) or None, randomise=randomised or plain)
     print(res.report())
     names = ", ".join(str(p.relative_to(res.out_dir)) for p in res.files.values())
     print(f"written to {res.out_dir}: {names}")

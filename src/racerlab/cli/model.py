@@ -10,6 +10,7 @@ from racerlab.errors import RacerlabError
 
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
+    from racerlab.model.init import PRESETS
     from racerlab.rewards import TEMPLATES as REWARD_TEMPLATES
 
     p = sub.add_parser("init", help="create a model folder with AWS-default files",
@@ -30,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot"], default="time_trial",
                    help="object_avoidance: three boxes in [race], head_to_bot: three bot cars; both with an example "
                         "reward using objects_* (with --reward example)")
+    p.add_argument("--preset", choices=list(PRESETS),
+                   help="training preset: generalise (8 generated tracks, new ones every 5 iterations; a lidar "
+                        "model sees the borders as walls)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -62,7 +66,8 @@ def run_init(args) -> int:
 
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
-                        best_model_metric=args.best_model_metric, force=args.force, race=args.race)
+                        best_model_metric=args.best_model_metric, force=args.force, race=args.race,
+                        preset=args.preset)
     if args.reward != "example":
         from racerlab.rewards import top_speed, write_reward
 

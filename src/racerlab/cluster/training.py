@@ -72,6 +72,9 @@ class ClusterTrainer(Trainer):
             self.collector.actors[k].set_starts.remote(starts)
         return info, ck
 
+    def _redraw_if_due(self):
+        """Generated tracks are drawn once per worker (its own seed); they are not redrawn during the run."""
+
     def _checkpoint_state(self) -> dict:
         state = super()._checkpoint_state()
         state["worker_episodes"] = list(self.collector.episodes)

@@ -70,6 +70,7 @@ class RolloutWorker:
                       seed=cfg.run.seed + 1009 * index, device="cpu")
         self.cfg = replace(cfg, track=track, run=run)
         self._track_flag = bool(overrides.get("tracks"))
+        self.draw = 0  # generated tracks ([track] generated): a worker keeps its first draw
         self.watchdog = RewardWatchdog(folder.reward_function(), cfg.run.reward_budget_s,
                                        lambda text: print(f"worker {index}: {text}", flush=True))
         self.reward = RewardCaller(self.watchdog)

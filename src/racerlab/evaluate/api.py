@@ -48,6 +48,7 @@ class EvaluationResult:
     wall_seconds: float = 0.0
     run: EvalRun | None = field(default=None, repr=False)
     race: dict | None = None  # the [race] table the evaluation drove (summary.json "race")
+    randomise: dict | None = None  # the [randomise] options (or speed mapping) driven under, those set only
 
     @property
     def text(self) -> str:
@@ -58,6 +59,8 @@ class EvaluationResult:
         r = self.rules
         mode = "continuous" if r.continuous else "separate"
         direction = ", reversed" if r.reverse else ""
+        if self.randomise:
+            direction += ", randomised (" + ", ".join(f"{k} {v:g}" for k, v in self.randomise.items()) + ")"
         return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {r.trials} trials, {mode} laps, "
                 f"off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
 
@@ -75,6 +78,7 @@ class EvaluationResult:
             "laps": [lap.to_json() for lap in self.laps], "steps": self.steps,
             "wall_seconds": round(self.wall_seconds, 3), "race": self.race,
             "files": {k: str(v.relative_to(self.out_dir)) for k, v in self.files.items()} if self.out_dir else {},
+            "randomise": self.randomise,
             "created": datetime.now().isoformat(timespec="seconds"),
         }
 
@@ -157,16 +161,18 @@ def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate")
     return RaceConfig.from_mapping({**race_table(base), **race}, where=where)
 
 
-def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None, race=None):
+def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None, race=None, randomise=None):
     """The race world. The model folder's reward_function.py is never imported (racing someone's model must
     not run their code): the reward column is 0, as AWS's evaluation logs it, unless `reward` (a callable or
-    a path the user chose) is given. `race` (a RaceConfig, or [race] keys over the model's): see `race_config`."""
+    a path the user chose) is given. `race` (a RaceConfig, or [race] keys over the model's): see `race_config`.
+    `randomise`: domain randomisation or the physical car's speed mapping (`RandomiseSettings` or its dict)."""
     from racerlab.sim import StartRules, World
 
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
     return World(track, 1, model.metadata, reward, model.observation, start=start,
-                 max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race))
+                 max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race),
+                 randomise=randomise)
 
 
 # ---- evaluate -------------------------------------------------------------------------------------
@@ -176,7 +182,7 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
              collision_penalty: float = 5.0, max_resets: int = 100, checkpoint: str | int = "best",
              reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
              ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
-             progress: bool = False, on_lap=None, reward=None, race=None) -> EvaluationResult:
+             progress: bool = False, on_lap=None, reward=None, race=None, randomise=None) -> EvaluationResult:
     """Evaluate the model in `model_dir` under race rules (DRfC defaults) and write its evaluation folder.
 
     `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
@@ -185,13 +191,15 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     everything in memory. `on_lap(lap)` is called as each lap ends. The folder's reward_function.py is not
     run: the reward column is 0 (as AWS logs evaluations) unless `reward` (a callable or a file) is given.
     `race` (a RaceConfig, or a dict of [race] keys over the model's training.toml [race]): boxes crash the car,
-    which restarts 1 m behind the box; a bot car crash holds the car where it is.
+    which restarts 1 m behind the box; a bot car crash holds the car where it is. `randomise`
+    (`RandomiseSettings` or its dict) drives the car under domain randomisation, or with the physical car's
+    speed mapping.
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
     track_obj = resolve_track(model.folder, track)
-    world = make_world(model, track_obj, rules, reward=reward, race=race)
+    world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise)
     policy = make_policy(model, world, device)
     image_of = None
     if video:
@@ -201,7 +209,8 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
     run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
     result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
-                              wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race))
+                              wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race),
+                              randomise=world.randomise.changed() if world.randomise else None)
     if write:
         _write(result, world, video, progress)
     return result

@@ -26,6 +26,17 @@ class TrackSettings:
     change_start: bool = True  # CHANGE_START_POSITION
     round_robin_advance: float = 0.05  # ROUND_ROBIN_ADVANCE_DIST
     start_offset: float = 0.0  # START_POSITION_OFFSET
+    # generated tracks (racerlab.track.generate): with generated = N > 0 the training cars are spread over N
+    # random circuits instead of `names` (which then only hold the in-training evaluation track), drawn anew
+    # every `regenerate_every` iterations (0 = keep the first draw); lengths, widths and the tightest bend
+    # radius are drawn from the ranges below (AWS tracks: 17-90 m long, 0.72-1.45 m wide, bends down to 0.45 m)
+    generated: int = 0
+    regenerate_every: int = 5
+    generated_min_length: float = 20.0
+    generated_max_length: float = 60.0
+    generated_min_width: float = 0.76
+    generated_max_width: float = 1.07
+    generated_min_radius: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -63,6 +74,43 @@ class LogSettings:
 
 
 @dataclass(frozen=True)
+class RandomiseSettings:
+    """Domain randomisation for the physical car (docs/learner.md). Every option is off at its default.
+
+    Per episode (drawn for each car when its episode starts): blur, exposure, gamma, camera pose and
+    the steering / throttle gains; per frame: camera noise and lidar noise; `lighting` turns on the
+    camera's per-episode look randomisation (light colour, brightness, tone curve, gradient: the
+    `camera:dr` option). `speed_scale` and `top_speed` map speeds as the car does: relative to the
+    action space's top speed, not in m/s.
+    """
+
+    camera_noise: float = 0.0  # standard deviation of per-pixel Gaussian noise, grey levels, fresh every frame
+    blur: float = 0.0  # Gaussian blur of sigma drawn from [0, blur] pixels per episode
+    exposure: float = 0.0  # image gain drawn from [1 - exposure, 1 + exposure] per episode
+    gamma: float = 0.0  # tone exponent drawn from [1 - gamma, 1 + gamma] per episode
+    lighting: bool = False  # per-episode light colour, brightness, contrast and gradient (camera:dr)
+    pose_yaw_deg: float = 0.0  # camera yaw offset drawn from [-a, a] degrees per episode
+    pose_pitch_deg: float = 0.0  # camera pitch offset drawn from [-a, a] degrees per episode
+    pose_shift_m: float = 0.0  # sideways camera offset drawn from [-d, d] metres per episode
+    lidar_noise_m: float = 0.0  # extra Gaussian noise on every lidar range, metres, fresh every scan
+    latency_steps: int = 0  # the action chosen at step t is applied at step t + latency_steps (0, 1 or 2)
+    steering_gain: float = 0.0  # steering multiplied by a gain drawn from [1 - g, 1 + g] per episode
+    throttle_gain: float = 0.0  # speed multiplied by a gain drawn from [1 - g, 1 + g] per episode
+    speed_scale: float = 1.0  # the car's max-speed setting: applied speed = speed / action top x top_speed x scale
+    top_speed: float = 0.0  # m/s the action space's top speed stands for (0 = the action space's own top)
+    evaluation: bool = False  # also randomise the greedy evaluation episodes after each training iteration
+
+    @property
+    def active(self) -> bool:
+        """True when any option differs from its default (the plain, fastest path otherwise)."""
+        return any(k != "evaluation" for k in self.changed())
+
+    def changed(self) -> dict:
+        """The options that differ from their defaults, by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) != f.default}
+
+
+@dataclass(frozen=True)
 class TrainingConfig:
     track: TrackSettings = field(default_factory=TrackSettings)
     run: RunSettings = field(default_factory=RunSettings)
@@ -70,6 +118,7 @@ class TrainingConfig:
     evaluation: EvaluationSettings = field(default_factory=EvaluationSettings)
     logs: LogSettings = field(default_factory=LogSettings)
     race: RaceConfig = field(default_factory=RaceConfig)  # [race]: DRfC's names (racerlab.spec.RaceConfig)
+    randomise: RandomiseSettings = field(default_factory=RandomiseSettings)
     source: str = "training.toml"
     # [[worker]] tables: what rollout worker k changes for itself ({section: {key: value}}), DRfC's multi-config
     workers: tuple[dict, ...] = ()
@@ -120,7 +169,7 @@ def _toml_value(v) -> str:
 
 
 SECTIONS = {"track": TrackSettings, "run": RunSettings, "stop": StopSettings, "evaluation": EvaluationSettings,
-            "logs": LogSettings}
+            "logs": LogSettings, "randomise": RandomiseSettings}
 
 
 def _coerce(src: str, key: str, default, value):
@@ -203,7 +252,10 @@ def _validate(c: TrainingConfig) -> None:
     _check(0 <= c.track.round_robin_advance < 1, s, "track.round_robin_advance must be in [0, 1)")
     _check(0 <= c.track.start_offset < 1, s, "track.start_offset must be in [0, 1)")
     _check(c.run.num_cars >= 1, s, "run.num_cars must be >= 1")
-    _check(c.run.num_cars >= len(c.track.names), s, "run.num_cars must be at least the number of tracks")
+    _check(c.run.num_cars >= max(len(c.track.names), c.track.generated), s,
+           "run.num_cars must be at least the number of tracks")
+    _validate_generated(c.track, s)
+    _validate_randomise(c.randomise, s)
     _check(c.run.threads >= 0, s, "run.threads must be >= 0")
     base = split_observation_name(c.run.observation)[0]
     _check(base in ("", *OBSERVATION_NAMES), s,
@@ -224,6 +276,24 @@ def _validate(c: TrainingConfig) -> None:
     _check(c.logs.max_mb >= 0, s, f"logs.max_mb must be >= 0 (0 = no budget), got {c.logs.max_mb:g}")
     _check(c.run.device == "auto" or c.run.device == "cpu" or c.run.device.startswith("cuda"), s,
            "run.device must be auto, cpu, cuda or cuda:N")
+
+
+def _validate_generated(t: TrackSettings, s: str) -> None:
+    _check(t.generated >= 0 and t.regenerate_every >= 0, s, "track.generated and track.regenerate_every must be >= 0")
+    _check(0 < t.generated_min_length <= t.generated_max_length <= 200, s,
+           "track.generated_min_length <= generated_max_length must be in (0, 200] m")
+    _check(0.3 <= t.generated_min_width <= t.generated_max_width <= 2.0, s,
+           "track.generated_min_width <= generated_max_width must be in [0.3, 2] m")
+    _check(t.generated_min_radius >= 0.3, s, "track.generated_min_radius must be >= 0.3 m (the car turns no tighter)")
+
+
+def _validate_randomise(r: RandomiseSettings, s: str) -> None:
+    for name in ("camera_noise", "blur", "pose_yaw_deg", "pose_pitch_deg", "pose_shift_m", "lidar_noise_m"):
+        _check(getattr(r, name) >= 0, s, f"randomise.{name} must be >= 0")
+    for name in ("exposure", "gamma", "steering_gain", "throttle_gain"):
+        _check(0 <= getattr(r, name) < 1, s, f"randomise.{name} must be in [0, 1): a range around 1")
+    _check(r.latency_steps in (0, 1, 2), s, "randomise.latency_steps must be 0, 1 or 2")
+    _check(r.speed_scale > 0 and r.top_speed >= 0, s, "randomise.speed_scale must be > 0 and top_speed >= 0")
 
 
 def load_training_config(path) -> TrainingConfig:

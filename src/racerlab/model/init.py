@@ -50,9 +50,30 @@ def make_metadata(sensor: str = "features", action_space: str = "discrete", algo
     return ModelMetadata(actions, sensors, network, algorithm, 5.0)
 
 
+# training presets of `racerlab init --preset NAME`: training.toml settings laid over the defaults
+PRESETS = {
+    # train over 8 generated circuits, drawn anew every 5 iterations, to drive tracks never seen
+    "generalise": {"track": {"generated": 8, "regenerate_every": 5}},
+}
+
+
+def apply_preset(cfg: TrainingConfig, preset: str | None, sensor: str) -> TrainingConfig:
+    if not preset:
+        return cfg
+    if preset not in PRESETS:
+        raise RacerlabError(f"unknown preset {preset!r}; choose one of {', '.join(PRESETS)}")
+    for section, values in PRESETS[preset].items():
+        cfg = replace(cfg, **{section: replace(getattr(cfg, section), **values)})
+    if preset == "generalise" and sensor == "lidar":
+        # AWS tracks are flat paint: a lidar sees nothing there unless the borders count as walls
+        cfg = replace(cfg, run=replace(cfg.run, observation="lidar:walls"))
+    return cfg
+
+
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
-               best_model_metric: str | None = None, force: bool = False, race: str = "time_trial") -> ModelFolder:
+               best_model_metric: str | None = None, force: bool = False, race: str = "time_trial",
+               preset: str | None = None) -> ModelFolder:
     folder = ModelFolder(path)
     existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
@@ -80,6 +101,7 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
         cfg = replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
     elif race == "head_to_bot":
         cfg = replace(cfg, race=RaceConfig(type=race, number_of_bot_cars=HEAD_TO_BOT_CARS))
+    cfg = apply_preset(cfg, preset, sensor)
     folder.path.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(EXAMPLE_REWARDS[race], folder.reward_path)
     folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
@@ -103,6 +125,12 @@ _TOML_HEADER = """\
 #            as plain CSV (deepracer-utils reads those), older ones gzipped; max_mb: the budget of
 #            training-simtrace/ + metrics/, past which the oldest gzipped iterations are thinned (0 = none);
 #            compress: gzip all
+#   [track]  generated = N trains on N generated circuits (names then holds the evaluation track), drawn
+#            anew every regenerate_every iterations, within the generated_* length / width / radius ranges
+#   [randomise] domain randomisation for the physical car (all off by default; docs/learner.md):
+#            camera_noise, blur, exposure, gamma, lighting, pose_yaw_deg, pose_pitch_deg, pose_shift_m,
+#            lidar_noise_m, latency_steps (0-2), steering_gain, throttle_gain; speed_scale and top_speed
+#            map speeds relative to the action space's top, as the car does; evaluation: also in eval episodes
 #   [race]   DRfC's race settings: type (time_trial|object_avoidance|head_to_bot), number_of_obstacles,
 #            obstacle_type, randomize_obstacle_locations, object_positions ([fraction of the lap, lane 1 inner |
 #            -1 outer]), min_distance_between_obstacles (% of the lap), number_of_bot_cars,

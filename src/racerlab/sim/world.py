@@ -16,10 +16,11 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from racerlab.model.metadata import DiscreteActions, as_model_metadata
+from racerlab.model.metadata import DiscreteActions, as_model_metadata, split_observation_name
 from racerlab.sim import _kernels as K
 from racerlab.sim.core import Simulator, StartRules
-from racerlab.sim.observations import make_observation
+from racerlab.sim.observations import make_observation, observation_name_for
+from racerlab.sim.randomise import Actuation, RandomisedObservation, as_settings, make_rng
 from racerlab.sim.reward import ParamsBuilder, RewardCaller, as_reward_function
 from racerlab.spec import CarParams
 
@@ -52,12 +53,15 @@ class World:
     is "features" when no metadata is given either. `car` and `start` take `CarParams` / `StartRules`
     or their keyword dicts; `race` a `RaceConfig`, its `[race]` table as a dict, or a race type name
     ("object_avoidance": 6 evenly spaced boxes), None for a time trial. With `keep_params`, `params` holds
-    each car's params dict of the last step (None where no reward was called).
+    each car's params dict of the last step (None where no reward was called). `randomise`
+    (`RandomiseSettings` or its keyword dict) perturbs actions and observations as the physical car would
+    (`racerlab.sim.randomise`); None or all defaults leave the plain path untouched.
     """
 
     def __init__(self, track, num_cars: int = 1, metadata=None, reward=None, observation: str | None = None, *,
                  car=None, start=None, max_episode_steps: int = 10_000, reward_order: str = "aws",
-                 seed: int | None = None, keep_params: bool = False, race=None, sim: Simulator | None = None):
+                 seed: int | None = None, keep_params: bool = False, race=None, sim: Simulator | None = None,
+                 randomise=None):
         # `sim`: drive an existing simulator (another model's cars in the same world); track, num_cars, car,
         # start, max_episode_steps, reward_order, seed and race are then its own
         self.sim = sim or Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
@@ -66,12 +70,25 @@ class World:
         self.metadata = as_model_metadata(metadata)
         if observation is None and metadata is None:
             observation = "features"
-        self.observation = make_observation(observation, self.sim, self.metadata)
+        self.randomise = as_settings(randomise)
+        self.actuation = None
+        if self.randomise is None:
+            self.observation = make_observation(observation, self.sim, self.metadata)
+        else:
+            self._randomised(observation, seed)
         self.reward = as_reward_caller(reward)
         self.builder = ParamsBuilder(self.sim) if self.reward is not None else None
         self.keep_params = keep_params
         self.params: list[dict | None] | None = None
         self.discrete = isinstance(self.metadata.actions, DiscreteActions)
+
+    def _randomised(self, observation, seed) -> None:
+        r, rng = self.randomise, make_rng(seed)
+        if r.lighting:
+            observation = with_option(observation or observation_name_for(self.metadata), "dr")
+        self.observation = RandomisedObservation(make_observation(observation, self.sim, self.metadata), self.sim, r,
+                                                 rng)
+        self.actuation = Actuation(r, self.sim.num_cars, top_speed(self.metadata.actions), rng)
 
     @property
     def num_cars(self) -> int:
@@ -119,12 +136,17 @@ class World:
             speed_all = np.zeros(sim.num_cars)
             steer_all[idx], speed_all[idx] = steer, speed
             steer, speed = steer_all, speed_all
+        chosen = None
+        if self.actuation is not None:
+            chosen = (steer, speed)  # the reward sees the model's action, as on AWS; the car drives the applied one
+            steer, speed = self.actuation(steer, speed, sim.ctr[:, K.KSTEPS], active)
         codes = sim.step(steer, speed, active).copy()
-        return codes, self.rewards(codes, active)
+        return codes, self.rewards(codes, active, chosen)
 
-    def rewards(self, codes, active=None) -> np.ndarray:
+    def rewards(self, codes, active=None, chosen=None) -> np.ndarray:
         """The rewards of the last step (0 where a car was not stepped, took its prepare step or no reward
-        function is set), for the cars in `active` (all by default); `params` keeps their dicts when asked."""
+        function is set), for the cars in `active` (all by default); `params` keeps their dicts when asked.
+        `chosen` (steer, speed) are the model's commands when the car drove perturbed ones (randomisation)."""
         sim = self.sim
         rewards = np.zeros(sim.num_cars)
         self.params = None
@@ -133,7 +155,7 @@ class World:
             run = np.flatnonzero(stepped if active is None else stepped & active)
             kept = [] if self.keep_params else None
             if run.size:
-                rewards[run] = self.reward(self.builder.each(run), run, kept)
+                rewards[run] = self.reward(self.builder.each(run, actions=chosen), run, kept)
             if kept is not None:
                 self.params = [None] * sim.num_cars
                 for j, i in enumerate(run.tolist()):
@@ -143,3 +165,14 @@ class World:
     def done(self, codes) -> tuple[np.ndarray, np.ndarray]:
         """(terminated, truncated) masks after a step that returned `codes`."""
         return self.sim.terminated_mask(codes), self.sim.truncated.copy()
+
+
+def top_speed(actions) -> float:
+    """The action space's top speed, m/s (what the physical car's full throttle stands for)."""
+    return float(max(actions.speed)) if hasattr(actions, "speed") else float(actions.speed_high)
+
+
+def with_option(name: str, option: str) -> str:
+    """An observation name with `option` added after its colon (``camera`` → ``camera:dr``)."""
+    base, options = split_observation_name(name)
+    return name if option in options else f"{base}:{','.join((*options, option))}"

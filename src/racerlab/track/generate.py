@@ -514,6 +514,29 @@ def generate(seed: int, length: float = 20.0, width: float = 1.07, min_radius: f
                      f"Try another seed, a longer length or a narrower width")
 
 
+def generate_many(seed: int, count: int, length=(20.0, 60.0), width=(0.76, 1.07), min_radius: float = 0.5,
+                  *, prefix: str = "generated") -> list[Track]:
+    """`count` random circuits drawn from one seed, the same for the same arguments: each length and width
+    uniform in its (low, high) range, bends no tighter than `min_radius` (raised where a wide road needs
+    it). A draw that yields no valid track is replaced by the next draw."""
+    rng = np.random.default_rng(int(seed))
+    tracks: list[Track] = []
+    for _ in range(MAX_ATTEMPTS * max(count, 1)):
+        if len(tracks) == count:
+            return tracks
+        w = float(rng.uniform(*width))
+        radius = max(min_radius, w / 2 + FOLD_MARGIN_M + 0.05)
+        try:
+            tracks.append(generate(int(rng.integers(2**31)), float(rng.uniform(*length)), w, radius,
+                                   name=f"{prefix}_{seed}_{len(tracks)}"))
+        except TrackError:
+            continue
+    if len(tracks) < count:
+        raise TrackError(f"only {len(tracks)} of {count} generated tracks are valid (length {length}, width {width}, "
+                         f"min_radius {min_radius:g}); widen the length range or lower the width")
+    return tracks
+
+
 # ---- describing a track -------------------------------------------------------------------------
 
 def turn_angles(track: Track, max_radius: float = 2.0) -> list[tuple[float, float, float]]:

@@ -111,9 +111,12 @@ class Trainer:
         self.progress = Progress(enabled=progress)
         self.watchdog = RewardWatchdog(self.folder.reward_function(), self.cfg.run.reward_budget_s, self._note)
         self.reward = RewardCaller(self.watchdog)
+        self.draw = 0  # which draw of generated tracks the worlds hold
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
-        self.eval_world = self._make_world(self.cfg.track.names[0], max(self.cfg.evaluation.episodes, 1), seed=10_007)
+        r = self.cfg.randomise
+        self.eval_world = self._make_world(self.cfg.track.names[0], max(self.cfg.evaluation.episodes, 1), seed=10_007,
+                                           randomise=r if r.evaluation else None)
         from racerlab.agent import make_agent
 
         self.agent = make_agent(self.worlds[0].observation.space, self.metadata, self.hp, device=self.cfg.run.device,
@@ -141,20 +144,34 @@ class Trainer:
             where = "--track" if self._track_flag else f"{self.cfg.source}: track.names"
             raise TrackError(f"{where}: {exc}") from None
 
-    def _make_world(self, track_name, cars, seed):
+    def _make_world(self, track, cars, seed, randomise=None):
         r = self.cfg.track
         start = StartRules(change_start=r.change_start, advance=r.round_robin_advance, offset=r.start_offset,
                            reverse=r.reverse, alternate_direction=r.alternate_direction)
-        return World(self._load_track(track_name), cars, self.metadata, self.reward, self.cfg.run.observation,
-                     start=start, max_episode_steps=self.cfg.run.max_episode_steps,
-                     reward_order=self.cfg.run.reward_order, seed=seed, race=self.cfg.race)
+        track = self._load_track(track) if isinstance(track, str) else track
+        return World(track, cars, self.metadata, self.reward, self.cfg.run.observation, start=start,
+                     max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
+                     seed=seed, race=self.cfg.race, randomise=randomise)
 
     def _make_worlds(self):
-        names = self.cfg.track.names
+        tracks = generated_tracks(self.cfg.track, self.cfg.run.seed, self.draw) or self.cfg.track.names
         n = self.cfg.run.num_cars
-        counts = [n // len(names) + (1 if k < n % len(names) else 0) for k in range(len(names))]
-        pairs = enumerate(zip(names, counts, strict=True))
-        return [self._make_world(name, c, self.cfg.run.seed + k) for k, (name, c) in pairs]
+        counts = [n // len(tracks) + (1 if k < n % len(tracks) else 0) for k in range(len(tracks))]
+        pairs = enumerate(zip(tracks, counts, strict=True))
+        seed = self.cfg.run.seed + 1000 * self.draw
+        return [self._make_world(t, c, seed + k, self.cfg.randomise) for k, (t, c) in pairs]
+
+    def _redraw_if_due(self):
+        """New generated tracks every `track.regenerate_every` iterations (the draw follows the iteration
+        number, so a resumed run drives the tracks it would have driven)."""
+        every = self.cfg.track.regenerate_every
+        if not self.cfg.track.generated or not every or self.state.iteration // every == self.draw:
+            return
+        self.draw = self.state.iteration // every
+        next_uid = self.collector.next_uid
+        self.worlds = self._make_worlds()
+        self.collector = Collector(self.worlds)
+        self.collector.next_uid = next_uid
 
     # ---- checkpoints -------------------------------------------------------------------------
     def _checkpoint_state(self) -> dict:
@@ -315,6 +332,7 @@ class Trainer:
 
     def iterate(self, t_start: float) -> dict:
         s = self.state
+        self._redraw_if_due()
         target = max(self.hp.num_episodes_between_training, self.cfg.run.num_cars)
         ro = self.collector.collect(self.agent, target, self.cfg.run.max_steps_per_iteration,
                                     first_episode_number=s.episodes, deadline=self.deadline, tick=self.progress.tick)
@@ -436,6 +454,18 @@ class Trainer:
         if max_eps and done:
             return elapsed / done * max(max_eps - done, 0)
         return None
+
+
+def generated_tracks(settings, seed: int, draw: int) -> list:
+    """The generated training tracks of draw number `draw` (none unless `track.generated` is set)."""
+    if not settings.generated:
+        return []
+    from racerlab.track.generate import generate_many
+
+    return generate_many(seed * 7919 + draw, settings.generated,
+                         (settings.generated_min_length, settings.generated_max_length),
+                         (settings.generated_min_width, settings.generated_max_width), settings.generated_min_radius,
+                         prefix=f"generated_{draw}")
 
 
 def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, **overrides) -> TrainResult:

@@ -46,6 +46,7 @@ class Camera:
         self.look = look or TrackLook()
         self.model = model or CameraModel()
         self.randomization = randomization
+        self.pose_offset: np.ndarray | None = None  # (B, 2) yaw (rad), sideways (m) camera offsets (sim.randomise)
         cam_x = camera_position()[0]
         sides = (STEREO_HALF_BASELINE_M, -STEREO_HALF_BASELINE_M) if stereo else (0.0,)
         self.eyes = np.array([[cam_x, y] for y in sides])
@@ -93,13 +94,21 @@ class Camera:
             self._randomize(idx)
         lg = self.lighting
         lit = (lg.plain, lg.coef, lg.tone, lg.light, lg.noise_amp, self._noise, self._noise_off)
-        car = self.sim.car
         sol = self.solids
         sol.update()
-        _render.render(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.eyes, self._plan_args,
-                       self._raster_args, self.panorama, lit, (sol.pose, sol.dims, sol.grey, self._cam_args),
-                       self.frames)
+        x, y, yaw = self._viewpoints()
+        _render.render(idx, x, y, yaw, self.eyes, self._plan_args, self._raster_args, self.panorama, lit,
+                       (sol.pose, sol.dims, sol.grey, self._cam_args), self.frames)
         return self.frames
+
+    def _viewpoints(self):
+        """Every car's base pose (x, y, yaw) as the camera sees from it: the car's, moved by `pose_offset`."""
+        car = self.sim.car
+        x, y, yaw = car[:, K.CX], car[:, K.CY], car[:, K.CYAW]
+        if self.pose_offset is None:
+            return x, y, yaw
+        d_yaw, side = self.pose_offset[:, 0], self.pose_offset[:, 1]
+        return x - side * np.sin(yaw), y + side * np.cos(yaw), yaw + d_yaw
 
     def _randomize(self, idx: np.ndarray) -> None:
         """A new look for cars at step 0 of an episode, fresh noise offsets for every rendered car."""
