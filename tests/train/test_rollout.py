@@ -29,7 +29,8 @@ class Driver:
 
 @pytest.fixture()
 def world():
-    return World(str(aws_track_path("reInvent2019_track")), 1, META, None, "features", max_episode_steps=100_000, seed=0)
+    track = str(aws_track_path("reInvent2019_track"))
+    return World(track, 1, META, None, "features", max_episode_steps=100_000, seed=0)
 
 
 def test_a_completed_lap_is_a_truncation_with_the_observation_after_the_finish(world):

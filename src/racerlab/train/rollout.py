@@ -24,7 +24,6 @@ import numpy as np
 from racerlab.agent.common import take
 from racerlab.sim import STATUS_NAMES, TRACE_COLUMNS, Status, World
 
-
 # statuses after which the car could have driven on: the learner bootstraps from V(final observation)
 CONTINUING = ("time_up", "lap_complete")
 
