@@ -76,7 +76,35 @@ def test_racing_line_reward_holds_the_line_and_its_speeds(reinvent):
     normal = np.array([-t[1], t[0]]) / np.hypot(*t)
     off = {**on, "x": x + 0.25 * normal[0], "y": y + 0.25 * normal[1]}
     assert fn(off) < fn(on) - 0.3
-    assert fn({**on, "speed": v / 2}) == pytest.approx(0.5 + 1e-3, abs=0.05)
+    assert fn({**on, "speed": v / 2}) == pytest.approx(0.25 + 1e-3, abs=0.05)  # pace = (1/2)²
+    assert fn({**on, "speed": 1.25 * v}) == pytest.approx(0.5 + 1e-3, abs=0.05)  # 0 at 1.5x the line's speed
+
+
+def _lap_return(fn, pts, fraction: float, width: float = 1.0668, dt: float = 1 / 15) -> tuple[float, float]:
+    """(return, steps) of a lap driven exactly on the embedded line at `fraction` of its speeds, 15 steps/s:
+    each stretch of line of length ds takes ds / (fraction v dt) steps, each earning the reward there."""
+    ds = np.hypot(*(np.roll(pts[:, :2], -1, axis=0) - pts[:, :2]).T)
+    total = steps = 0.0
+    for (x, y, v), d in zip(pts, ds, strict=True):
+        n = d / (fraction * v * dt)
+        total += n * fn({"is_offtrack": False, "x": x, "y": y, "speed": fraction * v, "track_width": width,
+                         "progress": 0.0, "steps": steps})
+        steps += n
+    return total, steps
+
+
+def test_racing_line_reward_pays_more_for_a_faster_lap(reinvent):
+    # issue 17: with pace linear in speed (plus a term growing with progress) a lap at 60 % of the line's
+    # speeds earned as much as one at 100 %, so training stopped getting faster after its first laps.
+    space: dict = {}
+    exec(compile(reward_source("racing_line", reinvent, max_speed=4.0), "reward_function.py", "exec"), space)  # noqa: S102
+    pts, fn = np.array(space["RACING_LINE"]), space["reward_function"]
+    full, full_steps = _lap_return(fn, pts, 1.0)
+    assert full == pytest.approx(full_steps, rel=0.01)  # every step on the line at its speed earns ~1
+    for f in (0.6, 0.8, 0.9):
+        slower, steps = _lap_return(fn, pts, f)
+        assert steps == pytest.approx(full_steps / f, rel=1e-6)
+        assert slower == pytest.approx(f * full, rel=0.01)  # a lap f times as fast earns f times as much
 
 
 def test_unknown_template_and_missing_track_are_one_line_errors():

@@ -12,9 +12,11 @@ What AWS does, and so what this does:
 - strictly on-policy: the caller throws the batch away after `update`.
 
 Where racerlab differs from AWS, on purpose: AWS bootstraps 0 at every episode end. We keep
-*termination* (crash, off-track, lap complete, ...: bootstrap 0, exactly AWS's rule) apart from
-*truncation* (a step limit, or an episode cut by the end of a rollout: bootstrap with V of the
-observation after the last step) — a timeout is not a wall.
+*termination* (crash, off-track, reversed, ...: bootstrap 0, exactly AWS's rule) apart from
+*truncation* (a step limit, a completed lap, or an episode cut by the end of a rollout: bootstrap with
+V of the observation after the last step) — a timeout is not a wall, and neither is the finish line:
+no observation tells how near it is, and a 0 there made arriving sooner look worse (issue 17,
+`racerlab.train.rollout`).
 
 How the training loop feeds it (the batch representation):
 1. `actions, log_probs, values = ppo.act(obs)` for each step of B cars (numpy in, numpy out).

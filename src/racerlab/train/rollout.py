@@ -5,6 +5,13 @@ the cars over the worlds, asks the agent for all cars' actions in one batch per 
 every step as columns (no per-car Python in the step loop apart from the user's reward
 function). An iteration ends when its episodes are done; like AWS's trainer it keeps whole
 episodes only, in order of completion, while their steps fit under `max_steps` (facts §2).
+
+For learning, an episode that ends because its lap is complete counts as *truncated*, like one cut by
+the step cap: the car could drive on, so the agent bootstraps from the value of the observation after
+the finish (`Rollout.final_obs`), where AWS bootstraps 0. No observation says how far the finish is
+(an episode's finish is wherever it started), so a value net cannot foresee a 0 there; with it, every
+step shortly before the finish looked worse than expected, arriving sooner most of all, and lap times
+stalled (issue 17). Crashes, going off track and reversing stay terminations (bootstrap 0), as in AWS.
 """
 
 from __future__ import annotations
@@ -16,6 +23,9 @@ import numpy as np
 
 from racerlab.agent.common import take
 from racerlab.sim import STATUS_NAMES, TRACE_COLUMNS, Status, World
+
+# statuses after which the car could have driven on: the learner bootstraps from V(final observation)
+CONTINUING = ("time_up", "lap_complete")
 
 
 def concat_obs(parts):
@@ -46,8 +56,8 @@ class Rollout:
     actions: np.ndarray
     record: dict  # what the agent's `explore` asked to keep per step (PPO: log_probs, values), [N] each
     rewards: np.ndarray
-    terminated: np.ndarray
-    truncated: np.ndarray
+    terminated: np.ndarray  # [N] last step of an episode that ended for good (crash, off track, ...)
+    truncated: np.ndarray  # [N] last step of an episode with a CONTINUING status (step cap, lap complete)
     episodes: list[Episode]
     trace: dict  # simtrace columns of every step of the kept episodes (prepare steps included)
     env_steps: int  # all car-steps simulated, kept or not
@@ -122,8 +132,9 @@ class Collector:
             trunc[lo:hi] = w.sim.truncated
         done &= state.active
         if done.any():
-            final_obs = self._observe(done & trunc) if (done & trunc).any() else None
-            state.end_episodes(np.flatnonzero(done), trunc, codes, final_obs)
+            goes_on = done & (trunc | (codes == Status.LAP_COMPLETE))  # the CONTINUING statuses
+            final_obs = self._observe(goes_on) if goes_on.any() else None
+            state.end_episodes(np.flatnonzero(done), trunc, goes_on, codes, final_obs)
 
 
 class _IterationState:
@@ -180,7 +191,7 @@ class _IterationState:
         out["wall_clock"] = np.full(idx.size, time.time())
         return out
 
-    def end_episodes(self, cars, trunc, codes, final_obs):
+    def end_episodes(self, cars, trunc, goes_on, codes, final_obs):
         j = 0
         restart = []
         for car in cars.tolist():
@@ -194,7 +205,7 @@ class _IterationState:
             ep.end_time = sim.time
             if ep.status == "lap_complete":
                 ep.lap_time = ep.steps * sim.dt
-            if trunc[car]:
+            if goes_on[car]:
                 self.final_obs[uid] = take(final_obs, j)
                 j += 1
             self.active[car] = False
@@ -247,7 +258,7 @@ class _IterationState:
         uid = cols["uid"][learn]
         ended = np.append(uid[1:] != uid[:-1], True)
         status = {ep.uid: ep.status for ep in episodes}
-        truncated = ended & np.array([status[int(u)] == "time_up" for u in uid.tolist()])
+        truncated = ended & np.array([status[int(u)] in CONTINUING for u in uid.tolist()])
         terminated = ended & ~truncated
         end_uids = uid[ended].tolist()
         cut = [u for u in end_uids if u in self.final_obs]

@@ -5,9 +5,13 @@ fills RACING_LINE with the line `racerlab line` computes for the model's track (
 the car's grip and acceleration limits), its speeds capped at the action space's top speed; it
 runs unchanged in the AWS console on the same track.
 
-Each step earns closeness to the line (1 on it, 0 at half a track width away) times how well the
-commanded speed matches the line's speed there (1 when equal, 0 when off by the full target),
-plus a little for progress so that an early, clumsy policy is still pulled around the lap.
+Each step earns closeness to the line (1 on it, 0 at half a track width away) times the pace: the
+square of commanded speed / the line's speed there, up to the line's speed, falling to 0 at 1.5 times
+it. Squared, so that a lap driven faster earns more in total: a step at a fraction f of the line's
+speed covers f times the distance, so a lap takes 1/f times the steps, and the lap earns about f
+times what it earns at the line's speeds. (Linear in f, a slow lap would earn as much as a fast one:
+fewer but richer steps against more but poorer ones; a term growing with `progress` would even pay
+for slowness, since a slow car spends more steps at every progress.)
 """
 
 import math
@@ -31,6 +35,6 @@ def reward_function(params):
     i, distance = _closest(params["x"], params["y"])
     target = RACING_LINE[i][2]
     near = max(0.0, 1.0 - distance / (0.5 * params["track_width"]))
-    pace = max(0.0, 1.0 - abs(params["speed"] - target) / target)
-    pull = 0.1 * params["progress"] / 100.0
-    return float(1e-3 + near * pace + pull)
+    ratio = params["speed"] / target
+    pace = ratio * ratio if ratio <= 1.0 else max(0.0, 1.0 - 2.0 * (ratio - 1.0))
+    return float(1e-3 + near * pace)
