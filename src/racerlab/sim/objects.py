@@ -153,6 +153,9 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
     oyaw[rows[j], q]). Compiled: it runs for every car at every step."""
     hl = 0.5 * CAR_FOOTPRINT_M[0]
     hw = 0.5 * CAR_FOOTPRINT_M[1]
+    # a corner lies within the car's half diagonal of its base, a footprint point within the object's of its
+    # centre: objects further than the two together (plus a hair) cannot hold a corner
+    far = math.hypot(hl, hw) + math.hypot(half_len, half_wid) + 1e-9
     k = bx.size
     m = oxy.shape[1]
     out = np.zeros((k, m), dtype=np.bool_)
@@ -161,6 +164,10 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
         s = math.sin(yaw[j])
         i = rows[j]
         for q in range(m):
+            ex = bx[j] - oxy[i, q, 0]
+            ey = by[j] - oxy[i, q, 1]
+            if ex * ex + ey * ey > far * far:
+                continue
             co = math.cos(oyaw[i, q])
             so = math.sin(oyaw[i, q])
             for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
