@@ -51,6 +51,7 @@ END_MARGIN_M = 1.0  # the last obstacle stays this far before the end of the lap
 FEATURE_OBJECTS = 2  # the `features` observation gains the nearest objects ahead, (x ahead, y left) / 2 m each
 RESET_BEHIND_DIST_M = 1.0  # evaluation: after a crash the car restarts this far behind the box, other lane
 CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
+MOVED_STARTS_KEPT = 4096  # moved start poses remembered (the cache starts afresh when full)
 CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
 CAMERA_FAR_M = 300.0
@@ -244,6 +245,7 @@ class ObjectSet:
         self.lane = np.zeros((num_cars, m), dtype=np.int64)  # a bot's lane (the one it leaves in a lane change)
         self.order = np.zeros((num_cars, m), dtype=np.int64)  # objects sorted by `arc`
         self._lists: list = [None] * num_cars
+        self._moved_starts: dict = {}  # (reversed, box lane, x, y) of a start near a box -> its moved (x, y, yaw)
         # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
         # left after a bot rear-ended the car, the current lane change (clock times; inf: none), front-point arc
         self.d0 = np.zeros((num_cars, m))
@@ -439,15 +441,37 @@ class ObjectSet:
         near = np.flatnonzero(d.min(axis=1) < CLOSEST_OBJ_GAP_M)
         if near.size == 0:
             return
+        revs = reversed_[near].astype(bool)
         box_lane = self.lane[idx[near], np.argmin(d[near], axis=1)]
+        # where a start moves depends on the track alone (the start point, direction and lane): each is worked
+        # out once, as training restarts from the same few points over and over
+        keys = [(r, f, x, y) for r, f, (x, y) in zip(revs.tolist(), box_lane.tolist(), pts[near].tolist(),
+                                                     strict=True)]
+        cache = self._moved_starts
+        new = [j for j, key in enumerate(keys) if key not in cache]
+        if new:
+            if len(cache) + len(new) > MOVED_STARTS_KEPT:
+                cache.clear()
+            sel = near[new]
+            moved_pts, moved_yaw = self._moved(revs[new], box_lane[new], pts[sel], yaw[sel])
+            for j, (x, y), h in zip(new, moved_pts.tolist(), moved_yaw.tolist(), strict=True):
+                cache[keys[j]] = (x, y, h)
+        for j, key in zip(near.tolist(), keys, strict=True):
+            pts[j, 0], pts[j, 1], yaw[j] = cache[key]
+
+    def _moved(self, revs, box_lane, pts, yaw) -> tuple[np.ndarray, np.ndarray]:
+        """Start points `pts` (k, 2) with headings `yaw` moved onto the lane on the other side of their box (in
+        driving direction `revs`, the box on lane `box_lane`): the nearest point of that lane and its heading."""
+        pts, yaw = pts.copy(), yaw.copy()
         for rev in (False, True):
             lanes = self.lanes[int(rev)]
             for flag, lane in ((1, lanes.outer), (-1, lanes.inner)):  # the lane on the box's other side
-                sel = near[(reversed_[near].astype(bool) == rev) & (box_lane == flag)]
-                if sel.size:
+                sel = (revs == rev) & (box_lane == flag)
+                if sel.any():
                     proj = lane.project(pts[sel])
                     pts[sel] = lane.point_at(proj.s).reshape(-1, 2)
                     yaw[sel] = proj.heading
+        return pts, yaw
 
     def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
         """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
