@@ -226,6 +226,8 @@ class Simulator:
         off_track, in_progress, immobilized, reversed)."""
         codes = self.ctr[:, K.KSTATUS]
         idx = np.flatnonzero(active & (codes != K.STATUS_PREPARE) & (codes != K.LAP_COMPLETE))
+        if idx.size:  # only cars near one of their objects can have hit it
+            idx = idx[self.objects.may_crash(self.params[idx, K.MX], self.params[idx, K.MY], idx)]
         if idx.size == 0:
             return
         p = self.params[idx]

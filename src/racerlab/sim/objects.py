@@ -180,6 +180,22 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
     return out
 
 
+@njit(cache=True)
+def _near_any(px, py, rows, oxy, radius):
+    """(k,) bool: point (px[j], py[j]) is within `radius` of one of the objects oxy[rows[j]] (centres)."""
+    out = np.zeros(rows.size, dtype=np.bool_)
+    r2 = radius * radius
+    for j in range(rows.size):
+        i = rows[j]
+        for q in range(oxy.shape[1]):
+            dx = px[j] - oxy[i, q, 0]
+            dy = py[j] - oxy[i, q, 1]
+            if dx * dx + dy * dy <= r2:
+                out[j] = True
+                break
+    return out
+
+
 def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """Even-odd test of points against a closed ring (first == last not required)."""
     x1, y1 = ring[:, 0], ring[:, 1]
@@ -498,6 +514,14 @@ class ObjectSet:
         proj = lane.project(t.point_at(s).reshape(1, 2))
         x, y = lane.point_at(proj.s)[0]
         return float(x), float(y), float(proj.heading[0]), float(s)
+
+    def may_crash(self, mx, my, rows) -> np.ndarray:
+        """(k,) bool: car rows[j] with its model point at (mx[j], my[j]) is near enough one of its objects for a
+        corner of its footprint to be inside it; cars where this is False cannot have crashed (`crashed`)."""
+        radius = (math.hypot(0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]) + math.hypot(*self.half)
+                  + MODEL_POINT_AHEAD_M + 1e-6)
+        return _near_any(np.ascontiguousarray(mx, dtype=np.float64), np.ascontiguousarray(my, dtype=np.float64),
+                         np.asarray(rows, dtype=np.int64), self.xy, radius)
 
     def crashed(self, bx, by, yaw, rows=None, car_arc=None, length: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Per car (`rows`, all by default) at base pose (bx, by, yaw): (crashed, rear_ended). A corner of the car

@@ -43,6 +43,8 @@ from racerlab.sim.sensors.geometry import (
 
 MIN_RANGE_M, MAX_RANGE_M = 0.15, 1.0  # AWS ObservationClippingFilter
 NOISE_SIGMA_M = 0.01
+LIDAR_STEP_RAD = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
+LIDAR_STEP_COS, LIDAR_STEP_SIN = math.cos(LIDAR_STEP_RAD), math.sin(LIDAR_STEP_RAD)
 SECTORS = 8
 SECTOR_CLIP_M = 0.5
 NOISE_REACH_SIGMAS = 6  # a hit further than max range + 6 σ reads max range whatever the noise
@@ -70,6 +72,14 @@ def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
 
 
 @njit(cache=True, inline="always")
+def _turn(step):
+    """(cos, sin) of the angle between neighbouring rays, worked out once for the scan's own step."""
+    if step == LIDAR_STEP_RAD:
+        return LIDAR_STEP_COS, LIDAR_STEP_SIN
+    return math.cos(step), math.sin(step)
+
+
+@njit(cache=True, inline="always")
 def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
     """Intersect rays lo..hi (indices, clipped to the scan) with segment a-b; keep the nearer hits in best."""
     k0 = max(lo, 0)
@@ -79,8 +89,7 @@ def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
     # ray directions by rotation from the first one: two sines per segment, not two per ray
     c0 = math.cos(base + k0 * step)
     s0 = math.sin(base + k0 * step)
-    cs = math.cos(step)
-    ss = math.sin(step)
+    cs, ss = _turn(step)
     for k in range(k0, k1 + 1):
         t = _ray_segment(ox, oy, c0, s0, ax, ay, bx, by)
         if t < best[k]:
@@ -135,6 +144,10 @@ def _cast_box(ox, oy, base, step, nrays, reach, bx, by, byaw, length, width, bes
     # the sensor in the box's frame: only the sides that face it can hold a nearest hit (the box is convex)
     lu = cb * px + sb * py
     lv = -sb * px + cb * py
+    gu = max(abs(lu) - hl, 0.0)
+    gv = max(abs(lv) - hw, 0.0)
+    if gu * gu + gv * gv > (reach + 1e-9) * (reach + 1e-9):  # every side is out of reach (a hair kept for rounding)
+        return
     facing = (lv > hw, lu < -hl, lv < -hw, lu > hl)  # sides +y, -x, -y, +x, between corners q and q + 1
     cx = (hl, -hl, -hl, hl)
     cy = (hw, hw, -hw, -hw)
@@ -273,7 +286,7 @@ class Lidar:
         self.max_range_m = float(max_range_m)
         self.reach_m = self.max_range_m + NOISE_REACH_SIGMAS * self.noise_sigma_m
         self.angles = lidar_ray_angles()
-        self.step = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
+        self.step = LIDAR_STEP_RAD
         self.mount_x = lidar_position()
         self.edges = np.ascontiguousarray(sim.track.road_edges, dtype=np.float64)
         # a cell lists every edge within reach of any point in it (cell diagonal added)
