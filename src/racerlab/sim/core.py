@@ -226,13 +226,9 @@ class Simulator:
         off_track, in_progress, immobilized, reversed)."""
         codes = self.ctr[:, K.KSTATUS]
         idx = np.flatnonzero(active & (codes != K.STATUS_PREPARE) & (codes != K.LAP_COMPLETE))
-        if idx.size:  # only cars near one of their objects can have hit it
-            idx = idx[self.objects.may_crash(self.params[idx, K.MX], self.params[idx, K.MY], idx)]
         if idx.size == 0:
             return
-        p = self.params[idx]
-        crash, rear = self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]),
-                                           rows=idx, car_arc=p[:, K.MS], length=self.track.length)
+        crash, rear = self.objects.crashed_at_model_point(self.params, idx, self.track.length)
         hit = idx[crash]
         self.ctr[hit, K.KSTATUS] = K.CRASHED
         if rear.any():  # a bot ran into the car from behind: the bots pause (not the car's crash)

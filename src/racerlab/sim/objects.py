@@ -39,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from racerlab.errors import ConfigError
+from racerlab.sim import _kernels as K
 from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
@@ -147,51 +148,63 @@ class Lanes:
         return xy, yaw
 
 
-@njit(cache=True)
-def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
-    """(k, m) bool: a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx[j], by[j], yaw[j]) lies
-    strictly inside object q's footprint rectangle (half sizes half_len, half_wid around oxy[rows[j], q], turned by
-    oyaw[rows[j], q]). Compiled: it runs for every car at every step."""
+@njit(cache=True, inline="always")
+def _car_corners_inside(bx, by, yaw, oxy, oyaw, half_len, half_wid, out):
+    """out[q] = a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx, by, yaw) lies strictly inside
+    object q's footprint rectangle (half sizes half_len, half_wid around oxy[q], turned by oyaw[q])."""
     hl = 0.5 * CAR_FOOTPRINT_M[0]
     hw = 0.5 * CAR_FOOTPRINT_M[1]
-    # a corner lies within the car's half diagonal of its base, a footprint point within the object's of its
-    # centre: objects further than the two together (plus a hair) cannot hold a corner
-    far = math.hypot(hl, hw) + math.hypot(half_len, half_wid) + 1e-9
-    k = bx.size
-    m = oxy.shape[1]
-    out = np.zeros((k, m), dtype=np.bool_)
-    for j in range(k):
-        c = math.cos(yaw[j])
-        s = math.sin(yaw[j])
-        i = rows[j]
-        for q in range(m):
-            ex = bx[j] - oxy[i, q, 0]
-            ey = by[j] - oxy[i, q, 1]
-            if ex * ex + ey * ey > far * far:
-                continue
-            co = math.cos(oyaw[i, q])
-            so = math.sin(oyaw[i, q])
-            for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
-                dx = bx[j] + a * c - b * s - oxy[i, q, 0]
-                dy = by[j] + a * s + b * c - oxy[i, q, 1]
-                if abs(dx * co + dy * so) < half_len and abs(-dx * so + dy * co) < half_wid:
-                    out[j, q] = True
-                    break
+    far = _crash_reach(half_len, half_wid)
+    c = math.cos(yaw)
+    s = math.sin(yaw)
+    for q in range(oxy.shape[0]):
+        ex = bx - oxy[q, 0]
+        ey = by - oxy[q, 1]
+        if ex * ex + ey * ey > far * far:
+            continue
+        co = math.cos(oyaw[q])
+        so = math.sin(oyaw[q])
+        for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
+            dx = bx + a * c - b * s - oxy[q, 0]
+            dy = by + a * s + b * c - oxy[q, 1]
+            if abs(dx * co + dy * so) < half_len and abs(-dx * so + dy * co) < half_wid:
+                out[q] = True
+                break
+
+
+@njit(cache=True, inline="always")
+def _crash_reach(half_len, half_wid):
+    """A corner lies within the car's half diagonal of its base, a footprint point within the object's of its
+    centre: an object further from the base than the two together (plus a hair) cannot hold a corner."""
+    return math.hypot(0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]) + math.hypot(half_len, half_wid) + 1e-9
+
+
+@njit(cache=True)
+def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
+    """(k, m) bool: a corner of the car footprint at base pose (bx[j], by[j], yaw[j]) lies strictly inside one of
+    the objects oxy[rows[j]] (`_car_corners_inside`). Compiled: it runs for every car at every step."""
+    out = np.zeros((bx.size, oxy.shape[1]), dtype=np.bool_)
+    for j in range(bx.size):
+        _car_corners_inside(bx[j], by[j], yaw[j], oxy[rows[j]], oyaw[rows[j]], half_len, half_wid, out[j])
     return out
 
 
 @njit(cache=True)
-def _near_any(px, py, rows, oxy, radius):
-    """(k,) bool: point (px[j], py[j]) is within `radius` of one of the objects oxy[rows[j]] (centres)."""
-    out = np.zeros(rows.size, dtype=np.bool_)
-    r2 = radius * radius
+def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid):
+    """`_corners_inside` for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with heading
+    meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars with
+    no object near the model point are passed over without working out the pose."""
+    out = np.zeros((rows.size, oxy.shape[1]), dtype=np.bool_)
+    near = _crash_reach(half_len, half_wid) + MODEL_POINT_AHEAD_M + 1e-6
     for j in range(rows.size):
         i = rows[j]
+        mx = meas[i, cx]
+        my = meas[i, cy]
         for q in range(oxy.shape[1]):
-            dx = px[j] - oxy[i, q, 0]
-            dy = py[j] - oxy[i, q, 1]
-            if dx * dx + dy * dy <= r2:
-                out[j] = True
+            if (mx - oxy[i, q, 0]) ** 2 + (my - oxy[i, q, 1]) ** 2 <= near * near:
+                yaw = np.radians(meas[i, cheading])
+                _car_corners_inside(mx - MODEL_POINT_AHEAD_M * math.cos(yaw), my - MODEL_POINT_AHEAD_M * math.sin(yaw),
+                                    yaw, oxy[i], oyaw[i], half_len, half_wid, out[j])
                 break
     return out
 
@@ -515,14 +528,6 @@ class ObjectSet:
         x, y = lane.point_at(proj.s)[0]
         return float(x), float(y), float(proj.heading[0]), float(s)
 
-    def may_crash(self, mx, my, rows) -> np.ndarray:
-        """(k,) bool: car rows[j] with its model point at (mx[j], my[j]) is near enough one of its objects for a
-        corner of its footprint to be inside it; cars where this is False cannot have crashed (`crashed`)."""
-        radius = (math.hypot(0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]) + math.hypot(*self.half)
-                  + MODEL_POINT_AHEAD_M + 1e-6)
-        return _near_any(np.ascontiguousarray(mx, dtype=np.float64), np.ascontiguousarray(my, dtype=np.float64),
-                         np.asarray(rows, dtype=np.int64), self.xy, radius)
-
     def crashed(self, bx, by, yaw, rows=None, car_arc=None, length: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Per car (`rows`, all by default) at base pose (bx, by, yaw): (crashed, rear_ended). A corner of the car
         inside one of its objects' footprints is a crash; with bot cars only when the bot is ahead of the car (its
@@ -531,6 +536,18 @@ class ObjectSet:
         rows = np.arange(bx.size) if rows is None else np.asarray(rows, dtype=np.int64)
         inside = _corners_inside(np.asarray(bx, dtype=np.float64), np.asarray(by, dtype=np.float64),
                                  np.asarray(yaw, dtype=np.float64), rows, self.xy, self.yaw, *self.half)  # (k, m)
+        return self._judge(inside, rows, car_arc, length)
+
+    def crashed_at_model_point(self, meas, rows, length: float) -> tuple[np.ndarray, np.ndarray]:
+        """`crashed` for cars `rows` measured as the simulator's measurement rows `meas` (n, N_MEAS) give them: the
+        model point, heading (°) and centre-line arc; the base pose as `base_from_model_point` gives it."""
+        rows = np.asarray(rows, dtype=np.int64)
+        inside = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half)
+        car_arc = meas[rows, K.MS] if self.bots or self.racers else None
+        return self._judge(inside, rows, car_arc, length)
+
+    def _judge(self, inside, rows, car_arc, length) -> tuple[np.ndarray, np.ndarray]:
+        """(crashed, rear_ended) per car from `inside` (k, m): which objects hold a corner of the car."""
         if not (self.bots or self.racers) or car_arc is None:
             return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
         ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
