@@ -209,6 +209,21 @@ def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_le
     return out
 
 
+@njit(cache=True)
+def _nearest_object(rows, oxy, pts):
+    """(distance, index) of the object of car rows[j] nearest to point pts[j] (the first of equals)."""
+    dist = np.empty(rows.size)
+    nearest = np.zeros(rows.size, dtype=np.int64)
+    for j in range(rows.size):
+        dist[j] = np.inf
+        for q in range(oxy.shape[1]):
+            d = math.hypot(oxy[rows[j], q, 0] - pts[j, 0], oxy[rows[j], q, 1] - pts[j, 1])
+            if d < dist[j]:
+                dist[j] = d
+                nearest[j] = q
+    return dist, nearest
+
+
 def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """Even-odd test of points against a closed ring (first == last not required)."""
     x1, y1 = ring[:, 0], ring[:, 1]
@@ -466,12 +481,12 @@ class ObjectSet:
         idx, reversed_ = np.asarray(idx), np.asarray(reversed_)
         if self.num_objects == 0 or idx.size == 0:
             return
-        d = np.hypot(self.xy[idx, :, 0] - pts[:, :1], self.xy[idx, :, 1] - pts[:, 1:2])  # (k, m)
-        near = np.flatnonzero(d.min(axis=1) < CLOSEST_OBJ_GAP_M)
+        dist, nearest = _nearest_object(np.asarray(idx, dtype=np.int64), self.xy, np.asarray(pts, dtype=np.float64))
+        near = np.flatnonzero(dist < CLOSEST_OBJ_GAP_M)
         if near.size == 0:
             return
         revs = reversed_[near].astype(bool)
-        box_lane = self.lane[idx[near], np.argmin(d[near], axis=1)]
+        box_lane = self.lane[idx[near], nearest[near]]
         # where a start moves depends on the track alone (the start point, direction and lane): each is worked
         # out once, as training restarts from the same few points over and over
         keys = [(r, f, x, y) for r, f, (x, y) in zip(revs.tolist(), box_lane.tolist(), pts[near].tolist(),
