@@ -229,11 +229,12 @@ class Simulator:
         if idx.size == 0:
             return
         crash, rear = self.objects.crashed_at_model_point(self.params, idx, self.track.length)
-        hit = idx[crash]
-        self.ctr[hit, K.KSTATUS] = K.CRASHED
+        if crash.any():
+            hit = idx[crash]
+            self.ctr[hit, K.KSTATUS] = K.CRASHED
+            self.truncated[hit] = False
         if rear.any():  # a bot ran into the car from behind: the bots pause (not the car's crash)
             self.objects.pause(idx[rear])
-        self.truncated[hit] = False
 
     def features(self, out=None, rows=None) -> np.ndarray:
         """(num_cars, feature_size) `features` observation of the current poses (float64 in `out`).

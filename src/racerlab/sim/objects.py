@@ -449,6 +449,8 @@ class ObjectSet:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
         A car that already holds its direction's layout keeps it: nothing moves boxes between resets."""
         holds = self._layouts.setdefault("holds", np.full(self.xy.shape[0], -1, dtype=np.int64))
+        if (holds[idx] == reversed_).all():  # every car holds its direction's layout already (most resets)
+            return
         for rev in (False, True):
             rows = idx[(reversed_ == rev) & (holds[idx] != int(rev))]
             if rows.size == 0:
