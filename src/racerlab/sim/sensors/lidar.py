@@ -107,7 +107,11 @@ def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
     ey = by - ay
     ll = ex * ex + ey * ey
     t = min(max(((ox - ax) * ex + (oy - ay) * ey) / ll, 0.0), 1.0) if ll > 0.0 else 0.0
-    if math.hypot(ax + t * ex - ox, ay + t * ey - oy) > reach:
+    # every hit is at least as far as the segment's nearest point: beyond reach (a hair kept for rounding), none
+    # can count
+    gx = ax + t * ex - ox
+    gy = ay + t * ey - oy
+    if gx * gx + gy * gy > (reach + 1e-9) * (reach + 1e-9):
         return
     period = 2.0 * math.pi / step
     u0 = (math.atan2(ay - oy, ax - ox) - base) / step
@@ -126,18 +130,13 @@ def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
 
 
 @njit(cache=True, inline="always")
-def _cast_box(ox, oy, base, step, nrays, reach, bx, by, byaw, length, width, best):
-    """Cast the sides of an oriented rectangle (centre bx, by, turned by byaw) that face (ox, oy); range 0 from
-    inside it."""
+def _cast_box(ox, oy, base, step, nrays, reach, bx, by, cb, sb, length, width, best):
+    """Cast the sides of an oriented rectangle (centre bx, by, turned by the angle whose cosine and sine are cb, sb)
+    that face (ox, oy); range 0 from inside it. The caller has checked it is in reach (`_in_reach`)."""
     hl = 0.5 * length
     hw = 0.5 * width
     px = ox - bx
     py = oy - by
-    far = reach + hl + hw  # out of reach whatever its yaw (hl + hw >= the half diagonal)
-    if px * px + py * py > far * far:
-        return
-    cb = math.cos(byaw)
-    sb = math.sin(byaw)
     if abs(cb * px + sb * py) <= hl and abs(-sb * px + cb * py) <= hw:
         best[:] = 0.0
         return
@@ -166,6 +165,16 @@ def _in_reach(ox, oy, bx, by, length, width, reach):
     return (ox - bx) * (ox - bx) + (oy - by) * (oy - by) <= far * far
 
 
+@njit(cache=True, inline="always")
+def _memo_turn(memo, m, yaw):
+    """(cos, sin) of `yaw`, kept in column m of memo (yaw, cos, sin) while the same yaw comes again."""
+    if yaw != memo[0, m]:
+        memo[0, m] = yaw
+        memo[1, m] = math.cos(yaw)
+        memo[2, m] = math.sin(yaw)
+    return memo[1, m], memo[2, m]
+
+
 @njit(cache=True)
 def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, oxy, oyaw, osize, boxes, visible, walls, edges,
          grid, reach, out, seen):
@@ -181,6 +190,8 @@ def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, oxy, oyaw, 
     olen = osize[0]
     owid = osize[1]
     hits = 0
+    # cos and sin of the last yaw seen for each of the cars' objects: the objects of many cars stand alike
+    memo = np.full((3, oxy.shape[1]), np.nan)
     for k in range(cars.shape[0]):
         i = cars[k]
         c = math.cos(pose_yaw[i])
@@ -197,14 +208,15 @@ def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, oxy, oyaw, 
                 if not started:
                     best[:] = np.inf
                     started = True
-                _cast_box(ox, oy, base, step, nrays, reach, oxy[i, m, 0], oxy[i, m, 1], oyaw[i, m], olen, owid, best)
+                cb, sb = _memo_turn(memo, m, oyaw[i, m])
+                _cast_box(ox, oy, base, step, nrays, reach, oxy[i, m, 0], oxy[i, m, 1], cb, sb, olen, owid, best)
         for m in range(boxes.shape[0]):
             if visible[i, m] and _in_reach(ox, oy, boxes[m, 0], boxes[m, 1], boxes[m, 3], boxes[m, 4], reach):
                 if not started:
                     best[:] = np.inf
                     started = True
-                _cast_box(ox, oy, base, step, nrays, reach, boxes[m, 0], boxes[m, 1], boxes[m, 2], boxes[m, 3],
-                          boxes[m, 4], best)
+                _cast_box(ox, oy, base, step, nrays, reach, boxes[m, 0], boxes[m, 1], math.cos(boxes[m, 2]),
+                          math.sin(boxes[m, 2]), boxes[m, 3], boxes[m, 4], best)
         seen[i] = started
         if walls:
             _cast_walls(ox, oy, base, step, nrays, reach, edges, grid, best)
