@@ -149,9 +149,10 @@ class Lanes:
 
 
 @njit(cache=True, inline="always")
-def _car_corners_inside(bx, by, yaw, oxy, oyaw, half_len, half_wid, out):
+def _car_corners_inside(bx, by, yaw, oxy, oyaw, half_len, half_wid, out, memo):
     """out[q] = a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx, by, yaw) lies strictly inside
-    object q's footprint rectangle (half sizes half_len, half_wid around oxy[q], turned by oyaw[q])."""
+    object q's footprint rectangle (half sizes half_len, half_wid around oxy[q], turned by oyaw[q]). memo (3, m)
+    keeps each object's last yaw with its cos and sin (the objects of many cars stand alike)."""
     hl = 0.5 * CAR_FOOTPRINT_M[0]
     hw = 0.5 * CAR_FOOTPRINT_M[1]
     far = _crash_reach(half_len, half_wid)
@@ -162,8 +163,12 @@ def _car_corners_inside(bx, by, yaw, oxy, oyaw, half_len, half_wid, out):
         ey = by - oxy[q, 1]
         if ex * ex + ey * ey > far * far:
             continue
-        co = math.cos(oyaw[q])
-        so = math.sin(oyaw[q])
+        if oyaw[q] != memo[0, q]:
+            memo[0, q] = oyaw[q]
+            memo[1, q] = math.cos(oyaw[q])
+            memo[2, q] = math.sin(oyaw[q])
+        co = memo[1, q]
+        so = memo[2, q]
         for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
             dx = bx + a * c - b * s - oxy[q, 0]
             dy = by + a * s + b * c - oxy[q, 1]
@@ -184,8 +189,9 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
     """(k, m) bool: a corner of the car footprint at base pose (bx[j], by[j], yaw[j]) lies strictly inside one of
     the objects oxy[rows[j]] (`_car_corners_inside`). Compiled: it runs for every car at every step."""
     out = np.zeros((bx.size, oxy.shape[1]), dtype=np.bool_)
+    memo = np.full((3, oxy.shape[1]), np.nan)
     for j in range(bx.size):
-        _car_corners_inside(bx[j], by[j], yaw[j], oxy[rows[j]], oyaw[rows[j]], half_len, half_wid, out[j])
+        _car_corners_inside(bx[j], by[j], yaw[j], oxy[rows[j]], oyaw[rows[j]], half_len, half_wid, out[j], memo)
     return out
 
 
@@ -195,6 +201,7 @@ def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_le
     meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars with
     no object near the model point are passed over without working out the pose."""
     out = np.zeros((rows.size, oxy.shape[1]), dtype=np.bool_)
+    memo = np.full((3, oxy.shape[1]), np.nan)
     near = _crash_reach(half_len, half_wid) + MODEL_POINT_AHEAD_M + 1e-6
     for j in range(rows.size):
         i = rows[j]
@@ -204,7 +211,7 @@ def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_le
             if (mx - oxy[i, q, 0]) ** 2 + (my - oxy[i, q, 1]) ** 2 <= near * near:
                 yaw = np.radians(meas[i, cheading])
                 _car_corners_inside(mx - MODEL_POINT_AHEAD_M * math.cos(yaw), my - MODEL_POINT_AHEAD_M * math.sin(yaw),
-                                    yaw, oxy[i], oyaw[i], half_len, half_wid, out[j])
+                                    yaw, oxy[i], oyaw[i], half_len, half_wid, out[j], memo)
                 break
     return out
 
