@@ -228,7 +228,10 @@ class Simulator:
         idx = np.flatnonzero(active & (codes != K.STATUS_PREPARE) & (codes != K.LAP_COMPLETE))
         if idx.size == 0:
             return
-        crash, rear = self.objects.crashed_at_model_point(self.params, idx, self.track.length)
+        judged = self.objects.crashed_at_model_point(self.params, idx, self.track.length)
+        if judged is None:
+            return
+        crash, rear = judged
         if crash.any():
             hit = idx[crash]
             self.ctr[hit, K.KSTATUS] = K.CRASHED

@@ -199,9 +199,11 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
 def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid):
     """`_corners_inside` for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with heading
     meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars with
-    no object near the model point are passed over without working out the pose."""
+    no object near the model point are passed over without working out the pose. Also returns the number of
+    (car, object) pairs found."""
     out = np.zeros((rows.size, oxy.shape[1]), dtype=np.bool_)
     memo = np.full((3, oxy.shape[1]), np.nan)
+    count = 0
     near = _crash_reach(half_len, half_wid) + MODEL_POINT_AHEAD_M + 1e-6
     for j in range(rows.size):
         i = rows[j]
@@ -212,8 +214,9 @@ def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_le
                 yaw = np.radians(meas[i, cheading])
                 _car_corners_inside(mx - MODEL_POINT_AHEAD_M * math.cos(yaw), my - MODEL_POINT_AHEAD_M * math.sin(yaw),
                                     yaw, oxy[i], oyaw[i], half_len, half_wid, out[j], memo)
+                count += out[j].sum()
                 break
-    return out
+    return out, count
 
 
 @njit(cache=True)
@@ -562,11 +565,14 @@ class ObjectSet:
                                  np.asarray(yaw, dtype=np.float64), rows, self.xy, self.yaw, *self.half)  # (k, m)
         return self._judge(inside, rows, car_arc, length)
 
-    def crashed_at_model_point(self, meas, rows, length: float) -> tuple[np.ndarray, np.ndarray]:
+    def crashed_at_model_point(self, meas, rows, length: float) -> tuple[np.ndarray, np.ndarray] | None:
         """`crashed` for cars `rows` measured as the simulator's measurement rows `meas` (n, N_MEAS) give them: the
-        model point, heading (°) and centre-line arc; the base pose as `base_from_model_point` gives it."""
+        model point, heading (°) and centre-line arc; the base pose as `base_from_model_point` gives it. None when
+        no corner of any of these cars is inside an object (neither crashed nor rear-ended)."""
         rows = np.asarray(rows, dtype=np.int64)
-        inside = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half)
+        inside, count = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half)
+        if count == 0:  # no car touches an object (most steps)
+            return None
         car_arc = meas[rows, K.MS] if self.bots or self.racers else None
         return self._judge(inside, rows, car_arc, length)
 
