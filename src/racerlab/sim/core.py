@@ -228,14 +228,16 @@ class Simulator:
         idx = np.flatnonzero(active & (codes != K.STATUS_PREPARE) & (codes != K.LAP_COMPLETE))
         if idx.size == 0:
             return
-        p = self.params[idx]
-        crash, rear = self.objects.crashed(*base_from_model_point(p[:, K.MX], p[:, K.MY], p[:, K.MHEADING]),
-                                           rows=idx, car_arc=p[:, K.MS], length=self.track.length)
-        hit = idx[crash]
-        self.ctr[hit, K.KSTATUS] = K.CRASHED
+        judged = self.objects.crashed_at_model_point(self.params, idx, self.track.length)
+        if judged is None:
+            return
+        crash, rear = judged
+        if crash.any():
+            hit = idx[crash]
+            self.ctr[hit, K.KSTATUS] = K.CRASHED
+            self.truncated[hit] = False
         if rear.any():  # a bot ran into the car from behind: the bots pause (not the car's crash)
             self.objects.pause(idx[rear])
-        self.truncated[hit] = False
 
     def features(self, out=None, rows=None) -> np.ndarray:
         """(num_cars, feature_size) `features` observation of the current poses (float64 in `out`).

@@ -39,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from racerlab.errors import ConfigError
+from racerlab.sim import _kernels as K
 from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
@@ -51,6 +52,7 @@ END_MARGIN_M = 1.0  # the last obstacle stays this far before the end of the lap
 FEATURE_OBJECTS = 2  # the `features` observation gains the nearest objects ahead, (x ahead, y left) / 2 m each
 RESET_BEHIND_DIST_M = 1.0  # evaluation: after a crash the car restarts this far behind the box, other lane
 CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
+MOVED_STARTS_KEPT = 4096  # moved start poses remembered (the cache starts afresh when full)
 CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
 CAMERA_FAR_M = 300.0
@@ -146,30 +148,90 @@ class Lanes:
         return xy, yaw
 
 
-@njit(cache=True)
-def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
-    """(k, m) bool: a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx[j], by[j], yaw[j]) lies
-    strictly inside object q's footprint rectangle (half sizes half_len, half_wid around oxy[rows[j], q], turned by
-    oyaw[rows[j], q]). Compiled: it runs for every car at every step."""
+@njit(cache=True, inline="always")
+def _car_corners_inside(bx, by, yaw, oxy, oyaw, half_len, half_wid, out, memo):
+    """out[q] = a corner of the car footprint (CAR_FOOTPRINT_M) at base pose (bx, by, yaw) lies strictly inside
+    object q's footprint rectangle (half sizes half_len, half_wid around oxy[q], turned by oyaw[q]). memo (3, m)
+    keeps each object's last yaw with its cos and sin (the objects of many cars stand alike)."""
     hl = 0.5 * CAR_FOOTPRINT_M[0]
     hw = 0.5 * CAR_FOOTPRINT_M[1]
-    k = bx.size
-    m = oxy.shape[1]
-    out = np.zeros((k, m), dtype=np.bool_)
-    for j in range(k):
-        c = math.cos(yaw[j])
-        s = math.sin(yaw[j])
-        i = rows[j]
-        for q in range(m):
-            co = math.cos(oyaw[i, q])
-            so = math.sin(oyaw[i, q])
-            for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
-                dx = bx[j] + a * c - b * s - oxy[i, q, 0]
-                dy = by[j] + a * s + b * c - oxy[i, q, 1]
-                if abs(dx * co + dy * so) < half_len and abs(-dx * so + dy * co) < half_wid:
-                    out[j, q] = True
-                    break
+    far = _crash_reach(half_len, half_wid)
+    c = math.cos(yaw)
+    s = math.sin(yaw)
+    for q in range(oxy.shape[0]):
+        ex = bx - oxy[q, 0]
+        ey = by - oxy[q, 1]
+        if ex * ex + ey * ey > far * far:
+            continue
+        if oyaw[q] != memo[0, q]:
+            memo[0, q] = oyaw[q]
+            memo[1, q] = math.cos(oyaw[q])
+            memo[2, q] = math.sin(oyaw[q])
+        co = memo[1, q]
+        so = memo[2, q]
+        for a, b in ((hl, hw), (hl, -hw), (-hl, hw), (-hl, -hw)):
+            dx = bx + a * c - b * s - oxy[q, 0]
+            dy = by + a * s + b * c - oxy[q, 1]
+            if abs(dx * co + dy * so) < half_len and abs(-dx * so + dy * co) < half_wid:
+                out[q] = True
+                break
+
+
+@njit(cache=True, inline="always")
+def _crash_reach(half_len, half_wid):
+    """A corner lies within the car's half diagonal of its base, a footprint point within the object's of its
+    centre: an object further from the base than the two together (plus a hair) cannot hold a corner."""
+    return math.hypot(0.5 * CAR_FOOTPRINT_M[0], 0.5 * CAR_FOOTPRINT_M[1]) + math.hypot(half_len, half_wid) + 1e-9
+
+
+@njit(cache=True)
+def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
+    """(k, m) bool: a corner of the car footprint at base pose (bx[j], by[j], yaw[j]) lies strictly inside one of
+    the objects oxy[rows[j]] (`_car_corners_inside`). Compiled: it runs for every car at every step."""
+    out = np.zeros((bx.size, oxy.shape[1]), dtype=np.bool_)
+    memo = np.full((3, oxy.shape[1]), np.nan)
+    for j in range(bx.size):
+        _car_corners_inside(bx[j], by[j], yaw[j], oxy[rows[j]], oyaw[rows[j]], half_len, half_wid, out[j], memo)
     return out
+
+
+@njit(cache=True)
+def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid):
+    """`_corners_inside` for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with heading
+    meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars with
+    no object near the model point are passed over without working out the pose. Also returns the number of
+    (car, object) pairs found."""
+    out = np.zeros((rows.size, oxy.shape[1]), dtype=np.bool_)
+    memo = np.full((3, oxy.shape[1]), np.nan)
+    count = 0
+    near = _crash_reach(half_len, half_wid) + MODEL_POINT_AHEAD_M + 1e-6
+    for j in range(rows.size):
+        i = rows[j]
+        mx = meas[i, cx]
+        my = meas[i, cy]
+        for q in range(oxy.shape[1]):
+            if (mx - oxy[i, q, 0]) ** 2 + (my - oxy[i, q, 1]) ** 2 <= near * near:
+                yaw = np.radians(meas[i, cheading])
+                _car_corners_inside(mx - MODEL_POINT_AHEAD_M * math.cos(yaw), my - MODEL_POINT_AHEAD_M * math.sin(yaw),
+                                    yaw, oxy[i], oyaw[i], half_len, half_wid, out[j], memo)
+                count += out[j].sum()
+                break
+    return out, count
+
+
+@njit(cache=True)
+def _nearest_object(rows, oxy, pts):
+    """(distance, index) of the object of car rows[j] nearest to point pts[j] (the first of equals)."""
+    dist = np.empty(rows.size)
+    nearest = np.zeros(rows.size, dtype=np.int64)
+    for j in range(rows.size):
+        dist[j] = np.inf
+        for q in range(oxy.shape[1]):
+            d = math.hypot(oxy[rows[j], q, 0] - pts[j, 0], oxy[rows[j], q, 1] - pts[j, 1])
+            if d < dist[j]:
+                dist[j] = d
+                nearest[j] = q
+    return dist, nearest
 
 
 def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
@@ -237,6 +299,7 @@ class ObjectSet:
         self.lane = np.zeros((num_cars, m), dtype=np.int64)  # a bot's lane (the one it leaves in a lane change)
         self.order = np.zeros((num_cars, m), dtype=np.int64)  # objects sorted by `arc`
         self._lists: list = [None] * num_cars
+        self._moved_starts: dict = {}  # (reversed, box lane, x, y) of a start near a box -> its moved (x, y, yaw)
         # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
         # left after a bot rear-ended the car, the current lane change (clock times; inf: none), front-point arc
         self.d0 = np.zeros((num_cars, m))
@@ -396,6 +459,8 @@ class ObjectSet:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
         A car that already holds its direction's layout keeps it: nothing moves boxes between resets."""
         holds = self._layouts.setdefault("holds", np.full(self.xy.shape[0], -1, dtype=np.int64))
+        if (holds[idx] == reversed_).all():  # every car holds its direction's layout already (most resets)
+            return
         for rev in (False, True):
             rows = idx[(reversed_ == rev) & (holds[idx] != int(rev))]
             if rows.size == 0:
@@ -428,19 +493,41 @@ class ObjectSet:
         idx, reversed_ = np.asarray(idx), np.asarray(reversed_)
         if self.num_objects == 0 or idx.size == 0:
             return
-        d = np.hypot(self.xy[idx, :, 0] - pts[:, :1], self.xy[idx, :, 1] - pts[:, 1:2])  # (k, m)
-        near = np.flatnonzero(d.min(axis=1) < CLOSEST_OBJ_GAP_M)
+        dist, nearest = _nearest_object(np.asarray(idx, dtype=np.int64), self.xy, np.asarray(pts, dtype=np.float64))
+        near = np.flatnonzero(dist < CLOSEST_OBJ_GAP_M)
         if near.size == 0:
             return
-        box_lane = self.lane[idx[near], np.argmin(d[near], axis=1)]
+        revs = reversed_[near].astype(bool)
+        box_lane = self.lane[idx[near], nearest[near]]
+        # where a start moves depends on the track alone (the start point, direction and lane): each is worked
+        # out once, as training restarts from the same few points over and over
+        keys = [(r, f, x, y) for r, f, (x, y) in zip(revs.tolist(), box_lane.tolist(), pts[near].tolist(),
+                                                     strict=True)]
+        cache = self._moved_starts
+        new = [j for j, key in enumerate(keys) if key not in cache]
+        if new:
+            if len(cache) + len(new) > MOVED_STARTS_KEPT:
+                cache.clear()
+            sel = near[new]
+            moved_pts, moved_yaw = self._moved(revs[new], box_lane[new], pts[sel], yaw[sel])
+            for j, (x, y), h in zip(new, moved_pts.tolist(), moved_yaw.tolist(), strict=True):
+                cache[keys[j]] = (x, y, h)
+        for j, key in zip(near.tolist(), keys, strict=True):
+            pts[j, 0], pts[j, 1], yaw[j] = cache[key]
+
+    def _moved(self, revs, box_lane, pts, yaw) -> tuple[np.ndarray, np.ndarray]:
+        """Start points `pts` (k, 2) with headings `yaw` moved onto the lane on the other side of their box (in
+        driving direction `revs`, the box on lane `box_lane`): the nearest point of that lane and its heading."""
+        pts, yaw = pts.copy(), yaw.copy()
         for rev in (False, True):
             lanes = self.lanes[int(rev)]
             for flag, lane in ((1, lanes.outer), (-1, lanes.inner)):  # the lane on the box's other side
-                sel = near[(reversed_[near].astype(bool) == rev) & (box_lane == flag)]
-                if sel.size:
+                sel = (revs == rev) & (box_lane == flag)
+                if sel.any():
                     proj = lane.project(pts[sel])
                     pts[sel] = lane.point_at(proj.s).reshape(-1, 2)
                     yaw[sel] = proj.heading
+        return pts, yaw
 
     def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
         """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
@@ -476,6 +563,21 @@ class ObjectSet:
         rows = np.arange(bx.size) if rows is None else np.asarray(rows, dtype=np.int64)
         inside = _corners_inside(np.asarray(bx, dtype=np.float64), np.asarray(by, dtype=np.float64),
                                  np.asarray(yaw, dtype=np.float64), rows, self.xy, self.yaw, *self.half)  # (k, m)
+        return self._judge(inside, rows, car_arc, length)
+
+    def crashed_at_model_point(self, meas, rows, length: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """`crashed` for cars `rows` measured as the simulator's measurement rows `meas` (n, N_MEAS) give them: the
+        model point, heading (°) and centre-line arc; the base pose as `base_from_model_point` gives it. None when
+        no corner of any of these cars is inside an object (neither crashed nor rear-ended)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        inside, count = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half)
+        if count == 0:  # no car touches an object (most steps)
+            return None
+        car_arc = meas[rows, K.MS] if self.bots or self.racers else None
+        return self._judge(inside, rows, car_arc, length)
+
+    def _judge(self, inside, rows, car_arc, length) -> tuple[np.ndarray, np.ndarray]:
+        """(crashed, rear_ended) per car from `inside` (k, m): which objects hold a corner of the car."""
         if not (self.bots or self.racers) or car_arc is None:
             return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
         ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length

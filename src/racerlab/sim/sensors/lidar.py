@@ -43,6 +43,8 @@ from racerlab.sim.sensors.geometry import (
 
 MIN_RANGE_M, MAX_RANGE_M = 0.15, 1.0  # AWS ObservationClippingFilter
 NOISE_SIGMA_M = 0.01
+LIDAR_STEP_RAD = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
+LIDAR_STEP_COS, LIDAR_STEP_SIN = math.cos(LIDAR_STEP_RAD), math.sin(LIDAR_STEP_RAD)
 SECTORS = 8
 SECTOR_CLIP_M = 0.5
 NOISE_REACH_SIGMAS = 6  # a hit further than max range + 6 σ reads max range whatever the noise
@@ -70,6 +72,14 @@ def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
 
 
 @njit(cache=True, inline="always")
+def _turn(step):
+    """(cos, sin) of the angle between neighbouring rays, worked out once for the scan's own step."""
+    if step == LIDAR_STEP_RAD:
+        return LIDAR_STEP_COS, LIDAR_STEP_SIN
+    return math.cos(step), math.sin(step)
+
+
+@njit(cache=True, inline="always")
 def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
     """Intersect rays lo..hi (indices, clipped to the scan) with segment a-b; keep the nearer hits in best."""
     k0 = max(lo, 0)
@@ -79,8 +89,7 @@ def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
     # ray directions by rotation from the first one: two sines per segment, not two per ray
     c0 = math.cos(base + k0 * step)
     s0 = math.sin(base + k0 * step)
-    cs = math.cos(step)
-    ss = math.sin(step)
+    cs, ss = _turn(step)
     for k in range(k0, k1 + 1):
         t = _ray_segment(ox, oy, c0, s0, ax, ay, bx, by)
         if t < best[k]:
@@ -98,7 +107,11 @@ def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
     ey = by - ay
     ll = ex * ex + ey * ey
     t = min(max(((ox - ax) * ex + (oy - ay) * ey) / ll, 0.0), 1.0) if ll > 0.0 else 0.0
-    if math.hypot(ax + t * ex - ox, ay + t * ey - oy) > reach:
+    # every hit is at least as far as the segment's nearest point: beyond reach (a hair kept for rounding), none
+    # can count
+    gx = ax + t * ex - ox
+    gy = ay + t * ey - oy
+    if gx * gx + gy * gy > (reach + 1e-9) * (reach + 1e-9):
         return
     period = 2.0 * math.pi / step
     u0 = (math.atan2(ay - oy, ax - ox) - base) / step
@@ -117,24 +130,23 @@ def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
 
 
 @njit(cache=True, inline="always")
-def _cast_box(ox, oy, base, step, nrays, reach, bx, by, byaw, length, width, best):
-    """Cast the sides of an oriented rectangle (centre bx, by, turned by byaw) that face (ox, oy); range 0 from
-    inside it."""
+def _cast_box(ox, oy, base, step, nrays, reach, bx, by, cb, sb, length, width, best):
+    """Cast the sides of an oriented rectangle (centre bx, by, turned by the angle whose cosine and sine are cb, sb)
+    that face (ox, oy); range 0 from inside it. The caller has checked it is in reach (`_in_reach`)."""
     hl = 0.5 * length
     hw = 0.5 * width
     px = ox - bx
     py = oy - by
-    far = reach + hl + hw  # out of reach whatever its yaw (hl + hw >= the half diagonal)
-    if px * px + py * py > far * far:
-        return
-    cb = math.cos(byaw)
-    sb = math.sin(byaw)
     if abs(cb * px + sb * py) <= hl and abs(-sb * px + cb * py) <= hw:
         best[:] = 0.0
         return
     # the sensor in the box's frame: only the sides that face it can hold a nearest hit (the box is convex)
     lu = cb * px + sb * py
     lv = -sb * px + cb * py
+    gu = max(abs(lu) - hl, 0.0)
+    gv = max(abs(lv) - hw, 0.0)
+    if gu * gu + gv * gv > (reach + 1e-9) * (reach + 1e-9):  # every side is out of reach (a hair kept for rounding)
+        return
     facing = (lv > hw, lu < -hl, lv < -hw, lu > hl)  # sides +y, -x, -y, +x, between corners q and q + 1
     cx = (hl, -hl, -hl, hl)
     cy = (hw, hw, -hw, -hw)
@@ -146,17 +158,40 @@ def _cast_box(ox, oy, base, step, nrays, reach, bx, by, byaw, length, width, bes
               bx + cb * cx[r] - sb * cy[r], by + sb * cx[r] + cb * cy[r], best)
 
 
-@njit(cache=True)
-def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, own, boxes, visible, walls, edges, grid, reach,
-         out):
-    """Raw ranges (inf = nothing within `reach`) of cars `cars` into out[car, ray].
+@njit(cache=True, inline="always")
+def _in_reach(ox, oy, bx, by, length, width, reach):
+    """A rectangle (centre bx, by) can meet a ray from (ox, oy) within `reach`, whatever its yaw."""
+    far = reach + 0.5 * (length + width)  # >= reach + the half diagonal
+    return (ox - bx) * (ox - bx) + (oy - by) * (oy - by) <= far * far
 
-    Ray k looks at first_angle + k·step from the car's heading. Rectangles [x, y, yaw, length, width]:
-    car i sees its own `own[i]` (B, K, 5) and those of boxes (M, 5) where visible[i, m]; with `walls` the
-    road edges (E, 4) listed for the car's grid cell (grid = (cell_start, cell_edges, x0, y0, cell, nx, ny)).
+
+@njit(cache=True, inline="always")
+def _memo_turn(memo, m, yaw):
+    """(cos, sin) of `yaw`, kept in column m of memo (yaw, cos, sin) while the same yaw comes again."""
+    if yaw != memo[0, m]:
+        memo[0, m] = yaw
+        memo[1, m] = math.cos(yaw)
+        memo[2, m] = math.sin(yaw)
+    return memo[1, m], memo[2, m]
+
+
+@njit(cache=True)
+def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, oxy, oyaw, osize, boxes, visible, walls, edges,
+         grid, reach, out, seen):
+    """Raw ranges (inf = nothing within `reach`) of cars `cars` into out[car, ray]; returns the number of hits.
+
+    Ray k looks at first_angle + k·step from the car's heading. Car i sees its own objects at oxy[i] (K, 2),
+    turned by oyaw[i] (K,), each osize (length, width); the rectangles [x, y, yaw, length, width] of boxes (M, 5)
+    where visible[i, m]; with `walls` the road edges (E, 4) listed for the car's grid cell (grid = (cell_start,
+    cell_edges, x0, y0, cell, nx, ny)). A car with nothing in reach casts no ray: seen[i] is False and out[i] is
+    left as it was (every ray reads inf); otherwise seen[i] is True.
     """
-    cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
     nrays = out.shape[1]
+    olen = osize[0]
+    owid = osize[1]
+    hits = 0
+    # cos and sin of the last yaw seen for each of the cars' objects: the objects of many cars stand alike
+    memo = np.full((3, oxy.shape[1]), np.nan)
     for k in range(cars.shape[0]):
         i = cars[k]
         c = math.cos(pose_yaw[i])
@@ -165,41 +200,63 @@ def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, own, boxes,
         oy = pose_y[i] + s * mount_x
         base = pose_yaw[i] + first_angle
         best = out[i]
-        best[:] = np.inf
-        for m in range(own.shape[1]):
-            _cast_box(ox, oy, base, step, nrays, reach, own[i, m, 0], own[i, m, 1], own[i, m, 2], own[i, m, 3],
-                      own[i, m, 4], best)
-        for m in range(boxes.shape[0]):
-            if visible[i, m]:
-                _cast_box(ox, oy, base, step, nrays, reach, boxes[m, 0], boxes[m, 1], boxes[m, 2], boxes[m, 3],
-                          boxes[m, 4], best)
+        started = walls
         if walls:
-            cx = min(max(int((ox - gx0) / gcell), 0), gnx - 1)
-            cy = min(max(int((oy - gy0) / gcell), 0), gny - 1)
-            for q in range(cell_start[cy * gnx + cx], cell_start[cy * gnx + cx + 1]):
-                e = cell_edges[q]
-                _cast(ox, oy, base, step, nrays, reach, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3], best)
-        for a in range(nrays):
-            if best[a] > reach:
-                best[a] = np.inf
+            best[:] = np.inf
+        for m in range(oxy.shape[1]):
+            if _in_reach(ox, oy, oxy[i, m, 0], oxy[i, m, 1], olen, owid, reach):
+                if not started:
+                    best[:] = np.inf
+                    started = True
+                cb, sb = _memo_turn(memo, m, oyaw[i, m])
+                _cast_box(ox, oy, base, step, nrays, reach, oxy[i, m, 0], oxy[i, m, 1], cb, sb, olen, owid, best)
+        for m in range(boxes.shape[0]):
+            if visible[i, m] and _in_reach(ox, oy, boxes[m, 0], boxes[m, 1], boxes[m, 3], boxes[m, 4], reach):
+                if not started:
+                    best[:] = np.inf
+                    started = True
+                _cast_box(ox, oy, base, step, nrays, reach, boxes[m, 0], boxes[m, 1], math.cos(boxes[m, 2]),
+                          math.sin(boxes[m, 2]), boxes[m, 3], boxes[m, 4], best)
+        seen[i] = started
+        if walls:
+            _cast_walls(ox, oy, base, step, nrays, reach, edges, grid, best)
+        if started:
+            hits += _keep_in_reach(best, reach)
+    return hits
+
+
+@njit(cache=True, inline="always")
+def _cast_walls(ox, oy, base, step, nrays, reach, edges, grid, best):
+    """Cast the road edges listed for the grid cell of (ox, oy)."""
+    cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
+    cx = min(max(int((ox - gx0) / gcell), 0), gnx - 1)
+    cy = min(max(int((oy - gy0) / gcell), 0), gny - 1)
+    for q in range(cell_start[cy * gnx + cx], cell_start[cy * gnx + cx + 1]):
+        e = cell_edges[q]
+        _cast(ox, oy, base, step, nrays, reach, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3], best)
+
+
+@njit(cache=True, inline="always")
+def _keep_in_reach(best, reach):
+    """Ranges beyond `reach` become inf (nothing hit); returns the number of hits left."""
+    hits = 0
+    for a in range(best.shape[0]):
+        if best[a] > reach:
+            best[a] = np.inf
+        else:
+            hits += 1
+    return hits
 
 
 @njit(cache=True)
-def _count_hits(cars, raw):
-    n = 0
-    for i in cars:
-        for a in range(raw.shape[1]):
-            if raw[i, a] < np.inf:
-                n += 1
-    return n
-
-
-@njit(cache=True)
-def _finish(cars, raw, noise, lo, hi, out):
+def _finish(cars, raw, seen, noise, lo, hi, out):
     """out[car] = raw ranges plus the next noise draw where a ray hit (in scan order), clipped to [lo, hi]; hi where
-    it hit nothing."""
+    it hit nothing or the car saw nothing (`seen` False)."""
     q = 0
     for i in cars:
+        if not seen[i]:
+            out[i, :] = hi
+            continue
         for a in range(raw.shape[1]):
             v = raw[i, a]
             if v < np.inf:
@@ -241,7 +298,7 @@ class Lidar:
         self.max_range_m = float(max_range_m)
         self.reach_m = self.max_range_m + NOISE_REACH_SIGMAS * self.noise_sigma_m
         self.angles = lidar_ray_angles()
-        self.step = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
+        self.step = LIDAR_STEP_RAD
         self.mount_x = lidar_position()
         self.edges = np.ascontiguousarray(sim.track.road_edges, dtype=np.float64)
         # a cell lists every edge within reach of any point in it (cell diagonal added)
@@ -250,11 +307,11 @@ class Lidar:
         self.set_objects(None)
         objects = getattr(sim, "objects", None)
         self._objects = objects if objects is not None and objects.num_objects else None
-        m = self._objects.num_objects if self._objects is not None else 0
-        self.own = np.zeros((sim.num_cars, m, 5))  # each car's objects: x, y, yaw from the ObjectSet, its model's size
-        if m:
-            self.own[:, :, 3:] = objects.box_size_m
+        # each car's objects are read from the ObjectSet's arrays at every scan; their model's size is fixed
+        self._osize = np.array(objects.box_size_m if self._objects is not None else (0.0, 0.0), dtype=np.float64)
+        self._no_objects = (np.zeros((sim.num_cars, 0, 2)), np.zeros((sim.num_cars, 0)))
         self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
+        self._seen = np.zeros(sim.num_cars, dtype=np.bool_)
         self.ranges = np.full((sim.num_cars, LIDAR_RAYS), self.max_range_m, dtype=np.float32)
         self._all = np.arange(sim.num_cars, dtype=np.int64)
 
@@ -278,18 +335,16 @@ class Lidar:
         Ranges are clipped to [0.15, max_range_m]; a ray that hits nothing reads max_range_m.
         """
         idx = self._all if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
-        if self._objects is not None:  # objects move at every reset (and bot cars at every step)
-            self.own[:, :, :2] = self._objects.xy
-            self.own[:, :, 2] = self._objects.yaw
-        if self.own.shape[1] or self.boxes.shape[0] or self.walls:
+        # objects move at every reset (and bot cars at every step): read where they stand now
+        oxy, oyaw = (self._objects.xy, self._objects.yaw) if self._objects is not None else self._no_objects
+        if oxy.shape[1] or self.boxes.shape[0] or self.walls:
             car = self.sim.car
-            scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD,
-                 self.step, self.own, self.boxes, self.visible, self.walls, self.edges, self.grid, self.reach_m,
-                 self.raw)
-            hits = _count_hits(idx, self.raw)
+            hits = scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x,
+                        LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD, self.step, oxy, oyaw, self._osize, self.boxes,
+                        self.visible, self.walls, self.edges, self.grid, self.reach_m, self.raw, self._seen)
             noise = self.sim.rng.normal(0.0, self.noise_sigma_m, size=hits) if self.noise_sigma_m > 0.0 and hits \
                 else np.zeros(hits)
-            _finish(idx, self.raw, noise, MIN_RANGE_M, self.max_range_m, self.ranges)
+            _finish(idx, self.raw, self._seen, noise, MIN_RANGE_M, self.max_range_m, self.ranges)
         return self.ranges
 
 
