@@ -50,6 +50,24 @@ def test_each_race_type_through_gymnasium_make(name):
     assert statuses <= {"prepare", "in_progress", "off_track", "crashed", "immobilized", "reversed", "lap_complete"}
     assert checked > 10 or n_objects == 0
 
+def test_a_seeded_reset_repeats_random_layouts_and_bot_timings():
+    race = {"type": "object_avoidance", "number_of_obstacles": 4, "randomize_obstacle_locations": True}
+    bots = {"type": "head_to_bot", "number_of_bot_cars": 2, "is_lane_change": True,
+            "lower_lane_change_time": 1.0, "upper_lane_change_time": 2.0}
+    for table in (race, bots):
+        layouts = []
+        for warm_up in (0, 3):  # a different history before the seeded reset must not matter
+            env = gym.make("racerlab/DeepRacer-v0", track=aws_track_path("reInvent2019_track"), race=table,
+                           observation="lidar", max_episode_steps=200)
+            for _ in range(warm_up):
+                env.reset()
+            env.reset(seed=7)
+            for _ in range(40):  # bots drive and draw their lane-change times
+                env.step(0)
+            layouts.append(env.unwrapped.sim.objects.xy[0].copy())
+        np.testing.assert_array_equal(layouts[0], layouts[1])
+
+
 @pytest.mark.parametrize(("race", "toml", "flags"), [
     ("object_avoidance", "object_positions = [[0.25, 1], [0.5, -1], [0.75, 1]]",
      ["--race-type", "object_avoidance", "--number-of-obstacles", "4", "--randomize-obstacle-locations"]),

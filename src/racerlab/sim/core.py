@@ -103,6 +103,13 @@ class Simulator:
         self._geom = (self._trk_f, self._trk_r, self._road, self._wheels, t.closed, t.length, t.is_ccw)
 
     # ---- episodes ------------------------------------------------------------------------------
+    def reseed(self, seed) -> None:
+        """A new random stream for starts, noise and the race's random layouts and bot timings."""
+        self.rng = np.random.default_rng(seed)
+        if self.objects is not None:
+            self.objects.rng = self.rng
+        self.episodes_started = 0
+
     def reset(self, mask=None, start_ndist=None, reverse=None) -> np.ndarray:
         """Start new episodes for the cars in `mask` (all by default); returns their indices.
 

@@ -89,8 +89,7 @@ class DeepRacerEnv(gym.Env):
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         if seed is not None:
-            self.sim.rng = np.random.default_rng(seed)
-            self.sim.episodes_started = 0
+            self.sim.reseed(seed)
         options = options or {}
         self.sim.reset(start_ndist=options.get("start_ndist"), reverse=options.get("reverse"))
         return self._obs(), self._info(None)
@@ -145,8 +144,7 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
 
     def reset(self, *, seed=None, options=None):
         if seed is not None:
-            self.sim.rng = np.random.default_rng(seed)
-            self.sim.episodes_started = 0
+            self.sim.reseed(seed)
             self.action_space.seed(seed)
         options = options or {}
         self.sim.reset(options.get("reset_mask"), start_ndist=options.get("start_ndist"),
