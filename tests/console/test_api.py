@@ -91,7 +91,7 @@ def test_training_survives_the_console_and_stops_with_its_iteration_saved(tmp_pa
     root = tmp_path / "ws"
     a = Console(root)
     a.client.post("/api/models", json={"name": "t", "track": "lab_oval", **TINY})
-    pid = a.client.post("/api/models/t/train", json={"iterations": 50}).json()["pid"]
+    pid = a.client.post("/api/models/t/train", json={"iterations": 100_000}).json()["pid"]  # runs until stopped
     # a chart point within a second of the iteration's line being written
     events = sse_events(a.client, "/api/models/t/events", lambda ev: any(e == "point" for e, _ in ev), 300)
     point = next(d for e, d in events if e == "point")

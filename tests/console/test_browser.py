@@ -67,7 +67,7 @@ def test_create_train_stop_evaluate_play(browser, tmp_path):
         shot(page, "wizard_reward")
         page.click("#new-create")
         page.wait_for_url("**/#/model/e2e")
-        page.fill("#train-iterations", "30")
+        page.fill("#train-iterations", "300")  # stopped below, long before it ends
         page.click("#train-start")
         page.locator("#model-state", has_text="training").wait_for()
         # a chart point appears when the first iteration is logged
