@@ -62,7 +62,7 @@ class _TimedReward:
 def _instrument(trainer: Trainer, clock: _Clock) -> None:
     trainer.iterate = clock.wrap("iteration", trainer.iterate)
     trainer.collector.collect = clock.wrap("collect", trainer.collector.collect)
-    trainer._learn = clock.wrap("update", trainer._learn)
+    trainer.agent.learn = clock.wrap("update", trainer.agent.learn)
     trainer._evaluate = clock.wrap("evaluate", trainer._evaluate)
     for world in trainer.worlds:
         world.reward = _TimedReward(world.reward, clock, "reward_collect")
