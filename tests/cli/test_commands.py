@@ -106,3 +106,34 @@ def test_printed_commands_quote_their_paths(tmp_path, capsys):
     for cmd in commands:
         args = shlex.split(cmd)
         assert str(model) in args or str(tmp_path / "a clone") in args, cmd
+
+
+def test_sigint_stops_a_training_started_with_sigint_ignored(tmp_path):
+    """A job a shell puts in the background inherits SIGINT ignored; `kill -INT` (the console's stop) must still
+    save the last complete iteration and end it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    model = tmp_path / "m"
+    assert main(["init", str(model), "--track", str(aws_track_path("reInvent2019_track")), "--cars", "2"]) == 0
+    hp = json.loads((model / "hyperparameters.json").read_text())
+    (model / "hyperparameters.json").write_text(json.dumps({**hp, "num_episodes_between_training": 2}))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    child = subprocess.Popen([sys.executable, "-m", "racerlab", "train", str(model), "--iterations", "100000"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        lines = []
+        for line in child.stdout:  # wait for the first iteration's line
+            lines.append(line)
+            if line.startswith("it "):
+                break
+        child.send_signal(signal.SIGINT)
+        out, _ = child.communicate(timeout=120)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 0 and "interrupted (Ctrl-C)" in "".join(lines) + out
+    assert any(p.name.endswith(".pt") for p in (model / "checkpoints").iterdir())

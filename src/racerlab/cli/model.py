@@ -87,6 +87,13 @@ FEATURES_NOTE = ("note: sensor FEATURES (speed, steering, offsets and the centre
 
 
 def run_train(args) -> int:
+    import signal
+
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        # a shell that starts a job in the background makes it ignore SIGINT, and Python then never raises
+        # KeyboardInterrupt; Ctrl-C's meaning (save the last complete iteration, stop) is what `kill -INT`
+        # and the console's stop button rely on
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     overrides = {"minutes": args.minutes, "episodes": args.episodes, "iterations": args.iterations,
                  "num_cars": args.cars, "device": args.device, "seed": args.seed, "tracks": args.track}
     if args.workers is None and args.ray_address:
