@@ -146,8 +146,7 @@ class TrainingConfig:
         if index >= len(self.workers):
             return replace(self, workers=())
         where = f"{self.source} [[worker]] {index + 1}"
-        changed = {name: RaceConfig.from_mapping({**self.race.table(), **keys}, where=f"{where}: race")
-                   if name == "race" else _parse_section(where, name, keys, getattr(self, name))
+        changed = {name: _parse_section(where, name, keys, getattr(self, name))
                    for name, keys in self.workers[index].items()}
         cfg = replace(self, **changed, workers=())
         _validate(replace(cfg, source=where))
@@ -169,7 +168,7 @@ def _toml_value(v) -> str:
 
 
 SECTIONS = {"track": TrackSettings, "run": RunSettings, "stop": StopSettings, "evaluation": EvaluationSettings,
-            "logs": LogSettings, "randomise": RandomiseSettings}
+            "logs": LogSettings, "randomise": RandomiseSettings, "race": RaceConfig}
 
 
 def _coerce(src: str, key: str, default, value):
@@ -204,21 +203,16 @@ def parse_training_config(data: dict, source: str = "training.toml") -> Training
     for name, section in data.items():
         if name == "worker":
             continue
-        if name not in SECTIONS and name != "race":
-            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}, race, [[worker]]")
-        if name == "race":
-            if not isinstance(section, dict):
-                raise ConfigError(f"{source}: race must be a [section]")
-            sections[name] = RaceConfig.from_mapping(section, where=f"{source} [race]")
-            continue
+        if name not in SECTIONS:
+            raise ConfigError(f"{source}: unknown section [{name}]; allowed: {', '.join(SECTIONS)}, [[worker]]")
         sections[name] = _parse_section(source, name, section, SECTIONS[name]())
     workers = []
     for k, overlay in enumerate(overlays):
         where = f"{source} [[worker]] {k + 1}"
         for name in overlay:
-            if name not in SECTIONS and name != "race":
+            if name not in SECTIONS:
                 raise ConfigError(f"{where}: unknown section {name}; a worker may change "
-                                  f"{', '.join(SECTIONS)}, race (for example track.names = [\"...\"])")
+                                  f"{', '.join(SECTIONS)} (for example track.names = [\"...\"])")
         workers.append({name: dict(section) for name, section in overlay.items()})
     cfg = TrainingConfig(**sections, source=source, workers=tuple(workers))
     _validate(cfg)
@@ -228,9 +222,12 @@ def parse_training_config(data: dict, source: str = "training.toml") -> Training
 
 
 def _parse_section(source: str, name: str, section, base):
-    """`base` (a settings dataclass) with the keys of the TOML table `section` applied, each checked."""
+    """`base` (a settings dataclass, or the `RaceConfig`) with the keys of the TOML table `section` applied, each
+    checked."""
     if not isinstance(section, dict):
         raise ConfigError(f"{source}: {name} must be a [section]")
+    if isinstance(base, RaceConfig):  # DRfC's race keys: RaceConfig checks them itself
+        return RaceConfig.from_mapping({**base.table(), **section}, where=f"{source} [race]")
     cls = type(base)
     allowed = {f.name for f in fields(cls)}
     values = {}
