@@ -90,7 +90,7 @@ class RayCollector:
                 steps = max(1, math.ceil(max_steps * c / max(target_episodes, 1)))
                 left = None if deadline is None else deadline - time.perf_counter()
                 calls[k] = self.actors[k].collect.remote(ref, c, steps, self.episodes[k], left)
-        self._wait(calls, target_episodes, t0, tick, tick_s)
+        self._wait(calls, counts, t0, tick, tick_s)
         parts = []
         for k, fut in calls.items():
             try:
@@ -117,14 +117,16 @@ class RayCollector:
         merged.cut = any(getattr(ro, "cut", False) for _, ro, _ in parts)
         return merged
 
-    def _wait(self, calls: dict, target: int, t0: float, tick, tick_s: float) -> None:
-        """Block until every worker's call has finished (or failed), calling `tick` every `tick_s` seconds."""
+    def _wait(self, calls: dict, counts: list[int], t0: float, tick, tick_s: float) -> None:
+        """Block until every worker's call has finished (or failed), calling `tick` every `tick_s` seconds with
+        the episodes of the workers done so far (their steps are not known before their rollouts are read)."""
         pending = list(calls.values())
         while pending:
-            ready, pending = self.ray.wait(pending, num_returns=len(pending), timeout=tick_s)
+            _, pending = self.ray.wait(pending, num_returns=len(pending), timeout=tick_s)
             if pending and tick is not None:
-                done = len(calls) - len(pending)
-                tick(target * done // max(len(calls), 1), target, 0, time.perf_counter() - t0)
+                waiting = set(pending)
+                done = sum(counts[k] for k, fut in calls.items() if fut not in waiting)
+                tick(done, sum(counts), None, time.perf_counter() - t0)
 
     def close(self) -> None:
         for a in self.actors:

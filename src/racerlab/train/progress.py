@@ -44,9 +44,10 @@ class Progress:
     def note(self, text: str) -> None:
         self._print(text, "yellow")
 
-    def tick(self, episodes: int, target: int, env_steps: int, seconds: float) -> None:
+    def tick(self, episodes: int, target: int, env_steps: int | None, seconds: float) -> None:
         """A long iteration's heartbeat (at least every 10 s while collecting)."""
-        self._print(f"  collecting: {episodes}/{target} episodes ended, {env_steps} env steps, {seconds:.0f} s")
+        steps = "" if env_steps is None else f", {env_steps} env steps"  # None: not known yet (Ray workers)
+        self._print(f"  collecting: {episodes}/{target} episodes ended{steps}, {seconds:.0f} s")
 
     def start(self, trainer, resumed: bool) -> None:
         cfg, meta = trainer.cfg, trainer.metadata
