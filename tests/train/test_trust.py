@@ -305,3 +305,23 @@ def test_importing_racerlab_makes_torch_threads_wait_passively():
     env["OMP_WAIT_POLICY"] = "ACTIVE"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "ACTIVE"
+
+
+def test_ctrl_c_while_an_iteration_is_written_leaves_it_whole(model, monkeypatch):
+    """A SIGINT that lands between an iteration's checkpoint and its metrics line is held until both are written."""
+    import signal as signals
+
+    _small(model)
+    real_save = ModelFolder.save_checkpoint
+
+    def interrupted_save(self, *args, **kwargs):
+        saved = real_save(self, *args, **kwargs)
+        if args[1] >= 1:  # not the untrained checkpoint of iteration 0
+            os.kill(os.getpid(), signals.SIGINT)  # Ctrl-C right after the checkpoint is on disk
+        return saved
+
+    monkeypatch.setattr(ModelFolder, "save_checkpoint", interrupted_save)
+    r = train(model.path, iterations=5, **SMALL)
+    assert r.stopped.startswith("interrupted") and r.iterations == 1
+    last = read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")[-1]
+    assert last["iteration"] == 1 and model.resolve_checkpoint("last").iteration == 1

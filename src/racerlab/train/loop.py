@@ -11,7 +11,10 @@ a reward function that raises) resumes from the last complete iteration.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -34,6 +37,24 @@ MAX_SENSIBLE_REWARD = 1e3
 COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
 KL_LIMIT = 2.0  # nats; PPO at sane learning rates moves the policy ~0.01-0.05 per update
 STATE_FORMAT = "racerlab.checkpoint/1"
+
+
+@contextmanager
+def _ctrl_c_after():
+    """Hold a Ctrl-C (SIGINT) that arrives inside the block and raise it when the block ends, so an iteration is
+    either wholly on disk or not at all (a checkpoint without its metrics line showed an iteration too few)."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+    held = []
+    signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if held:
+        raise KeyboardInterrupt
 
 
 class TrainingDiverged(RacerlabError):
@@ -353,6 +374,11 @@ class Trainer:
         if collapsed:
             self._rollback(*collapsed)
             return {}
+        with _ctrl_c_after():  # the iteration's logs, checkpoint and metrics line are written together
+            return self._commit(ro, evals, metrics, learn_s, t_start)
+
+    def _commit(self, ro, evals, metrics, learn_s, t_start) -> dict:
+        s = self.state
         s.iteration += 1
         s.episodes += len(ro.episodes)
         s.train_steps += int(ro.rewards.size)
