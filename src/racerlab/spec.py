@@ -162,6 +162,10 @@ class RaceConfig:
                               f"upper_lane_change_time {self.upper_lane_change_time}; swap them")
         positions = tuple(_parse_position(p, w) for p in self.object_positions)
         object.__setattr__(self, "object_positions", positions)
+        if self.head_to_model and (self.number_of_obstacles or positions or self.number_of_bot_cars):
+            raise ConfigError(f"{w}: a head_to_model race puts only the racing cars on the track (racerlab has no "
+                              "boxes or bot cars beside them); set number_of_obstacles = 0, object_positions = [] "
+                              "and number_of_bot_cars = 0, or race object_avoidance / head_to_bot")
         if self.number_of_obstacles * self.min_distance_between_obstacles >= 100.0:
             raise ConfigError(f"{w}: number_of_obstacles {self.number_of_obstacles} boxes at least "
                               f"min_distance_between_obstacles {self.min_distance_between_obstacles} % of the lap "

@@ -27,7 +27,8 @@ def _rule_flags(p) -> None:
 
 # the [race] keys of training.toml as flags (DRfC's names): (key, type, help); booleans take --x / --no-x
 RACE_FLAGS = (
-    ("race_type", str, "time_trial, object_avoidance or head_to_bot (default: the model's training.toml [race])"),
+    ("race_type", str, "time_trial, object_avoidance, head_to_bot or head_to_model (the model against itself; "
+                  "default: the model's training.toml [race])"),
     ("number_of_obstacles", int, "evenly spaced boxes"),
     ("obstacle_type", str, "box_obstacle, deepracer_box_obstacle or amazon_box_obstacle"),
     ("randomize_obstacle_locations", bool, "re-draw the boxes between their neighbours, random lane"),

@@ -28,9 +28,11 @@ def register(sub) -> None:
     p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
                    help="reward template: example (centre, heading and speed), centre_line, progress (progress "
                         "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
-    p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot"], default="time_trial",
-                   help="object_avoidance: three boxes in [race], head_to_bot: three bot cars; both with an example "
-                        "reward using objects_* (with --reward example)")
+    p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot", "head_to_model"],
+                   default="time_trial",
+                   help="object_avoidance: three boxes in [race], head_to_bot: three bot cars, head_to_model: the "
+                        "cars race in pairs (self-play); each with an example reward using objects_* (with --reward "
+                        "example)")
     p.add_argument("--preset", choices=list(PRESETS),
                    help="training preset: generalise (8 generated tracks, new ones every 5 iterations; a lidar "
                         "model sees the borders as walls)")

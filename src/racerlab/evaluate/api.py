@@ -158,7 +158,10 @@ def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate")
     base = model.folder.config().race
     if not race:
         return base
-    return RaceConfig.from_mapping({**race_table(base), **race}, where=where)
+    table = race_table(base)
+    if race.get("type") == "head_to_model":  # the racing cars alone: the model's own boxes and bots stay home
+        table.update(number_of_obstacles=0, object_positions=[], number_of_bot_cars=0)
+    return RaceConfig.from_mapping({**table, **race}, where=where)
 
 
 def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None, race=None, randomise=None):
@@ -173,6 +176,26 @@ def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, rewar
     return World(track, 1, model.metadata, reward, model.observation, start=start,
                  max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race),
                  randomise=randomise)
+
+
+def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=None, device: str = "cpu",
+             where: str = "racerlab evaluate"):
+    """Two loaded models (or one model twice) in one head-to-model world, a car each, under `rules`: the
+    worlds (one per car, sharing the simulator) and each car's `EvalRun`."""
+    from racerlab.evaluate.runner import run_head_to_model
+    from racerlab.sim import StartRules, World
+
+    first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
+                  max_episode_steps=rules.max_episode_steps, seed=0, race=RaceConfig(type="head_to_model", where=where))
+    worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim)]
+    policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
+    image_of = None
+    if video:
+        from racerlab.evaluate.video import camera_image
+
+        image_of = camera_image
+    runs = run_head_to_model(worlds, policies, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
+    return worlds, runs
 
 
 # ---- evaluate -------------------------------------------------------------------------------------
@@ -199,14 +222,22 @@ def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, of
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
     track_obj = resolve_track(model.folder, track)
-    world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise)
-    policy = make_policy(model, world, device)
-    image_of = None
-    if video:
-        from racerlab.evaluate.video import camera_image
+    if race_config(model, race).head_to_model:  # the model races a copy of itself; car 0's run is its result
+        if randomise is not None or reward is not None:
+            raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
+                                "without randomise or reward; drop those options or evaluate another race type")
+        worlds, runs = run_pair([model, model], track_obj, rules, video=video, device=device,
+                                on_lap=(lambda k, lap: on_lap(lap) if k == 0 else None) if on_lap else None)
+        world, run = worlds[0], runs[0]
+    else:
+        world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise)
+        policy = make_policy(model, world, device)
+        image_of = None
+        if video:
+            from racerlab.evaluate.video import camera_image
 
-        image_of = camera_image
-    run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
+            image_of = camera_image
+        run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
     result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                               wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race),

@@ -92,26 +92,14 @@ def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = Non
     sensors and `objects_*` params seeing the other car, crashes between them judged by the crash rule (the car
     behind crashed). Each model's evaluation folder gets its simtrace, EvalMetrics and summary (and video); the
     leaderboard ranks the two as `race` does. `on_lap(k, lap)` is called as car k ends a lap."""
-    from racerlab.evaluate.api import _write, load_model, make_policy
-    from racerlab.evaluate.runner import run_head_to_model
-    from racerlab.sim import StartRules, World
-    from racerlab.spec import RaceConfig
+    from racerlab.evaluate.api import _write, load_model, run_pair
 
     rules = rules or RaceRules()
     dirs = [Path(model_a), Path(model_b)]
     models = [load_model(m, checkpoint) for m in dirs]
     track_obj = resolve_track(models[0].folder, track)
-    first = World(track_obj, 2, models[0].metadata, None, models[0].observation,
-                  start=StartRules(reverse=rules.reverse), max_episode_steps=rules.max_episode_steps, seed=0,
-                  race=RaceConfig(type="head_to_model", where="racerlab race --head-to-model"))
-    worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim)]
-    policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
-    image_of = None
-    if video:
-        from racerlab.evaluate.video import camera_image
-
-        image_of = camera_image
-    runs = run_head_to_model(worlds, policies, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
+    worlds, runs = run_pair(models, track_obj, rules, video=video, on_lap=on_lap, device=device,
+                            where="racerlab race --head-to-model")
     results = []
     for m, w, run in zip(models, worlds, runs, strict=True):
         res = EvaluationResult(m.folder.path.resolve().name, m.folder.path, m.checkpoint, track_obj.name, rules,

@@ -17,7 +17,8 @@ from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, RaceConfig
 EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
 EXAMPLE_REWARDS = {"time_trial": EXAMPLE_REWARD,
                    "object_avoidance": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py"),
-                   "head_to_bot": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
+                   "head_to_bot": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py"),
+                   "head_to_model": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
 # `init --race head_to_bot`: DRfC's template (DR_H2B_NUMBER_OF_BOT_CARS=3), the simulator's bot defaults
 HEAD_TO_BOT_CARS = 3
 # `init --race object_avoidance`: three fixed boxes that pass the console's rules (first >= 7 %, last <= 90 %,
@@ -101,6 +102,8 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
         cfg = replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
     elif race == "head_to_bot":
         cfg = replace(cfg, race=RaceConfig(type=race, number_of_bot_cars=HEAD_TO_BOT_CARS))
+    elif race == "head_to_model":  # self-play: the cars race in pairs, each the other's object
+        cfg = replace(cfg, race=RaceConfig(type=race))
     cfg = apply_preset(cfg, preset, sensor)
     folder.path.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(EXAMPLE_REWARDS[race], folder.reward_path)
@@ -131,7 +134,8 @@ _TOML_HEADER = """\
 #            camera_noise, blur, exposure, gamma, lighting, pose_yaw_deg, pose_pitch_deg, pose_shift_m,
 #            lidar_noise_m, latency_steps (0-2), steering_gain, throttle_gain; speed_scale and top_speed
 #            map speeds relative to the action space's top, as the car does; evaluation: also in eval episodes
-#   [race]   DRfC's race settings: type (time_trial|object_avoidance|head_to_bot), number_of_obstacles,
+#   [race]   DRfC's race settings: type (time_trial|object_avoidance|head_to_bot|head_to_model: cars race in
+#            pairs, each the other's object), number_of_obstacles,
 #            obstacle_type, randomize_obstacle_locations, object_positions ([fraction of the lap, lane 1 inner |
 #            -1 outer]), min_distance_between_obstacles (% of the lap), number_of_bot_cars,
 #            randomize_bot_car_locations, bot_car_speed (m/s), is_lane_change, lower_/upper_lane_change_time (s),

@@ -22,6 +22,14 @@ the observation was taken in, as AWS does, unless `reward_order="after_action"`.
 
 `reset(seed=...)` reseeds and restarts the round-robin start sequence, so seeded runs repeat.
 
+## Races
+`race=` takes the `[race]` table (or a `RaceConfig`, or a type name): boxes and bot cars are the car's
+objects. In a `head_to_model` race the env holds a second car, the opponent, driven by `opponent(obs) ->
+action` (car 1's observation, the same spaces; e.g. another model's policy) or, by default, by a pure-pursuit
+driver on the centre line at `opponent_speed` m/s. The opponent starts `opponent_gap` of the lap ahead of the
+car and, when its own episode ends, restarts that far ahead of the car again; each car sees the other (lidar,
+camera, `objects_*`) and crashes into it by the crash rule. Reward, termination and info are the car's alone.
+
 ## Rendering
 `render_mode="rgb_array"` (what SB3's `make_vec_env` asks for): `render()` returns the car's front
 camera as an (H, W, 3) uint8 image (the grey camera repeated into three channels); the vector env
@@ -36,8 +44,11 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from racerlab.errors import ConfigError
+from racerlab.sim import _kernels as K
+from racerlab.sim.objects import as_race
+from racerlab.sim.pursuit import PurePursuit
 from racerlab.sim.world import World
-from racerlab.spec import STATUS_NAMES
+from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES
 from racerlab.track import DEFAULT_TRACK
 
 _STATUS_OBJ = np.array(STATUS_NAMES, dtype=object)
@@ -67,11 +78,14 @@ class DeepRacerEnv(gym.Env):
 
     def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
                  car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None,
-                 race=None):
-        self.world = World(track, 1, model_metadata, reward_function, observation, car=car, start=start,
-                           max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
+                 race=None, opponent=None, opponent_speed: float = 1.0, opponent_gap: float = 0.1):
+        race = as_race(race)
+        pair = race is not None and race.head_to_model
+        self.world = World(track, 2 if pair else 1, model_metadata, reward_function, observation, car=car,
+                           start=start, max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
                            keep_params=True, race=race)
         self.sim = self.world.sim
+        self._opponent = _Opponent(self.world, opponent, opponent_speed, opponent_gap) if pair else None
         self.action_space = self.world.action_space
         self.observation_space = self.world.observation.space
         self.render_mode = _check_render_mode(render_mode)
@@ -91,12 +105,20 @@ class DeepRacerEnv(gym.Env):
         if seed is not None:
             self.sim.reseed(seed)
         options = options or {}
-        self.sim.reset(start_ndist=options.get("start_ndist"), reverse=options.get("reverse"))
+        mask = None if self._opponent is None else np.array([True, False])
+        self.sim.reset(mask, start_ndist=options.get("start_ndist"), reverse=options.get("reverse"))
+        if self._opponent is not None:
+            self._opponent.restart()
         return self._obs(), self._info(None)
 
     def step(self, action):
-        codes, rewards = self.world.step(np.asarray(action)[None])
+        if self._opponent is None:
+            codes, rewards = self.world.step(np.asarray(action)[None])
+        else:
+            codes, rewards = self._opponent.step(action)
         term, trunc = self.world.done(codes)
+        if self._opponent is not None and (term[1] or trunc[1]):
+            self._opponent.restart()
         return self._obs(), float(rewards[0]), bool(term[0]), bool(trunc[0]), self._info(self.world.params, codes)
 
     def _info(self, params, codes=None):
@@ -108,6 +130,47 @@ class DeepRacerEnv(gym.Env):
         if params is not None and params[0] is not None:
             info["params"] = params[0]
         return info
+
+
+class _Opponent:
+    """The second car of a one-car env's head-to-model race: driven by `policy(obs) -> action` or, without one,
+    by pure pursuit of the centre line at `speed`; restarted `gap` of the lap ahead of car 0."""
+
+    def __init__(self, world: World, policy, speed: float, gap: float):
+        if policy is not None and not callable(policy):
+            raise ConfigError(f"racerlab/DeepRacer-v0: opponent must be a callable obs -> action, got {policy!r}")
+        if not 0.0 < gap < 1.0:
+            raise ConfigError(f"racerlab/DeepRacer-v0: opponent_gap {gap!r} must be a fraction of the lap in (0, 1)")
+        self.world = world
+        self.policy = policy
+        sim = world.sim
+        self.pursuits = None if policy is not None else \
+            [PurePursuit.on_centre_line(t, speed) for t in (sim.track, sim.track_reversed)]
+        self.gap = gap
+
+    def restart(self) -> None:
+        """Car 1 starts a new episode `gap` of the lap ahead of car 0, in its direction."""
+        sim = self.world.sim
+        state = sim.state
+        rev = bool(state.reversed[0])
+        length = (sim.track_reversed if rev else sim.track).length
+        base = float(state.projection_distance[0]) - MODEL_POINT_AHEAD_M  # car 0's base, along the centre line
+        ahead = (base / length + self.gap) % 1.0
+        sim.reset(np.array([False, True]), start_ndist=ahead, reverse=rev)
+
+    def step(self, action) -> tuple[np.ndarray, np.ndarray]:
+        """Both cars one step: car 0 with `action`, car 1 with its driver's; the rewards are car 0's."""
+        world, sim = self.world, self.world.sim
+        steer0, speed0 = world.commands(np.asarray(action)[None])
+        if self.policy is not None:
+            o = world.observation()
+            mine = {k: v[1] for k, v in o.items()} if isinstance(o, dict) else o[1]
+            steer1, speed1 = world.commands(np.asarray(self.policy(mine))[None])
+        else:
+            steer, speed = self.pursuits[int(sim.ctr[1, K.KREV])](sim)
+            steer1, speed1 = steer[1:], speed[1:]
+        codes = sim.step(np.concatenate([steer0, steer1]), np.concatenate([speed0, speed1])).copy()
+        return codes, world.rewards(codes, np.array([True, False]))
 
 
 class DeepRacerVectorEnv(gym.vector.VectorEnv):

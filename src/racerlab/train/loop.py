@@ -136,7 +136,7 @@ class Trainer:
         self.worlds = self._make_worlds()
         self.collector = Collector(self.worlds)
         r = self.cfg.randomise
-        self.eval_world = self._make_world(self.cfg.track.names[0], max(self.cfg.evaluation.episodes, 1), seed=10_007,
+        self.eval_world = self._make_world(self.cfg.track.names[0], self._eval_cars(), seed=10_007,
                                            randomise=r if r.evaluation else None)
         from racerlab.agent import make_agent
 
@@ -174,10 +174,22 @@ class Trainer:
                      max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
                      seed=seed, race=self.cfg.race, randomise=randomise)
 
+    def _eval_cars(self) -> int:
+        """Cars of the greedy evaluation world: one per evaluation episode; a head-to-model race pairs its cars,
+        so an odd count gains one (each car still drives one judged episode)."""
+        n = max(self.cfg.evaluation.episodes, 1)
+        return n + n % 2 if self.cfg.race.head_to_model else n
+
     def _make_worlds(self):
         tracks = generated_tracks(self.cfg.track, self.cfg.run.seed, self.draw) or self.cfg.track.names
         n = self.cfg.run.num_cars
         counts = [n // len(tracks) + (1 if k < n % len(tracks) else 0) for k in range(len(tracks))]
+        if self.cfg.race.head_to_model:  # the cars race in pairs: every track gets whole pairs
+            if n % 2 or n < 2 * len(tracks):
+                raise ConfigError(f"{self.cfg.source}: run.num_cars (or --cars) {n}: a head_to_model race pairs the "
+                                  f"cars, so it needs an even number, at least 2 per track ({len(tracks)} tracks)")
+            pairs = n // 2
+            counts = [2 * (pairs // len(tracks) + (1 if k < pairs % len(tracks) else 0)) for k in range(len(tracks))]
         pairs = enumerate(zip(tracks, counts, strict=True))
         seed = self.cfg.run.seed + 1000 * self.draw
         return [self._make_world(t, c, seed + k, self.cfg.randomise) for k, (t, c) in pairs]
@@ -330,9 +342,9 @@ class Trainer:
                                    f"{what}; likely cause: {cause}")
 
     def _evaluate(self):
-        n = self.cfg.evaluation.episodes
-        if n == 0:
+        if self.cfg.evaluation.episodes == 0:
             return []
+        n = self.eval_world.sim.num_cars
         offset = self.cfg.track.start_offset
         starts = np.mod(offset + np.arange(n) / n, 1.0)
         return run_greedy_episodes(self.agent, self.eval_world, starts)
