@@ -17,6 +17,11 @@ def _rule_flags(p) -> None:
     p.add_argument("--collision-penalty", type=float, default=5.0, metavar="S", help="seconds held after a crash")
     p.add_argument("--max-resets", type=int, default=100, metavar="N",
                    help="resets per episode; the next incident ends it (default 100)")
+    p.add_argument("--enable-mercy-reset", action="store_true",
+                   help="simapp's mercy reset: the Nth crash in a row into the same box (--max-resets-after-crash) "
+                        "restarts the car --reset-ahead-dist ahead of the box instead of behind it")
+    p.add_argument("--max-resets-after-crash", type=int, default=3, metavar="N", help="default 3, as the simapp")
+    p.add_argument("--reset-ahead-dist", type=float, default=1.0, metavar="M", help="m of centre line (default 1)")
     p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
     p.add_argument("--reverse", action="store_true", help="drive the track the other way round")
     p.add_argument("--ranking-laps", type=int, default=3, metavar="N",
@@ -111,7 +116,9 @@ def _rules(args):
     from racerlab.evaluate import RaceRules
 
     return RaceRules(trials=args.trials, continuous=args.continuous, off_track_penalty=args.off_track_penalty,
-                     collision_penalty=args.collision_penalty, max_resets=args.max_resets, reverse=args.reverse)
+                     collision_penalty=args.collision_penalty, max_resets=args.max_resets, reverse=args.reverse,
+                     enable_mercy_reset=args.enable_mercy_reset, max_resets_after_crash=args.max_resets_after_crash,
+                     reset_ahead_dist=args.reset_ahead_dist)
 
 
 def _print_lap(lap) -> None:

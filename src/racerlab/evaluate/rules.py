@@ -42,6 +42,11 @@ class RaceRules:
     max_resets: int = 100  # DR_EVAL_MAX_RESETS (NUMBER_OF_RESETS)
     reverse: bool = False  # drive the track the other way
     max_episode_steps: int = AWS_MAX_EPISODE_STEPS
+    # simapp ENABLE_MERCY_RESET: the max_resets_after_crash-th consecutive crash into the same box puts the car
+    # reset_ahead_dist m of centre line ahead of it (instead of behind); off unless asked (docs/objects.md)
+    enable_mercy_reset: bool = False
+    max_resets_after_crash: int = 3  # simapp MAX_RESETS_AFTER_CRASH
+    reset_ahead_dist: float = 1.0  # m, simapp RESET_AHEAD_DIST (racerlab's choice: RESET_BEHIND_DIST's 1 m)
 
     def __post_init__(self):
         if isinstance(self.trials, bool) or int(self.trials) != self.trials or self.trials < 1:
@@ -52,6 +57,11 @@ class RaceRules:
                 raise RacerlabError(f"{name.replace('_', ' ')} must be between 0 and 3600 s, got {value!r}")
         if isinstance(self.max_resets, bool) or int(self.max_resets) != self.max_resets or self.max_resets < 0:
             raise RacerlabError(f"max resets must be a whole number >= 0, got {self.max_resets!r}")
+        n = self.max_resets_after_crash
+        if isinstance(n, bool) or int(n) != n or n < 1:
+            raise RacerlabError(f"max resets after crash must be a whole number >= 1, got {n!r}")
+        if not (math.isfinite(self.reset_ahead_dist) and 0 <= self.reset_ahead_dist <= 10):
+            raise RacerlabError(f"reset ahead dist must be between 0 and 10 m, got {self.reset_ahead_dist!r}")
         if self.max_episode_steps < 10:
             raise RacerlabError(f"max episode steps must be >= 10, got {self.max_episode_steps!r}")
 

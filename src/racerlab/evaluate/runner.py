@@ -36,6 +36,7 @@ from racerlab.evaluate.results import Lap
 from racerlab.evaluate.rules import INCIDENTS, Lanes, RaceRules, pause_steps, project_on_polyline
 from racerlab.logs import SIMTRACE_COLUMNS
 from racerlab.sim import STATUS_NAMES, Status
+from racerlab.sim.objects import RESET_BEHIND_DIST_M
 from racerlab.spec import MODEL_POINT_AHEAD_M, STEP_S
 
 # per-row values kept beside the simtrace for videos and checks: the car's base pose and ground
@@ -100,6 +101,8 @@ class _Episode:
     counts: dict = field(default_factory=lambda: dict.fromkeys(INCIDENTS, 0))
     prev: tuple | None = None  # (progress, model x, model y, heading °) of the previous row
     obstacle_crashes: int = 0  # the simtrace's obstacle_crash_counter
+    last_box: int = -1  # the box of the last obstacle crash, and how many crashes in a row were into it
+    same_box_crashes: int = 0
 
 
 def observation_row(obs, i: int):
@@ -262,14 +265,24 @@ class _Driver:
 
     def _put_behind_obstacle(self, before: tuple) -> None:
         """After hitting a box: 1 m behind it in the other lane (simapp's obstacle reset), progress moved back
-        by the centre-line distance between the two points."""
-        sim = self.sim
+        by the centre-line distance between the two points. With the mercy reset, the `max_resets_after_crash`-th
+        crash in a row into the same box puts the car `reset_ahead_dist` ahead of it instead (progress moved on)."""
+        sim, ep, rules = self.sim, self.ep, self.rules
         progress, mx, my, _ = before
         length = self.track.length
+        box = sim.objects.nearest(self.i, mx, my)
+        ep.same_box_crashes = ep.same_box_crashes + 1 if box == ep.last_box else 1
+        ep.last_box = box
+        along = -RESET_BEHIND_DIST_M
+        if rules.enable_mercy_reset and ep.same_box_crashes >= rules.max_resets_after_crash:
+            along = rules.reset_ahead_dist
+            ep.last_box, ep.same_box_crashes = -1, 0
         s_before = (sim.state.start[self.i] + progress / 100.0) * length
-        x, y, yaw, s = sim.objects.reset_behind(self.i, bool(sim.state.reversed[self.i]), mx, my)
-        back = (s_before - s) % length if self.track.closed else s_before - s
-        sim.relocate(self.i, x, y, yaw, progress=progress - 100.0 * back / length)
+        x, y, yaw, s = sim.objects.reset_behind(self.i, bool(sim.state.reversed[self.i]), mx, my, along)
+        moved = s - s_before
+        if self.track.closed:  # the shorter way round: behind or (mercy) ahead
+            moved = (moved + 0.5 * length) % length - 0.5 * length
+        sim.relocate(self.i, x, y, yaw, progress=progress + 100.0 * moved / length)
 
     def _hold(self, penalty: float) -> None:
         """The car stands still for the penalty (pause rows, one per step); the sim clock runs on."""

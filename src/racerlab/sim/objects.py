@@ -542,13 +542,19 @@ class ObjectSet:
         out[:, 0::2] = (dx * c + dy * sn) * 0.5
         out[:, 1::2] = (-dx * sn + dy * c) * 0.5
 
-    def reset_behind(self, i: int, reversed_: bool, mx: float, my: float) -> tuple[float, float, float, float]:
+    def nearest(self, i: int, mx: float, my: float) -> int:
+        """The index of car i's object nearest to the point (mx, my)."""
+        return int(np.argmin(np.hypot(self.xy[i, :, 0] - mx, self.xy[i, :, 1] - my)))
+
+    def reset_behind(self, i: int, reversed_: bool, mx: float, my: float,
+                     along: float = -RESET_BEHIND_DIST_M) -> tuple[float, float, float, float]:
         """AWS's evaluation reset after car i (model point mx, my) hit a box: (x, y, yaw) on the lane opposite
-        the nearest box, `RESET_BEHIND_DIST_M` of centre line behind it, and that point's centre-line arc."""
-        k = int(np.argmin(np.hypot(self.xy[i, :, 0] - mx, self.xy[i, :, 1] - my)))
+        the nearest box, `RESET_BEHIND_DIST_M` of centre line behind it (`along` m from it: a mercy reset passes
+        its `reset_ahead_dist`), and that point's centre-line arc."""
+        k = self.nearest(i, mx, my)
         lanes = self.lanes[int(reversed_)]
         t = lanes.track
-        s = self.arc[i, k] - RESET_BEHIND_DIST_M
+        s = self.arc[i, k] + along
         s = s % t.length if t.closed else max(s, 0.0)
         lane = lanes.outer if self.lane[i, k] == 1 else lanes.inner
         proj = lane.project(t.point_at(s).reshape(1, 2))
