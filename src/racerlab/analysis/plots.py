@@ -14,7 +14,8 @@
   iteration.
 - `reward_vs_lap_time(comparison)`: old and new episode rewards against lap time (reward re-scoring).
 - `reward_map_figure(reward_map)`: a reward over the track surface (`racerlab.analysis.reward_tools`).
-- `crash_map(df, track, layout)`: where cars crashed, with the race's boxes or bot cars' starts.
+- `crash_map(df, track, layout)`: where cars crashed, with the race's boxes or bot cars' starts;
+  `crash_maps(df, track, layouts)` one panel per episode layout (random layouts).
 """
 
 from __future__ import annotations
@@ -595,13 +596,52 @@ def crash_map(df: pd.DataFrame, track: Track, layout: dict | None = None, *, not
     """Every step judged `crashed` in `df` (a red cross at the model point) on the track, with the race's
     objects from `racerlab.sim.objects.race_layout` (boxes as their footprint on the track, bot cars at their
     start with an arrow along their lane); `note` is printed under the title (e.g. why no objects are drawn)."""
-    from matplotlib.patches import Polygon as Patch
-
-    status = df["episode_status"].astype(str) if "episode_status" in df else pd.Series("", index=df.index)
-    hits = df[status == "crashed"]
+    hits = _crashed_rows(df)
     head = title or f"crashes: {len(hits)} in {df['unique_episode'].nunique() if 'unique_episode' in df else 1} " \
                     "episodes"
     fig, ax = _track_ax(track, head + (f"\n{note}" if note else ""))
+    _draw_crashes(ax, hits, layout)
+    return fig
+
+
+def crash_maps(df: pd.DataFrame, track: Track, layouts: list[dict], *, most: int = 6):
+    """One small crash map per layout (random layouts change at every reset): each panel draws a layout's
+    objects (`layouts[k]` as `crash_map` takes it, plus "episodes": the simtrace episodes it stood for) and the
+    crashes of those episodes. The `most` layouts with the most crashes are drawn, ties in episode order."""
+    from racerlab.track.plot import draw_track
+
+    hits = _crashed_rows(df)
+    episode = hits["episode"] if "episode" in hits else pd.Series(0, index=hits.index)
+    counts = [int(episode.isin(lay["episodes"]).sum()) for lay in layouts]
+    chosen = sorted(range(len(layouts)), key=lambda k: (-counts[k], k))[:most]
+    cols = min(3, len(chosen))
+    rows = -(-len(chosen) // cols)
+    w, h = _track_figsize(track, width=4.2 * cols, extra_w=0.0)
+    fig = _figure(w, min(h / cols * rows + 0.6 * rows, 16.0))
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax, k in zip(axes, chosen, strict=False):
+        eps = layouts[k]["episodes"]
+        name = f"episode {eps[0]}" if len(eps) == 1 else f"episodes {eps[0]}-{eps[-1]}"
+        draw_track(track, ax, waypoint_numbers=False, title=f"{name}: {counts[k]} crashes", center_line=False,
+                   legend=False)
+        _draw_crashes(ax, hits[episode.isin(eps)], layouts[k], labels=ax is axes[0])
+    for ax in axes[len(chosen):]:
+        ax.set_axis_off()
+    shown = "" if len(chosen) == len(layouts) else f" (the {len(chosen)} of {len(layouts)} with the most crashes)"
+    fig.suptitle(f"crashes: {len(hits)} in {len(layouts)} layouts{shown}", fontsize=11)
+    return fig
+
+
+def _crashed_rows(df: pd.DataFrame) -> pd.DataFrame:
+    status = df["episode_status"].astype(str) if "episode_status" in df else pd.Series("", index=df.index)
+    return df[status == "crashed"]
+
+
+def _draw_crashes(ax, hits: pd.DataFrame, layout: dict | None, labels: bool = True) -> None:
+    """The objects of `layout` (numbered) and the crashes `hits` (red crosses) on a track's axes; a legend on
+    the axes when `labels`."""
+    from matplotlib.patches import Polygon as Patch
+
     if layout is not None:
         length, width = layout["size"]
         colour = "#e08a1e" if layout["kind"] == "box" else "#2a6fd6"
@@ -620,6 +660,5 @@ def crash_map(df: pd.DataFrame, track: Track, layout: dict | None = None, *, not
                    zorder=6, label=f"crash ({len(hits)})")
     else:
         _no_data(ax, "no crashes")
-    if len(hits) or layout is not None:
+    if labels and (len(hits) or layout is not None):
         ax.legend(loc="upper right", fontsize=8)
-    return fig

@@ -28,6 +28,7 @@ import pandas as pd
 from racerlab.analysis import plots as P
 from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
 from racerlab.errors import RacerlabError
+from racerlab.evaluate.api import LAYOUTS_NAME
 from racerlab.logs.atomic import atomic_write_text
 from racerlab.model import ModelFolder, resolve_track
 from racerlab.spec import RaceConfig
@@ -257,7 +258,7 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
     crashes = int((df["episode_status"].astype(str) == "crashed").sum()) if "episode_status" in df else 0
     if trk is not None and (crashes or (race is not None and race.has_objects)):
         toc.append(("objects", "Objects and crashes"))
-        _objects(doc, rows_on_track(df, trk), trk, race, race_note)
+        _objects(doc, rows_on_track(df, trk), trk, race, race_note, log_layouts(path))
     toc += [("actions", "Actions"), ("waypoints", "Per waypoint")]
     doc.h2("Action space usage", "actions")
     doc.figure(P.action_usage(df.assign(iteration=df["iteration"] + 1)),
@@ -317,24 +318,63 @@ def log_race(path) -> tuple[RaceConfig | None, str]:
     return None, "no race settings found beside the log"
 
 
-def _objects(doc: _Doc, df: pd.DataFrame, trk: Track, race: RaceConfig | None, note: str) -> None:
+def log_layouts(path) -> list[dict] | None:
+    """The layouts an evaluation's episodes had (`layouts.json` beside the log, written by `racerlab evaluate`
+    for races with boxes or bot cars), each as `plots.crash_map` takes it plus "episodes" (the simtrace episode
+    numbers it stood for); None when there is no such file (training logs, older evaluations)."""
+    path = Path(path)
+    f = (path if path.is_dir() else path.parent) / LAYOUTS_NAME
+    if not f.is_file():
+        return None
+    try:
+        rec = json.loads(f.read_text())
+        return [{"kind": rec["kind"], "size": tuple(rec["size"]), "xy": np.asarray(lay["xy"], dtype=float),
+                 "yaw": np.asarray(lay["yaw"], dtype=float), "lane": np.asarray(lay["lane"]),
+                 "episodes": [int(e) for e in lay["episodes"]]} for lay in rec["layouts"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # damaged: the crash map falls back to the race settings
+
+
+def _same_layout(layouts: list[dict]) -> bool:
+    return all(np.array_equal(lay["xy"], layouts[0]["xy"]) for lay in layouts[1:])
+
+
+def _objects(doc: _Doc, df: pd.DataFrame, trk: Track, race: RaceConfig | None, note: str,
+             layouts: list[dict] | None = None) -> None:
     from racerlab.sim.objects import race_layout
 
     doc.h2("Objects and crashes", "objects")
-    layout = race_layout(race, trk) if race is not None else None
-    if race is None:
+    if layouts and not _same_layout(layouts):  # random layouts: one panel per episode layout, as it was driven
+        doc.figure(P.crash_maps(df, trk, layouts),
+                   f"Every crashed step (red cross at the car's model point) with the {_object_words(layouts[0])} "
+                   f"of the episodes it happened in ({LAYOUTS_NAME}); race: {race.type if race else 'unknown'} "
+                   f"({note})")
+        _most_crashes(doc, df)
+        return
+    layout = layouts[0] if layouts else race_layout(race, trk) if race is not None else None
+    if layout is not None:
+        why = ""
+    elif race is None:
         why = note
     elif race.head_to_model:
         why = "head to model: the other car moves, it is not drawn"
-    elif layout is None and race.has_objects:
+    elif race.has_objects:
         why = "random layout, re-drawn every episode: objects not drawn"
     else:
         why = ""
-    what = {"box": "boxes", "bot": "bot cars at their start (arrow: driving direction)"}.get(
-        layout["kind"] if layout else "", "")
+    what = _object_words(layout)
     doc.figure(P.crash_map(df, trk, layout, note=why),
                f"Every crashed step (red cross at the car's model point){' and the ' + what if what else ''}; "
                f"race: {race.type if race else 'unknown'} ({note})")
+    _most_crashes(doc, df)
+
+
+def _object_words(layout: dict | None) -> str:
+    return {"box": "boxes", "bot": "bot cars at their start (arrow: driving direction)"}.get(
+        layout["kind"] if layout else "", "")
+
+
+def _most_crashes(doc: _Doc, df: pd.DataFrame) -> None:
     status = df["episode_status"].astype(str)
     per = df.assign(crash=status == "crashed").groupby("unique_episode")["crash"].sum()
     if per.any():

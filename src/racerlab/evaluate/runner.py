@@ -57,6 +57,8 @@ class EvalRun:
     # the race's objects as the car saw them, per row, when frames were kept: {"pose": [(m, 3) x, y, yaw], "size":
     # (length, width) m, "cars": bot cars or the other racer (not boxes)}
     objects: dict | None = None
+    # boxes or bot cars: where they stood at the start of each sim episode (`_Driver.layouts`), for the report
+    layouts: dict | None = None
 
     @property
     def rows(self) -> int:
@@ -139,6 +141,7 @@ class _Driver:
         self.on_lap = on_lap
         self.discrete = world.discrete
         self.ep: _Episode | None = None
+        self.layouts: list[dict] = []
 
     # ---- episodes -----------------------------------------------------------------------------
     def run(self) -> None:
@@ -160,9 +163,16 @@ class _Driver:
         """A new episode of `laps` laps from where the car was just reset."""
         self.ep = _Episode(laps_left=laps, lap_start=self.sim.time, first_row=len(self.trace))
         self.hold = None
+        o = self.sim.objects
+        if o is not None and not o.racers:  # the episode's layout (bots: where they start), as placed at the reset
+            self.layouts.append({"episodes": [len(self.laps)], "xy": o.xy[self.i].tolist(),
+                                 "yaw": o.yaw[self.i].tolist(), "lane": o.lane[self.i].tolist()})
 
     def finish(self) -> None:
         self.trace.set_last("done", True)
+        if self.layouts:  # the simtrace's episode numbers (one per lap) this layout stood for
+            first = self.layouts[-1]["episodes"][0]
+            self.layouts[-1]["episodes"] = list(range(first, max(len(self.laps), first + 1)))
 
     def _step(self) -> bool:
         """One environment step; True when the episode is over."""
@@ -331,6 +341,16 @@ class _Driver:
         return {"pose": self.object_poses, "size": tuple(float(v) for v in o.box_size_m),
                 "cars": bool(getattr(o, "bots", False) or getattr(o, "racers", False))}
 
+    def layouts_record(self) -> dict | None:
+        """The layouts of the episodes driven (`EvalRun.layouts`): {"kind": "box" | "bot", "size": [length,
+        width] m, "layouts": [{"episodes": simtrace episode numbers, "xy", "yaw", "lane"}]}; None without boxes
+        or bot cars."""
+        if not self.layouts:
+            return None
+        o = self.sim.objects
+        return {"kind": "bot" if o.bots else "box", "size": [float(v) for v in o.box_size_m],
+                "layouts": self.layouts}
+
 
 def run_evaluation(world, policy: Callable, rules: RaceRules | None = None, *, keep_frames: bool = False,
                    image_of: Callable | None = None, on_lap: Callable[[Lap], None] | None = None) -> EvalRun:
@@ -347,7 +367,7 @@ def run_evaluation(world, policy: Callable, rules: RaceRules | None = None, *, k
     driver.run()
     trace, extra = driver.trace.arrays(continuous_actions=not driver.discrete)
     return EvalRun(driver.laps, trace, extra, driver.frames, time.perf_counter() - t0, world.sim.dt,
-                   objects=driver.objects_record())
+                   objects=driver.objects_record(), layouts=driver.layouts_record())
 
 
 # ---- head to model ------------------------------------------------------------------------------------------
