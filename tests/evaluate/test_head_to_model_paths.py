@@ -114,3 +114,19 @@ def test_gymnasium_head_to_model_opponent_policy_and_restart():
     assert all(env.observation_space.contains(o) for o in seen)
     with pytest.raises(ConfigError, match="opponent_gap"):
         gym.make("racerlab/DeepRacer-v0", race="head_to_model", opponent_gap=1.5)
+
+
+def test_vector_env_pairs_its_cars():
+    """DeepRacerVectorEnv(race="head_to_model") pairs its cars as training does: car 2k's object is car 2k+1."""
+    from racerlab.sim.env import DeepRacerVectorEnv
+
+    env = DeepRacerVectorEnv(4, track=aws_track_path("reInvent2019_track"), race="head_to_model", info_params=True,
+                             reward_function=lambda p: 1.0)
+    env.reset(seed=0)
+    for _ in range(10):
+        _, _, _, _, info = env.step(np.full(4, STRAIGHT_FAST))
+    sim = env.sim
+    for i, p in enumerate(info["params"]):
+        np.testing.assert_allclose(p["objects_location"][0], [sim.state.x[i ^ 1], sim.state.y[i ^ 1]], atol=1e-9)
+    with pytest.raises(ConfigError, match="even number of cars, not 3"):
+        DeepRacerVectorEnv(3, race="head_to_model")
