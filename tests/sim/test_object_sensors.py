@@ -204,3 +204,59 @@ def test_sim_view_draws_a_race_s_boxes(tmp_path, capsys):
     boxes = [p for p in top.patches if p.get_facecolor()[:3] == pytest.approx([0xC8 / 255, 0xA0 / 255, 0x6E / 255])]
     assert len(boxes) == 2 and BOX_COLOR == "#c8a06e"  # car 1's and car 2's box, at the same place
     assert "boxes per car: 1" in fig._suptitle.get_text() and lidar.patches
+
+
+def bot_sim(track, bots):
+    """`box_sim` with car-shaped objects (a head-to-bot race's object set)."""
+    sim = box_sim(track, bots)
+    sim.objects.bots = True
+    sim.objects.box_size_m = np.array([0.32352, 0.1961])
+    return sim
+
+
+def test_a_bot_car_stands_on_wheels_with_the_road_showing_under_its_body(straight):
+    from racerlab.sim.sensors.solids import BOT_CAR_PARTS
+
+    sim = bot_sim(straight, [(2.0, 0.0, 0.0)])
+    img = Camera(sim).render()[0, :, :, 0].astype(float)
+    empty = Camera(box_sim(straight, [(-20.0, 8.0, 0.0)])).render()[0, :, :, 0].astype(float)
+    body, wheel = BOT_CAR_PARTS[0], BOT_CAR_PARTS[4]  # the body, the rear right wheel
+    # under the body's rear edge (0.017 m up), straight ahead between the rear wheels: the road, as without the car
+    d_rear = 2.0 - body[2] - CAM_X
+    r = int(row_of(math.atan2(0.5 * body[4] - CAM_Z, d_rear)))
+    assert abs(img[r, W // 2] - empty[r, W // 2]) <= 1.0
+    # the rear right wheel's back face (0.03 m up), dark, where the pinhole model puts it
+    d_wheel = 2.0 + wheel[0] - wheel[2] - CAM_X
+    rw = int(row_of(math.atan2(0.5 * wheel[5] - CAM_Z, d_wheel)))
+    cw = int(0.5 * W - F_PX * wheel[1] / d_wheel)
+    tyre = TrackLook().material_grey("tyre") * (AMBIENT + DIFFUSE * 0.5 * (1.0 - LIGHT_DIR[0]))
+    assert abs(img[rw, cw] - tyre) <= 1.0 and img[rw, cw] < empty[rw, cw] - 5
+    # a head-to-bot race's crash footprint stays the car's rectangle whatever is drawn
+    bots = Simulator(straight, 1, seed=0, race=RaceConfig(type="head_to_bot", number_of_bot_cars=1))
+    assert bots.objects.half == pytest.approx((0.16176, 0.09805))
+
+
+def test_domain_randomization_colours_each_box_and_each_bot_part_anew_every_episode(straight):
+    from racerlab.sim.sensors.look import DomainRandomization
+
+    for sim, parts in ((box_sim(straight, [(2.0, 0.3, 0.0), (3.0, -0.3, 0.0)], cars=2), 2),
+                       (bot_sim(straight, [(2.0, 0.3, 0.0), (3.0, -0.3, 0.0)]), 10)):
+        plain = Camera(sim).solids.grey.copy()
+        assert plain.shape[1] == parts
+        assert np.unique(np.round(plain[0], 6)).size == (1 if parts == 2 else 2)  # box / body and tyre colours
+        cam = Camera(sim, randomization=DomainRandomization())
+        first = cam.render()
+        grey = cam.solids.grey.copy()
+        assert np.unique(np.round(grey, 6)).size == grey.size  # every part of every car its own colour
+        assert (grey >= 0).all() and (grey <= 255 * 1.6).all()  # at most a bright channel over a dim neutral
+        sim.step(0.0, 0.5)  # the prepare step: the episode has begun
+        cam.render()
+        np.testing.assert_array_equal(cam.solids.grey, grey)  # the same colours all episode long
+        sim.set_pose(0, 0.0, 0.0, 0.0)  # a new episode for car 0: new colours for its objects only
+        sim.objects.xy[0] = [[2.0, 0.3], [3.0, -0.3]]
+        sim.objects.yaw[0] = 0.0
+        cam.render()
+        assert not np.isin(cam.solids.grey[0], grey[0]).any()
+        if sim.num_cars > 1:
+            np.testing.assert_array_equal(cam.solids.grey[1], grey[1])
+        assert first.shape == cam.frames.shape

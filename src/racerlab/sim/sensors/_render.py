@@ -12,7 +12,7 @@ helpers are inlined, because every array passed to a compiled call costs referen
 - plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az
 - raster: grey, ground, center (flat uint8 pyramids), off, stride, wmax, hmax, inv_cell, x0, y0
 - lit: plain, coef, tone, light, noise_amp, noise, noise_off
-- solids: pose (B, M, 3), dims (M, 3), grey (M,), camera (cam_z, focal, cos pitch, sin pitch) — the objects
+- solids: pose (B, P, 3), dims (P, 4), grey (B, P), camera (cam_z, focal, cos pitch, sin pitch) — the objects
   each car sees (`racerlab.sim.sensors.solids`), drawn over the ground and sky where a pixel's ray meets one
 """
 
@@ -148,7 +148,7 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
-    m = sgrey.shape[0]
+    m = sgrey.shape[1]
     bounds = np.empty((m, 4), dtype=np.int64)
     seen = np.empty(m, dtype=np.int64)
     shades = np.empty((m, FACES))
@@ -222,14 +222,14 @@ def _see_objects(i, ex, ey, c, s, yaw, spose, sdims, sgrey, cam, gain, haze, wid
     by the car's neutral light `gain`, faded into `haze` with distance) and the camera in each one's frame."""
     cam_z, f, cp, sp = cam
     n = 0
-    for q in range(sgrey.shape[0]):
+    for q in range(sgrey.shape[1]):
         ox = spose[i, q, 0]
         oy = spose[i, q, 1]
         oyaw = spose[i, q, 2]
-        if not object_bounds(ex, ey, c, s, ox, oy, oyaw, sdims[q, 0], sdims[q, 1], sdims[q, 2], cam_z, cp, sp, f,
-                             width, height, bounds[n]):
+        if not object_bounds(ex, ey, c, s, ox, oy, oyaw, sdims[q, 0], sdims[q, 1], sdims[q, 2], sdims[q, 3], cam_z,
+                             cp, sp, f, width, height, bounds[n]):
             continue
-        face_greys(oyaw, sgrey[q] * gain, shades[n])
+        face_greys(oyaw, sgrey[i, q] * gain, shades[n])
         fade = haze_fade(c * (ox - ex) + s * (oy - ey))
         for k in range(FACES):
             shades[n, k] = shades[n, k] * (1.0 - fade) + haze * fade
@@ -259,8 +259,8 @@ def _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, heigh
                 zbuf[:] = FAR
             q = seen[n]
             trace_row(dxr, dz, bounds[n, 2], bounds[n, 3], (0.5 - 0.5 * width) / f, 1.0 / f, local[n, 0],
-                      local[n, 1], cam_z, local[n, 2], local[n, 3], sdims[q, 0], sdims[q, 1], sdims[q, 2], shades[n],
-                      zbuf, val)
+                      local[n, 1], cam_z, local[n, 2], local[n, 3], sdims[q, 0], sdims[q, 1], sdims[q, 2], sdims[q, 3],
+                      shades[n], zbuf, val)
             lo = min(lo, bounds[n, 2])
             hi = max(hi, bounds[n, 3])
     for k in range(lo, hi + 1):

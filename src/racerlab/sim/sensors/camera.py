@@ -114,7 +114,9 @@ class Camera:
         """A new look for cars at step 0 of an episode, fresh noise offsets for every rendered car."""
         rng = self.sim.rng
         fresh = idx[self.sim.ctr[idx, K.KSTEPS] == 0]
-        self.lighting.draw(fresh, self.randomization, self.look, rng)
+        light = self.lighting.draw(fresh, self.randomization, self.look, rng)
+        if light is not None:  # AWS gives every obstacle, and each visual of a bot car, a random colour
+            self.solids.recolour(fresh, light, rng)
         npix = self.model.height * self.model.width
         self._noise_off[idx] = rng.integers(0, self._noise.size - npix, size=(idx.size, self.channels))
 

@@ -45,6 +45,7 @@ class TrackLook:
     haze: tuple = (165, 175, 180)
     box: tuple = (200, 160, 110)  # obstacles: cardboard, light against the road
     bot_car: tuple = (90, 100, 190)  # bot cars: blue, between the road and the box in grey
+    tyre: tuple = (30, 30, 34)  # a bot car's wheels
     skyline_seed: int = 2018
     # effective width of AWS's 640×480 → 160×120 PIL bilinear resize filter, in output pixels
     filter_px: float = 1.4
@@ -59,8 +60,12 @@ class TrackLook:
         return self.colors() @ LUMA
 
     def object_grey(self, bot_car: bool = False) -> float:
-        """Grey under white light of an obstacle box, or of a bot car."""
+        """Grey under white light of an obstacle box, or of a bot car's body."""
         return float(np.asarray(self.bot_car if bot_car else self.box, dtype=np.float64) @ LUMA)
+
+    def material_grey(self, name: str) -> float:
+        """Grey under white light of the look's colour `name` ("box", "bot_car", "tyre", ...)."""
+        return float(np.asarray(getattr(self, name), dtype=np.float64) @ LUMA)
 
     def skyline_profile(self, bins: int = 1024) -> np.ndarray:
         """(bins,) elevation (rad) of the skyline over azimuth 0..2π: a band of blocks and hills."""
@@ -150,11 +155,12 @@ class Lighting:
         light[:, 0] = 1.0
         return cls(np.ones(num_cars, dtype=bool), coef, tone, light, np.zeros(num_cars))
 
-    def draw(self, rows: np.ndarray, dr: DomainRandomization, look: TrackLook, rng: np.random.Generator) -> None:
-        """New random looks for cars `rows` (one draw each from `rng`)."""
+    def draw(self, rows: np.ndarray, dr: DomainRandomization, look: TrackLook,
+             rng: np.random.Generator) -> np.ndarray | None:
+        """New random looks for cars `rows` (one draw each from `rng`); returns their lights' RGB gains (n, 3)."""
         n = rows.size
         if n == 0:
-            return
+            return None
         tint = rng.uniform(*dr.tint, size=(n, 3))
         tint /= tint.max(axis=1, keepdims=True)
         light_rgb = tint * rng.uniform(*dr.brightness, size=(n, 1))
@@ -172,6 +178,7 @@ class Lighting:
         self.light[rows, 1:] = rng.uniform(-dr.gradient, dr.gradient, size=(n, 2))
         self.noise_amp[rows] = rng.uniform(0.0, dr.noise_sigma, size=n)
         self.plain[rows] = False
+        return light_rgb
 
 
 def tone_curves(contrast: np.ndarray, gamma: np.ndarray) -> np.ndarray:

@@ -1,15 +1,22 @@
 """Solid objects the sensors see: the boxes of an object avoidance race, the bot cars of a head-to-bot race and the
 other car of a head-to-model race.
 
-Each is an upright box standing on the ground: `Solids` packs every car's objects (the car axis first, read
-from the simulator's `ObjectSet` at each frame, because objects move at resets and bot cars drive) with one
-model per object: half length (along its yaw), half width, height, and its grey under white light.
+Each object is made of upright blocks (parts): `Solids` packs every car's objects (the car axis first, read
+from the simulator's `ObjectSet` at each frame, because objects move at resets and bot cars drive), one entry
+per part: its pose, half length (along the object's yaw), half width, bottom and top height, and per car its
+grey under white light.
 
-- A box is AWS's `box_obstacle` model, 0.40 × 0.30 × 0.25 m (next_capabilities §A.1), in the look's `box`
-  colour (cardboard, light against the dark road).
-- A bot car (or the other racer) is a box of the car's crash footprint, 0.324 × 0.196 m, `BOT_CAR_HEIGHT_M`
-  high, in the look's darker `bot_car` colour (racerlab's choice: AWS renders the DeepRacer car model, whose
-  shell racerlab does not draw).
+- A box is one block, AWS's `box_obstacle` model, 0.40 × 0.30 × 0.25 m (next_capabilities §A.1), in the look's
+  `box` colour (cardboard, light against the dark road).
+- A bot car (or the other racer) is car-shaped (`BOT_CAR_PARTS`): a body block the length of the car's crash
+  footprint (0.324 m), 0.14 m wide, from 0.035 m to `BOT_CAR_HEIGHT_M` above the ground, in the look's darker
+  `bot_car` colour, on four wheel blocks (0.065 m long and high, 0.031 m wide, the outer faces at the
+  footprint's 0.196 m width) in the `tyre` colour: the road shows under the body between the wheels. (AWS
+  renders the DeepRacer car's mesh; racerlab draws these five blocks. The crash footprint is the rectangle
+  either way.)
+- Under domain randomization every car draws, at each episode start, a random colour (RGB uniform in
+  [0, 255]) for each obstacle and for each part of a bot car, as AWS gives obstacles a whole-model random
+  colour and bot cars per-visual ones (next_capabilities §A.1, §A.2); the colour is lit by the car's light.
 
 The camera renderer (`_render.render`) traces each pixel's ray against the objects whose projected corners
 cover it (`object_bounds`, `trace_row`): the nearest face wins. The ground is flat and the objects stand on
@@ -30,9 +37,19 @@ import numpy as np
 from numba import njit
 
 from racerlab.sim.sensors.geometry import HAZE_FAR_M, HAZE_NEAR_M
+from racerlab.sim.sensors.look import LUMA
 
 BOX_MODEL_M = (0.40, 0.30, 0.25)  # box_obstacle / amazon_box_obstacle model.sdf (x along the lane, y, z)
-BOT_CAR_HEIGHT_M = 0.20  # the bot car drawn as a box of its footprint: about the DeepRacer's height with its lidar
+BOT_CAR_HEIGHT_M = 0.20  # the top of a bot car's body: about the DeepRacer's height with its lidar
+# a bot car's blocks in its frame (x ahead, y left): x, y of the centre, half length, half width, bottom, top (m),
+# and the look's colour; the wheels' outer faces are at the crash footprint's half width (0.098 m)
+BOT_CAR_PARTS = (
+    (0.0, 0.0, 0.16176, 0.07, 0.035, BOT_CAR_HEIGHT_M, "bot_car"),
+    (0.105, 0.0825, 0.0325, 0.0155, 0.0, 0.065, "tyre"),
+    (0.105, -0.0825, 0.0325, 0.0155, 0.0, 0.065, "tyre"),
+    (-0.105, 0.0825, 0.0325, 0.0155, 0.0, 0.065, "tyre"),
+    (-0.105, -0.0825, 0.0325, 0.0155, 0.0, 0.065, "tyre"),
+)
 NEAR_M = 0.01  # the camera sees objects from this far ahead of its plane
 LIGHT_DIR = (math.cos(math.radians(35.0)), math.sin(math.radians(35.0)))  # world frame, horizontal part
 AMBIENT, DIFFUSE, TOP = 0.6, 0.4, 1.0  # a face's grey: albedo · (AMBIENT + DIFFUSE · (1 + n·l) / 2)
@@ -54,10 +71,10 @@ def face_greys(yaw, grey, out):
 
 
 @njit(cache=True, fastmath=True)
-def object_bounds(ex, ey, c, s, ox, oy, oyaw, hl, hw, h, cam_z, cp, sp, f, width, height, out):
+def object_bounds(ex, ey, c, s, ox, oy, oyaw, hl, hw, z0, z1, cam_z, cp, sp, f, width, height, out):
     """Pixel rows and columns (out = r0, r1, c0, c1, inclusive) whose centres may see an upright box (centre ox, oy,
-    turned by oyaw, half sizes hl, hw, height h) from a camera at (ex, ey, cam_z) looking along (c, s), pitched
-    down (cp = cos, sp = sin). Returns False when the box is behind the camera or outside the image.
+    turned by oyaw, half sizes hl, hw, from height z0 to z1) from a camera at (ex, ey, cam_z) looking along (c, s),
+    pitched down (cp = cos, sp = sin). Returns False when the box is behind the camera or outside the image.
 
     The bounds are those of the box's part in front of the plane NEAR_M ahead of the camera: its corners there,
     and where its edges cross that plane."""
@@ -69,7 +86,7 @@ def object_bounds(ex, ey, c, s, ox, oy, oyaw, hl, hw, h, cam_z, cp, sp, f, width
     for q in range(8):
         a = hl if q & 1 else -hl
         b = hw if q & 2 else -hw
-        fz = (h if q & 4 else 0.0) - cam_z
+        fz = (z1 if q & 4 else z0) - cam_z
         wx = ox + co * a - so * b - ex
         wy = oy + so * a + co * b - ey
         fx = c * wx + s * wy
@@ -111,18 +128,18 @@ def _nonzero(d):
 
 
 @njit(cache=True, fastmath=True)
-def trace_row(dxr, dz, c0, c1, u0, du, lx, ly, oz, ca, sa, hl, hw, h, shades, zbuf, val):
+def trace_row(dxr, dz, c0, c1, u0, du, lx, ly, oz, ca, sa, hl, hw, z0, z1, shades, zbuf, val):
     """For columns c0..c1 of one image row: where the pixel's ray hits the box nearer than zbuf, set zbuf to the
     hit's ray parameter and val to the face's grey shades[face].
 
     The ray of column k is (dxr, -(u0 + k·du), dz) in the car frame (x ahead, y left, z up), from the camera at
     (lx, ly, oz) in the box's frame, which is the car frame turned by (ca, sa) = cos, sin(car yaw − box yaw).
-    The box spans [-hl, hl] × [-hw, hw] × [0, h]. Slabs: the ray is inside the box between the largest entry
+    The box spans [-hl, hl] × [-hw, hw] × [z0, z1]. Slabs: the ray is inside the box between the largest entry
     and the smallest exit of the three axes' slabs; the axis of the largest entry is the face it meets.
     """
     iz = 1.0 / _nonzero(dz)  # the z slab is the same for the whole row
-    za = (0.0 - oz) * iz
-    zb = (h - oz) * iz
+    za = (z0 - oz) * iz
+    zb = (z1 - oz) * iz
     tz0 = min(za, zb)
     tz1 = max(za, zb)
     dx0 = ca * dxr + sa * u0  # the ray's box-frame x and y are linear in the column
@@ -159,29 +176,54 @@ def haze_fade(ahead_m):
 
 
 class Solids:
-    """Every car's objects as the camera sees them: `pose` (B, M, 3) x, y, yaw refreshed by `update`, and per
-    object `dims` (M, 3) half length, half width, height and `grey` (M,) under white light."""
+    """Every car's objects as the camera sees them, part by part: `pose` (B, P, 3) x, y, yaw of each part, refreshed
+    by `update`; per part `dims` (P, 4) half length, half width, bottom, top; `grey` (B, P) under white light."""
 
     def __init__(self, sim, look):
         objects = getattr(sim, "objects", None)
         self.objects = objects if objects is not None and objects.num_objects else None
         m = self.objects.num_objects if self.objects is not None else 0
-        self.pose = np.zeros((sim.num_cars, m, 3))
-        self.dims = np.zeros((m, 3))
-        self.grey = np.zeros(m)
-        if m:
-            length, width = (float(v) for v in self.objects.box_size_m)
-            o = self.objects
-            bots = bool(getattr(o, "bots", False) or getattr(o, "racers", False))  # bot cars, or the other racer
-            self.dims[:] = (0.5 * length, 0.5 * width, BOT_CAR_HEIGHT_M if bots else BOX_MODEL_M[2])
-            self.grey[:] = look.object_grey(bots)
+        o = self.objects
+        cars = bool(m and (getattr(o, "bots", False) or getattr(o, "racers", False)))  # bot cars, or the other racer
+        if cars:
+            parts = BOT_CAR_PARTS
+        else:
+            length, width = (float(v) for v in o.box_size_m) if m else BOX_MODEL_M[:2]
+            parts = ((0.0, 0.0, 0.5 * length, 0.5 * width, 0.0, BOX_MODEL_M[2], "box"),)
+        k = len(parts)
+        self.parts = k
+        self.offset = np.array([p[:2] for p in parts], dtype=np.float64)  # (k, 2) in the object's frame
+        self.shifted = bool(self.offset.any())
+        self.dims = np.tile(np.array([p[2:6] for p in parts], dtype=np.float64), (m, 1))
+        self.pose = np.zeros((sim.num_cars, m * k, 3))
+        self.grey = np.tile([look.material_grey(p[6]) for p in parts], (sim.num_cars, m)).astype(np.float64)
 
     @property
     def count(self) -> int:
-        return int(self.grey.size)
+        return int(self.grey.shape[1])
 
     def update(self) -> None:
         """Read the objects' current poses (they move at every reset, and bot cars at every step)."""
-        if self.objects is not None:
-            self.pose[:, :, :2] = self.objects.xy
-            self.pose[:, :, 2] = self.objects.yaw
+        if self.objects is None:
+            return
+        xy, yaw = self.objects.xy, self.objects.yaw
+        if not self.shifted:  # one block per object at its centre (boxes)
+            self.pose[:, :, :2] = xy
+            self.pose[:, :, 2] = yaw
+            return
+        c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]  # (B, M, 1)
+        dx, dy = self.offset[:, 0], self.offset[:, 1]
+        n = yaw.shape[0]
+        self.pose[:, :, 0] = (xy[..., 0:1] + c * dx - s * dy).reshape(n, -1)
+        self.pose[:, :, 1] = (xy[..., 1:2] + s * dx + c * dy).reshape(n, -1)
+        self.pose[:, :, 2] = np.repeat(yaw, self.parts, axis=1)
+
+    def recolour(self, rows: np.ndarray, light_rgb: np.ndarray, rng: np.random.Generator) -> None:
+        """Domain randomization: a random colour for every part of cars `rows`' objects (RGB uniform in [0, 255]),
+        stored as the grey that, times the car's neutral gain, is the colour's grey under its light `light_rgb`
+        (n, 3)."""
+        if self.count == 0 or rows.size == 0:
+            return
+        colour = rng.uniform(0.0, 255.0, size=(rows.size, self.count, 3))
+        lit = (colour * light_rgb[:, None, :]) @ LUMA
+        self.grey[rows] = lit / (light_rgb @ LUMA)[:, None]
