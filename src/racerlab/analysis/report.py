@@ -28,7 +28,7 @@ import pandas as pd
 from racerlab.analysis import plots as P
 from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.api import LAYOUTS_NAME
+from racerlab.logs import eval_layouts_path
 from racerlab.logs.atomic import atomic_write_text
 from racerlab.model import ModelFolder, resolve_track
 from racerlab.spec import RaceConfig
@@ -323,7 +323,7 @@ def log_layouts(path) -> list[dict] | None:
     for races with boxes or bot cars), each as `plots.crash_map` takes it plus "episodes" (the simtrace episode
     numbers it stood for); None when there is no such file (training logs, older evaluations)."""
     path = Path(path)
-    f = (path if path.is_dir() else path.parent) / LAYOUTS_NAME
+    f = eval_layouts_path(path if path.is_dir() else path.parent)
     if not f.is_file():
         return None
     try:
@@ -347,7 +347,7 @@ def _objects(doc: _Doc, df: pd.DataFrame, trk: Track, race: RaceConfig | None, n
     if layouts and not _same_layout(layouts):  # random layouts: one panel per episode layout, as it was driven
         doc.figure(P.crash_maps(df, trk, layouts),
                    f"Every crashed step (red cross at the car's model point) with the {_object_words(layouts[0])} "
-                   f"of the episodes it happened in ({LAYOUTS_NAME}); race: {race.type if race else 'unknown'} "
+                   f"of the episodes it happened in (layouts.json); race: {race.type if race else 'unknown'} "
                    f"({note})")
         _most_crashes(doc, df)
         return

@@ -29,7 +29,6 @@ from racerlab.spec import RaceConfig
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
-LAYOUTS_NAME = "layouts.json"
 
 
 @dataclass
@@ -262,7 +261,7 @@ def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None
     metrics.add([lap.eval_metrics_entry() for lap in result.laps])
     result.files["eval_metrics"] = metrics.save()
     if run.layouts:  # where the boxes / bots stood in each episode (random layouts change at every reset)
-        result.files["layouts"] = logs.atomic_write_json(out / LAYOUTS_NAME, run.layouts)
+        result.files["layouts"] = logs.atomic_write_json(logs.eval_layouts_path(out), run.layouts)
     # the summary first: a video that fails (or is interrupted) leaves a complete evaluation
     _write_summary(result)
     if video:

@@ -37,6 +37,7 @@ from racerlab.logs.atomic import (
 )
 from racerlab.logs.layout import (
     disk_bytes,
+    eval_layouts_path,
     eval_metrics_path,
     eval_simtrace_path,
     evaluation_dir,
@@ -66,7 +67,8 @@ from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row,
 __all__ = [
     "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
     "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceRetention", "SimtraceWriter", "TrainingMetrics",
-    "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_metrics_path",
+    "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_layouts_path",
+    "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
     "finite_json", "format_rows", "metrics_jsonl_path", "new_evaluation_dir", "read_metrics_jsonl",
     "remove_stale_temps",

@@ -85,6 +85,11 @@ def eval_metrics_path(eval_dir: str | os.PathLike) -> Path:
     return Path(eval_dir) / "EvalMetrics.json"
 
 
+def eval_layouts_path(eval_dir: str | os.PathLike) -> Path:
+    """`<eval_dir>/layouts.json`: where each episode's boxes or bot cars stood (racerlab's, races with objects)."""
+    return Path(eval_dir) / "layouts.json"
+
+
 def evaluation_dirs(model_dir: str | os.PathLike) -> list[Path]:
     """The model's evaluation folders, oldest first."""
     model_dir = Path(model_dir)
