@@ -222,6 +222,9 @@ def test_a_worker_drives_with_the_learners_weights_but_its_own_random_stream(tmp
     assert w.agent.generator.initial_seed() != learner.agent.generator.initial_seed()
     assert worker_tracks(("a", "b", "c"), 1, 2) == ("b",) and worker_tracks(("a",), 1, 2) == ("a",)
     assert [worker_cars(5, k, 2) for k in (0, 1)] == [3, 2]
+    # head_to_model cars race in pairs: 6 cars over 2 workers are 4 + 2, never 3 + 3; a worker gets a pair at least
+    assert [worker_cars(6, k, 2, unit=2) for k in (0, 1)] == [4, 2]
+    assert [worker_cars(2, k, 3, unit=2) for k in (0, 1, 2)] == [2, 2, 2]
 
 
 def test_a_worker_table_gives_that_worker_its_own_track_and_direction(tmp_path):

@@ -40,9 +40,11 @@ def worker_tracks(names: tuple[str, ...], index: int, workers: int) -> tuple[str
     return (names[index % len(names)],)
 
 
-def worker_cars(num_cars: int, index: int, workers: int) -> int:
-    """Worker `index`'s share of the cars (at least one car each)."""
-    return max(1, num_cars // workers + (1 if index < num_cars % workers else 0))
+def worker_cars(num_cars: int, index: int, workers: int, unit: int = 1) -> int:
+    """Worker `index`'s share of the cars (at least one car each), in whole groups of `unit` cars (2 for a
+    head_to_model race, whose cars race in pairs)."""
+    groups = num_cars // unit
+    return unit * max(1, groups // workers + (1 if index < groups % workers else 0))
 
 
 class RolloutWorker:
@@ -66,7 +68,8 @@ class RolloutWorker:
         own = base.worker_sets(index, "track", "names") and not overrides.get("tracks")
         track = replace(r, names=r.names if own else worker_tracks(r.names, index, workers),
                         start_offset=(r.start_offset + index / workers) % 1.0)
-        run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers),
+        unit = 2 if cfg.race.head_to_model else 1
+        run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers, unit),
                       seed=cfg.run.seed + 1009 * index, device="cpu")
         self.cfg = replace(cfg, track=track, run=run)
         self._track_flag = bool(overrides.get("tracks"))
