@@ -40,9 +40,11 @@ from numba import njit
 
 from racerlab.errors import ConfigError
 from racerlab.sim import _kernels as K
+from racerlab.sim import _object_kernels as OK
 from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
+from racerlab.track.kernels import build_road_index
 
 BOX_SIZE_M = (0.40, 0.30)  # the box model (along the lane, across): what the lidar and camera see
 BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX_OBSTACLE_DIMENSION (0.4, 0.5)
@@ -57,6 +59,7 @@ CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
 CAMERA_FAR_M = 300.0
 CAMERA_NEAR_M = 0.02
+RING_BAND_M = 0.05  # band height of the index of the centre/inner-border polygon's edges (objects_left_of_center)
 
 
 def as_race(value) -> RaceConfig | None:
@@ -126,6 +129,19 @@ class Lanes:
             u, first = np.unique(self.track.project(lane.center).s, return_index=True)
             out[flag] = (u, lane.center[first])
         return out
+
+    def interp_arrays(self, flag: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(u, x, y) of lane `flag` as `at_centre_dist`'s np.interp works on them: on a loop taken modulo the lap,
+        sorted and padded with one point either side (numpy's periodic interpolation), for the compiled paths."""
+        u, xy = self.by_centre[flag]
+        if not self.track.closed:
+            return u, xy[:, 0], xy[:, 1]
+        period = self.track.length
+        xp = u % period
+        order = np.argsort(xp)
+        xp, fx, fy = xp[order], xy[order, 0], xy[order, 1]
+        return (np.concatenate((xp[-1:] - period, xp, xp[:1] + period)), np.concatenate((fx[-1:], fx, fx[:1])),
+                np.concatenate((fy[-1:], fy, fy[:1])))
 
     def at_centre_dist(self, flag: int, d: np.ndarray) -> np.ndarray:
         """Points (k, 2) of lane `flag` at centre-line distances `d` (linear between the lane's points; on a
@@ -234,18 +250,6 @@ def _nearest_object(rows, oxy, pts):
     return dist, nearest
 
 
-def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """Even-odd test of points against a closed ring (first == last not required)."""
-    x1, y1 = ring[:, 0], ring[:, 1]
-    x2, y2 = np.roll(x1, -1), np.roll(y1, -1)
-    px = px[:, None]
-    py = py[:, None]
-    crosses = (y1 > py) != (y2 > py)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xint = x1 + (py - y1) * (x2 - x1) / (y2 - y1)
-    return (crosses & (px < xint)).sum(axis=1) % 2 == 1
-
-
 def camera_frustum_contains(cam_x, cam_y, cam_z, yaw, px, py, pz) -> np.ndarray:
     """True where the point (px, py, pz) is inside the camera's view frustum (HFOV 1.13 rad, 4:3, pitched
     down 0.2618 rad, 0.02-300 m); broadcasts over cars and points."""
@@ -276,7 +280,6 @@ class ObjectSet:
         self.race = race
         self.rng = rng
         self.lanes = (Lanes(track), Lanes(track_reversed))
-        self._inner_ring = np.vstack([track.center, track.inner[::-1]])
         self._ccw = (track.is_ccw, track_reversed.is_ccw)
         self.bots = race.num_bot_cars > 0
         self.racers = race.head_to_model  # each car's one object is the other car of its pair
@@ -301,13 +304,16 @@ class ObjectSet:
         self._lists: list = [None] * num_cars
         self._moved_starts: dict = {}  # (reversed, box lane, x, y) of a start near a box -> its moved (x, y, yaw)
         # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
-        # left after a bot rear-ended the car, the current lane change (clock times; inf: none), front-point arc
+        # left after a bot rear-ended the car, the current lane change (clock times; inf: none)
         self.d0 = np.zeros((num_cars, m))
         self.clock = np.zeros(num_cars)
         self.pause_left = np.zeros(num_cars)
         self.change_start = np.full((num_cars, m), np.inf)
         self.change_end = np.full((num_cars, m), np.inf)
-        self.front_arc = np.zeros((num_cars, m))
+        # the centre-line segment each object's projection found last: the next search starts there (-1: search
+        # everywhere)
+        self._hint = np.full((num_cars, m), -1, dtype=np.int64)
+        self._bot_cache: dict = {}
         speed = self.speed
         self.change_s = race.lane_change_distance / speed if speed > 0 else np.inf
         self.lane_changes = self.bots and race.is_lane_change and speed > 0
@@ -322,18 +328,26 @@ class ObjectSet:
         if self._layouts is not None:
             self._copy_layouts(idx, np.asarray(reversed_, dtype=bool))
             return
-        for i, rev in zip(idx.tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
-            lanes = self.lanes[int(rev)]
-            self.rev[i] = rev
-            if self.racers:  # the other car is placed by the simulator (`follow`)
-                continue
-            arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
-            self.lane[i] = lane
-            if self.bots:
-                self.d0[i] = arcs
-            else:
-                self.xy[i], self.yaw[i] = lanes.poses(arcs, lane)
-                self._measure(i)
+        revs = np.asarray(reversed_, dtype=bool)
+        self.rev[idx] = revs
+        self._hint[idx] = -1
+        if self.racers:  # the other car is placed by the simulator (`follow`)
+            return
+        if self.bots and not self.race.randomize_bot_car_locations:  # evenly spaced: the same start every reset
+            for rev in (False, True):
+                arcs, lane = self._bot_starts(rev)
+                self.d0[idx[revs == rev]] = arcs
+                self.lane[idx[revs == rev]] = lane
+        else:
+            for i, rev in zip(idx.tolist(), revs.tolist(), strict=True):
+                lanes = self.lanes[int(rev)]
+                arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
+                self.lane[i] = lane
+                if self.bots:
+                    self.d0[i] = arcs
+                else:
+                    self.xy[i], self.yaw[i] = lanes.poses(arcs, lane)
+                    self._measure(i)
         if self.bots:
             self.clock[idx] = 0.0
             self.pause_left[idx] = 0.0
@@ -341,67 +355,64 @@ class ObjectSet:
             self.change_end[idx] = 0.0 if self.lane_changes else np.inf  # 0: the first change is drawn at once
             self._drive(idx)
 
+    def _bot_starts(self, rev: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(centre-line distances, lanes) where evenly spaced bots start in driving direction `rev` (drawn once:
+        no randomness in them)."""
+        key = ("starts", rev)
+        if key not in self._bot_cache:
+            self._bot_cache[key] = obstacle_arcs(self.race, self.lanes[int(rev)].track.length, self.rng)
+        return self._bot_cache[key]
+
     def advance(self, idx, dt: float) -> None:
         """The bot cars of cars `idx` one step of `dt` s on (BotCarsCtrl): paused bots wait out their penalty,
         the others drive their lane at `bot_car_speed` and change lanes when their next change comes. They never
-        react to the car."""
+        react to the car. One compiled pass for the clocks, the random draws of the lane changes that came due
+        (in car-then-bot order), one compiled pass for the poses and params."""
         idx = np.asarray(idx, dtype=np.int64)
-        paused = self.pause_left[idx] > 1e-9  # (a penalty of k steps is over after k steps, whatever the rounding)
-        left = self.pause_left[idx[paused]] - dt
-        self.pause_left[idx[paused]] = np.where(left > 1e-9, left, 0.0)
-        run = idx[~paused]
-        if run.size == 0:
+        run, due = self._buffers(idx.size)
+        nrun, ndue = OK.bots_tick(idx, dt, self.pause_left, self.clock, self.change_end, self.lane_changes, run, due)
+        if nrun == 0:
             return
-        self.clock[run] += dt
-        if self.lane_changes:
-            self._schedule_lane_changes(run)
-        self._drive(run)
+        if ndue:
+            self._schedule_lane_changes(due[:ndue])
+        self._drive(run[:nrun])
 
-    def _schedule_lane_changes(self, run: np.ndarray) -> None:
-        """A bot whose lane change has ended is in the other lane; its next change ends U(lower, upper) s plus
-        the change's duration (`lane_change_distance / bot_car_speed`) from now (AWS's timers)."""
-        now = self.clock[run][:, None]
-        due = now >= self.change_end[run]
-        if not due.any():
-            return
-        rows, cols = np.nonzero(due)
-        cars = run[rows]
-        ended = self.change_end[cars, cols] > 0.0
-        self.lane[cars[ended], cols[ended]] *= -1
+    def _buffers(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Scratch arrays for `bots_tick`: k running cars and their k * m due bots."""
+        run, due = self._bot_cache.get("buffers", (np.empty(0, dtype=np.int64), None))
+        if run.size < k:
+            run, due = np.empty(k, dtype=np.int64), np.empty((k * self.num_objects, 2), dtype=np.int64)
+            self._bot_cache["buffers"] = (run, due)
+        return run, due
+
+    def _schedule_lane_changes(self, due: np.ndarray) -> None:
+        """Bots `due` (car, bot) whose lane change has ended are in the other lane; their next change ends
+        U(lower, upper) s plus the change's duration (`lane_change_distance / bot_car_speed`) from now (AWS's
+        timers)."""
         r = self.race
-        end = self.clock[cars] + self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, cars.size)
-        self.change_end[cars, cols] = end + self.change_s
-        self.change_start[cars, cols] = end
+        draws = self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, due.shape[0])
+        OK.bots_schedule(due, draws, self.clock, self.lane, self.change_start, self.change_end, self.change_s)
 
-    def _bot_xy(self, rows: np.ndarray, lanes: Lanes, clock: np.ndarray, dd: float = 0.0) -> np.ndarray:
-        """Bot positions (k, m, 2) of cars `rows` (one driving direction) at bot clock `clock` (k,): on their lane
-        at `d0 + speed * clock` of centre line, blended into the other lane during a lane change (smoothstep of
-        the change's elapsed share, so the path leaves and joins the lane lines tangentially); `dd` m further on."""
-        d = self.d0[rows] + self.speed * clock[:, None] + dd
-        lane = self.lane[rows]
-        inner, outer = lanes.at_centre_dist(1, d), lanes.at_centre_dist(-1, d)
-        here = np.where((lane == 1)[..., None], inner, outer)
-        if not self.lane_changes:
-            return here
-        there = np.where((lane == 1)[..., None], outer, inner)
-        a = np.clip((clock[:, None] - self.change_start[rows]) / self.change_s, 0.0, 1.0)
-        w = (a * a * (3.0 - 2.0 * a))[..., None]
-        return here + w * (there - here)
+    @functools.cached_property
+    def _paths(self) -> tuple:
+        """The bots' lane paths as the kernels take them (`_object_kernels`): for (direction, lane) 2 * reversed +
+        (0 inner, 1 outer) the path arrays (4, 5, P), their lengths and lookup tables, and each direction's period
+        (0 on an open track)."""
+        arrays = [lanes.interp_arrays(flag) for lanes in self.lanes for flag in (1, -1)]
+        size = max(a[0].size for a in arrays)
+        packed = [OK.lane_arrays(*a, size, size) for a in arrays]
+        period = np.array([lanes.track.length if lanes.track.closed else 0.0 for lanes in self.lanes])
+        return (np.stack([p[0] for p in packed]), np.array([a[0].size for a in arrays], dtype=np.int64),
+                np.stack([p[1] for p in packed]), period)
 
     def _drive(self, run: np.ndarray) -> None:
-        """Poses of the bots of cars `run` at their clocks; the yaw is the path's direction (a central difference
-        over +-5 cm of centre line)."""
+        """Poses of the bots of cars `run` at their clocks: on their lane at `d0 + speed * clock` of centre line,
+        blended into the other lane during a lane change (smoothstep of the change's elapsed share, so the path
+        leaves and joins the lane lines tangentially); the yaw is the path's direction (a central difference over
+        +-5 cm of centre line). Then their params (`_measure`)."""
         h = 0.05 / self.speed if self.speed > 0 else 0.0  # the clock time of 5 cm
-        for rev in (False, True):
-            rows = run[self.rev[run] == rev]
-            if rows.size == 0:
-                continue
-            lanes = self.lanes[int(rev)]
-            c = self.clock[rows]
-            self.xy[rows] = self._bot_xy(rows, lanes, c)
-            dd = 0.0 if h > 0 else 0.05  # standing bots: 5 cm along their path
-            ahead = self._bot_xy(rows, lanes, c + h, dd) - self._bot_xy(rows, lanes, c - h, -dd)
-            self.yaw[rows] = np.arctan2(ahead[..., 1], ahead[..., 0])
+        OK.bots_drive(run, self.rev, self.clock, self.d0, self.lane, self.change_start, self.speed, self.change_s,
+                      self.lane_changes, h, *self._paths, self.xy, self.yaw)
         self._measure(run)
 
     def follow(self, x, y, yaw, rows=None) -> None:
@@ -423,37 +434,45 @@ class ObjectSet:
         rows = rows[self.pause_left[rows] <= 0.0]
         self.pause_left[rows] = self.race.penalty_seconds
 
-    def _measure(self, rows) -> None:
-        """The static params of the objects of cars `rows` (an index, or an array of them) at their current poses;
-        their params lists are made again when next asked for."""
-        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
-        m = self.num_objects
-        for rev in (False, True):
-            sel = rows[self.rev[rows] == rev]
-            if sel.size == 0:
-                continue
-            track = self.lanes[int(rev)].track
-            xy = self.xy[sel].reshape(-1, 2)
-            proj = track.project(xy)
-            self.arc[sel] = proj.s.reshape(-1, m)
-            self.dfc[sel] = np.abs(proj.lateral).reshape(-1, m)
-            # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
-            inner = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[int(rev)])
-            self.left[sel] = inner.reshape(-1, m)
-            if self.bots or self.racers:  # a car's progress is that of its front point
-                yaw = self.yaw[sel].reshape(-1)
-                front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
-                self.front_arc[sel] = track.project(front).s.reshape(-1, m)
-        self.order[rows] = np.argsort(self.arc[rows], axis=1, kind="stable")
-        for i in rows.tolist():
-            self._lists[i] = None
+    @functools.cached_property
+    def _geometry(self) -> tuple:
+        """The track arrays `_object_kernels.measure` takes: both directions' centre lines (points, segment
+        lengths, arc lengths), the polygon between centre line and inner border as edges by horizontal band, and
+        each direction's counter-clockwise flag."""
+        tracks = [lanes.track for lanes in self.lanes]
+        ring = np.vstack([tracks[0].center, tracks[0].inner[::-1]])
+        edges = np.column_stack([ring, np.roll(ring, -1, axis=0)])
+        edges = np.ascontiguousarray(edges[edges[:, 1] != edges[:, 3]])  # a level edge is never crossed
+        return (np.stack([t.center for t in tracks]), np.stack([t.segment_lengths for t in tracks]),
+                np.stack([t.waypoint_s for t in tracks]), tracks[0].closed, edges,
+                *build_road_index(edges, RING_BAND_M), np.array(self._ccw))
 
-    def _params_lists(self, i: int) -> tuple:
-        """Car i's per-object params as lists, made once per layout (boxes stand still between resets)."""
-        if self._lists[i] is None:
-            self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
-                              self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
-        return self._lists[i]
+    def _measure(self, rows) -> None:
+        """The static params of the objects of cars `rows` (an index, or an array of them) at their current poses
+        in one compiled pass: centre-line arc and distance of their projection in the car's driving direction, left
+        of centre as AWS has it (inside the polygon between centre line and inner border, XOR not counter-clockwise
+        in the driving direction) and the order by arc."""
+        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        OK.measure(rows, self.rev, self.xy, *self._geometry, self._hint, self.arc, self.dfc, self.left, self.order)
+        if not (self.bots or self.racers):  # boxes keep their params lists between resets
+            for i in rows.tolist():
+                self._lists[i] = None
+
+    def _params_lists(self, idx: np.ndarray) -> list:
+        """Per car of `idx`, its per-object params as lists: (location, left of centre, distance, distance from
+        centre, heading). Boxes make theirs once per layout (they stand still between resets); moving objects all
+        at once for the batch."""
+        if self.bots or self.racers:
+            yaw = self.yaw[idx].tolist() if self.bots else [[0.0] * self.num_objects for _ in range(idx.size)]
+            return list(zip(self.xy[idx].tolist(), self.left[idx].tolist(), self.arc[idx].tolist(),
+                            self.dfc[idx].tolist(), yaw, strict=True))
+        out = []
+        for i in idx.tolist():
+            if self._lists[i] is None:
+                self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(),
+                                  self.dfc[i].tolist(), [0.0] * self.num_objects)
+            out.append(self._lists[i])
+        return out
 
     def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
@@ -533,14 +552,9 @@ class ObjectSet:
         """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
         s: the nearest objects ahead along the lap, in the car's frame (x ahead, y left) divided by 2 m, as the
         centre points of `features`; with fewer objects the list repeats from the nearest."""
-        ahead = np.mod(self.arc[rows] - s[:, None], length)
-        order = np.argsort(ahead, axis=1, kind="stable")
-        pick = order[:, np.arange(FEATURE_OBJECTS) % self.num_objects]  # (k, F)
-        dx = self.xy[rows[:, None], pick, 0] - x[:, None]
-        dy = self.xy[rows[:, None], pick, 1] - y[:, None]
-        c, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        out[:, 0::2] = (dx * c + dy * sn) * 0.5
-        out[:, 1::2] = (-dx * sn + dy * c) * 0.5
+        OK.features_ahead(np.asarray(rows, dtype=np.int64), np.asarray(x, dtype=np.float64),
+                          np.asarray(y, dtype=np.float64), np.asarray(yaw, dtype=np.float64),
+                          np.asarray(s, dtype=np.float64), float(length), self.arc, self.xy, out)
 
     def reset_behind(self, i: int, reversed_: bool, mx: float, my: float) -> tuple[float, float, float, float]:
         """AWS's evaluation reset after car i (model point mx, my) hit a box: (x, y, yaw) on the lane opposite
@@ -576,12 +590,26 @@ class ObjectSet:
         car_arc = meas[rows, K.MS] if self.bots or self.racers else None
         return self._judge(inside, rows, car_arc, length)
 
+    def front_arc(self, rows) -> np.ndarray:
+        """(k, m) centre-line arc of the front point (`MODEL_POINT_AHEAD_M` ahead of the base) of each object of
+        cars `rows`: a car's progress, for telling which of two cars ran into the other (worked out when asked)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        out = np.empty((rows.size, self.num_objects))
+        OK.front_arcs(rows, self.rev, self.xy, self.yaw, *self._geometry[:4], out)
+        return out
+
     def _judge(self, inside, rows, car_arc, length) -> tuple[np.ndarray, np.ndarray]:
         """(crashed, rear_ended) per car from `inside` (k, m): which objects hold a corner of the car."""
+        touched = inside.any(axis=1)
         if not (self.bots or self.racers) or car_arc is None:
-            return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
-        ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
-        return (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
+            return touched, np.zeros(rows.size, dtype=bool)
+        crashed, rear = np.zeros(rows.size, dtype=bool), np.zeros(rows.size, dtype=bool)
+        sel = np.flatnonzero(touched)  # only the cars touching an object need its progress
+        if sel.size:
+            inside = inside[sel]
+            ahead = np.mod(self.front_arc(rows[sel]) - car_arc[sel, None], length) < 0.5 * length
+            crashed[sel], rear[sel] = (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
+        return crashed, rear
 
     def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
         """The `objects_*` params columns for cars `idx`: the model point's xy (k, 2) and centre-line arc (k,),
@@ -598,10 +626,12 @@ class ObjectSet:
         prev_obj = order[rows, prv]
         next_obj = order[rows, nxt]
         in_cam = self.in_camera(idx, next_obj, base_pose)
-        lists = [self._params_lists(i) for i in idx.tolist()]
+        lists = self._params_lists(idx)
+        moving = self.bots or self.racers  # their lists are made afresh at every call
         return {
             "closest_objects": (prev_obj.tolist(), next_obj.tolist()),
-            "objects_location": [[[*p] for p in t[0]] for t in lists],  # fresh lists: the dicts own them
+            # fresh lists: the dicts own them
+            "objects_location": [t[0] for t in lists] if moving else [[[*p] for p in t[0]] for t in lists],
             "objects_left_of_center": [t[1] for t in lists],
             "objects_distance": [t[2] for t in lists],
             "objects_distance_from_center": [t[3] for t in lists],

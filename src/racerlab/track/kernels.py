@@ -17,14 +17,13 @@ LOCAL_MAX_DIST_M = 0.5
 @njit(cache=True, inline="always")
 def _segment_distance_sq(px, py, ax, ay, dx, dy, seg_len_sq):
     """Squared distance from p to segment a + t*d, t in [0, 1]; returns (dist_sq, t)."""
-    if seg_len_sq > 0.0:
-        t = ((px - ax) * dx + (py - ay) * dy) / seg_len_sq
-        if t < 0.0:
-            t = 0.0
-        elif t > 1.0:
+    t = 0.0
+    if seg_len_sq > 0.0:  # clamped to [0, 1] before dividing: the same t (division rounds monotonically), cheaper
+        dot = (px - ax) * dx + (py - ay) * dy
+        if dot >= seg_len_sq:
             t = 1.0
-    else:
-        t = 0.0
+        elif dot > 0.0:
+            t = dot / seg_len_sq
     qx = ax + t * dx - px
     qy = ay + t * dy - py
     return qx * qx + qy * qy, t
@@ -43,11 +42,14 @@ def nearest_segment(px, py, line, seg_len, closed, hint):
     best_i = -1
     best_d = np.inf
     best_t = 0.0
-    if hint >= 0 and nseg > 2 * LOCAL_WINDOW + 1:
+    if 0 <= hint < nseg and nseg > 2 * LOCAL_WINDOW + 1:
         for k in range(-LOCAL_WINDOW, LOCAL_WINDOW + 1):
             i = hint + k
-            if closed:
-                i = i % nseg
+            if closed:  # i % nseg (the hint is a segment, so at most one lap out)
+                if i < 0:
+                    i += nseg
+                elif i >= nseg:
+                    i -= nseg
             elif i < 0 or i >= nseg:
                 continue
             ax = line[i, 0]

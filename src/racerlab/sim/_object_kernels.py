@@ -1,0 +1,264 @@
+"""Numba kernels for the objects of a race: bot cars driven, every car's objects measured, in one pass over all
+cars (no Python loop over cars in the step). `racerlab.sim.objects.ObjectSet` packs the track arrays once and
+calls these; the results are those of its plain numpy definitions to the bit where the arithmetic allows it
+(tested in tests/sim/test_object_kernels.py).
+
+Packed geometry (built by `ObjectSet`):
+
+- `lines` (2, N, 2), `seg_len` (2, N - 1), `cum_s` (2, N): the centre line in each driving direction (0 forward,
+  1 reversed), for the projection;
+- lane paths, one per (direction, lane) at index `2 * reversed + (0 if lane == 1 else 1)`: `paths` (4, 5, P) the
+  centre-line distances u the lane's points are keyed by, the points' x and y, already in the form
+  `np.interp(x, u, f, period=L)` sorts and pads them to, and the slopes numpy's interpolation works out from them;
+  `lane_n` (4,) how many of the P are used; `lane_cell` (4, C + 2) a lookup table of the intervals
+  (`lane_arrays`); `period` (2,) each direction's lap (0 on an open track);
+- the polygon between centre line and inner border as edges indexed by horizontal band (`build_road_index`),
+  for `objects_left_of_center`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from racerlab.spec import MODEL_POINT_AHEAD_M
+from racerlab.track.kernels import _segment_distance_sq, nearest_segment, point_in_road
+
+
+# ---- lane paths ------------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _interp_at(paths, k, f, j, x, n):
+    """numpy's compiled interpolation of path k's coordinate f (1: x, 2: y) at x, given j, the last index with
+    u[j] <= x (-1 below, n above), with the slopes numpy works out first ((f[j + 1] - f[j]) / (u[j + 1] - u[j]),
+    row f + 2). (numpy retries a NaN result from the other end of the interval; with finite points and
+    u[j] <= x < u[j + 1] there is none.) Indexed element by element: no array views in the inner loop."""
+    if j < 0:
+        return paths[k, f, 0]
+    if j >= n - 1 or paths[k, 0, j] == x:
+        return paths[k, f, min(j, n - 1)]
+    return paths[k, f + 2, j] * (x - paths[k, 0, j]) + paths[k, f, j]
+
+
+@njit(cache=True, inline="always")
+def lane_point(k, x, period, paths, lane_n, lane_cell):
+    """(`np.interp(x, u, px, period)`, `np.interp(x, u, py, period)`) on lane path k, to the bit: on a loop x is
+    taken modulo the period (numpy's `%`; x - period is the same for x in [period, 2 period)), the interval is
+    found from a table of cells (`lane_arrays`) and a short walk."""
+    if period > 0.0 and not 0.0 <= x < period:
+        x = x - period if period <= x < 2.0 * period else x % period
+    n = lane_n[k]
+    if x > paths[k, 0, n - 1]:
+        j = n
+    elif x < paths[k, 0, 0]:
+        j = -1
+    else:
+        cell = min(max(int((x - paths[k, 0, 0]) * lane_cell[k, 0]), 0), lane_cell.shape[1] - 2)
+        j = int(lane_cell[k, 1 + cell])
+        while j > 0 and paths[k, 0, j] > x:
+            j -= 1
+        while j + 1 < n and paths[k, 0, j + 1] <= x:
+            j += 1
+    return _interp_at(paths, k, 1, j, x, n), _interp_at(paths, k, 2, j, x, n)
+
+
+def lane_arrays(u: np.ndarray, x: np.ndarray, y: np.ndarray, size: int, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """`lane_point`'s arrays for one lane path of points (u, x, y), u sorted: (5, size) u, x, y and numpy's
+    slopes of x and y (padded with zeros), and the lookup table: 1 / cell width, then for each of `cells` + 1
+    cells the last point at or before the cell's start (any guess will do: `lane_point` walks to the interval)."""
+    out = np.zeros((5, size))
+    n = u.size
+    out[:3, :n] = u, x, y
+    with np.errstate(divide="ignore", invalid="ignore"):  # as numpy's interp: a repeated u gives an unused slope
+        out[3, :n - 1] = (x[1:] - x[:-1]) / (u[1:] - u[:-1])
+        out[4, :n - 1] = (y[1:] - y[:-1]) / (u[1:] - u[:-1])
+    width = (u[-1] - u[0]) / cells or 1.0
+    starts = u[0] + width * np.arange(cells + 1)
+    table = np.concatenate([[1.0 / width], np.clip(np.searchsorted(u, starts, side="right") - 1, 0, n - 1)])
+    return out, table
+
+
+@njit(cache=True, inline="always")
+def bot_xy(i, q, rev, clock, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n, lane_cell, period):
+    """Bot q of car i (driving direction rev) at bot clock `clock`: on its lane at `d0 + speed * clock` of centre
+    line (+ dd), blended into the other lane during a lane change by the smoothstep of the change's elapsed
+    share (`blend`: lane changes are on)."""
+    d = d0[i, q] + speed * clock + dd
+    here = 2 * rev if lane[i, q] == 1 else 2 * rev + 1
+    p = period[rev]
+    hx, hy = lane_point(here, d, p, paths, lane_n, lane_cell)
+    if not blend or clock <= change_start[i, q]:  # not changing lanes (yet): the blend weight is 0
+        return hx, hy
+    a = min(max((clock - change_start[i, q]) / change_s, 0.0), 1.0)
+    w = a * a * (3.0 - 2.0 * a)
+    if w == 0.0:  # on its lane (here + 0 * (there - here) is here)
+        return hx, hy
+    tx, ty = lane_point(4 * rev + 1 - here, d, p, paths, lane_n, lane_cell)
+    return hx + w * (tx - hx), hy + w * (ty - hy)
+
+
+# ---- bot clocks and poses ----------------------------------------------------------------------------
+@njit(cache=True)
+def bots_tick(idx, dt, pause_left, clock, change_end, lane_changes, run_out, due_out):
+    """One step of the bot clocks of cars `idx`: a paused car's bots wait out their penalty (a penalty of k steps
+    is over after k steps, whatever the rounding), the others' clocks run on. Writes the running cars to run_out
+    and their bots whose lane change has ended (or whose first change is to be drawn) as (car, bot) to due_out,
+    in car-then-bot order; returns (running cars, due bots)."""
+    nrun = 0
+    ndue = 0
+    for j in range(idx.size):
+        i = idx[j]
+        if pause_left[i] > 1e-9:
+            left = pause_left[i] - dt
+            pause_left[i] = left if left > 1e-9 else 0.0
+            continue
+        clock[i] += dt
+        run_out[nrun] = i
+        nrun += 1
+        if lane_changes:
+            for q in range(change_end.shape[1]):
+                if clock[i] >= change_end[i, q]:
+                    due_out[ndue, 0] = i
+                    due_out[ndue, 1] = q
+                    ndue += 1
+    return nrun, ndue
+
+
+@njit(cache=True)
+def bots_schedule(due, draws, clock, lane, change_start, change_end, change_s):
+    """Bots `due` (car, bot) whose change ended are in the other lane; the next change of each ends draws[k]
+    (U(lower, upper) s) plus the change's duration from now."""
+    for k in range(due.shape[0]):
+        i = due[k, 0]
+        q = due[k, 1]
+        if change_end[i, q] > 0.0:
+            lane[i, q] = -lane[i, q]
+        end = clock[i] + draws[k]
+        change_end[i, q] = end + change_s
+        change_start[i, q] = end
+
+
+@njit(cache=True)
+def bots_drive(rows, rev, clock, d0, lane, change_start, speed, change_s, blend, h, paths, lane_n, lane_cell, period,
+               xy, yaw):
+    """Poses of the bots of cars `rows` at their clocks; the yaw is the path's direction, a central difference
+    over the clock time h of 5 cm (standing bots: 5 cm of centre line either side)."""
+    dd = 0.0 if h > 0 else 0.05
+    for j in range(rows.size):
+        i = rows[j]
+        r = 1 if rev[i] else 0
+        c = clock[i]
+        for q in range(xy.shape[1]):
+            x, y = bot_xy(i, q, r, c, 0.0, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
+                          lane_cell, period)
+            ax, ay = bot_xy(i, q, r, c + h, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
+                            lane_cell, period)
+            bx, by = bot_xy(i, q, r, c - h, -dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
+                            lane_cell, period)
+            xy[i, q, 0] = x
+            xy[i, q, 1] = y
+            yaw[i, q] = math.atan2(ay - by, ax - bx)
+
+
+# ---- params -----------------------------------------------------------------------------------------
+@njit(cache=True, inline="always")
+def _project(px, py, line, seg_len, cum_s, closed, hint):
+    """(arc length, signed offset, segment) of p on the polyline as `Track.project` finds them, searching near
+    `hint` first (-1: everywhere); at the closing vertex of a loop, where the last segment's end and the first's
+    start are one point, the first segment wins as in a search over everything."""
+    i, t, d2 = nearest_segment(px, py, line, seg_len, closed, hint)
+    if closed and i == line.shape[0] - 2 and t == 1.0:
+        d0, t0 = _segment_distance_sq(px, py, line[0, 0], line[0, 1], line[1, 0] - line[0, 0],
+                                      line[1, 1] - line[0, 1], seg_len[0] * seg_len[0])
+        if d0 <= d2:
+            i, t, d2 = 0, t0, d0
+    ax = line[i, 0]
+    ay = line[i, 1]
+    cross = (line[i + 1, 0] - ax) * (py - ay) - (line[i + 1, 1] - ay) * (px - ax)
+    lat = math.sqrt(d2) if cross >= 0.0 else -math.sqrt(d2)
+    return cum_s[i] + t * seg_len[i], lat, i
+
+
+@njit(cache=True)
+def measure(rows, rev, xy, lines, seg_len, cum_s, closed, ring_edges, band_start, band_edges, y0, band_h, ccw, hint,
+            arc, dfc, left, order):
+    """The static params of the objects of cars `rows`: centre-line arc and distance from the centre line of
+    each object's projection in the car's driving direction, left of centre (inside the polygon between centre
+    line and inner border, XOR not counter-clockwise in that direction) and the objects sorted by arc (stably).
+    `hint` (car, object) holds the segments found last time (-1: none), updated."""
+    m = xy.shape[1]
+    for r in range(2):  # one direction at a time: its arrays are taken once
+        line = lines[r]
+        lengths = seg_len[r]
+        along = cum_s[r]
+        for j in range(rows.size):
+            i = rows[j]
+            if rev[i] != (r == 1):
+                continue
+            for q in range(m):
+                px = xy[i, q, 0]
+                py = xy[i, q, 1]
+                s, lat, seg = _project(px, py, line, lengths, along, closed, hint[i, q])
+                hint[i, q] = seg
+                arc[i, q] = s
+                dfc[i, q] = abs(lat)
+                inner = point_in_road(px, py, ring_edges, band_start, band_edges, y0, band_h)
+                left[i, q] = inner != (not ccw[r])
+    for j in range(rows.size):
+        i = rows[j]
+        for q in range(m):  # insertion sort: stable, as argsort(kind="stable")
+            order[i, q] = q
+        for q in range(1, m):
+            k = order[i, q]
+            p = q - 1
+            while p >= 0 and arc[i, order[i, p]] > arc[i, k]:
+                order[i, p + 1] = order[i, p]
+                p -= 1
+            order[i, p + 1] = k
+
+
+@njit(cache=True)
+def front_arcs(rows, rev, xy, yaw, lines, seg_len, cum_s, closed, out):
+    """out[j, q]: the centre-line arc of the front point (`MODEL_POINT_AHEAD_M` ahead of the base) of object q of
+    car rows[j], a car's progress."""
+    for j in range(rows.size):
+        i = rows[j]
+        r = 1 if rev[i] else 0
+        for q in range(xy.shape[1]):
+            fx = xy[i, q, 0] + MODEL_POINT_AHEAD_M * math.cos(yaw[i, q])
+            fy = xy[i, q, 1] + MODEL_POINT_AHEAD_M * math.sin(yaw[i, q])
+            out[j, q] = _project(fx, fy, lines[r], seg_len[r], cum_s[r], closed, -1)[0]
+
+
+@njit(cache=True)
+def features_ahead(rows, x, y, yaw, s, length, arc, xy, out):
+    """out[j] for car rows[j] at base pose (x[j], y[j], yaw[j]) on centre-line arc s[j]: its nearest objects ahead
+    along the lap (the first of equals first), (x ahead, y left) in the car's frame divided by 2 m; with fewer
+    objects than out's pairs the list repeats from the nearest."""
+    m = arc.shape[1]
+    f = out.shape[1] // 2
+    ahead = np.empty(m)
+    taken = np.empty(m, dtype=np.bool_)
+    pick = np.empty(f, dtype=np.int64)
+    for j in range(rows.size):
+        i = rows[j]
+        for q in range(m):
+            ahead[q] = (arc[i, q] - s[j]) % length
+            taken[q] = False
+        for k in range(min(f, m)):
+            best = -1
+            for q in range(m):
+                if not taken[q] and (best < 0 or ahead[q] < ahead[best]):
+                    best = q
+            taken[best] = True
+            pick[k] = best
+        for k in range(m, f):
+            pick[k] = pick[k % m]
+        c = math.cos(yaw[j])
+        sn = math.sin(yaw[j])
+        for k in range(f):
+            dx = xy[i, pick[k], 0] - x[j]
+            dy = xy[i, pick[k], 1] - y[j]
+            out[j, 2 * k] = (dx * c + dy * sn) * 0.5
+            out[j, 2 * k + 1] = (-dx * sn + dy * c) * 0.5
