@@ -80,13 +80,12 @@ def lane_arrays(u: np.ndarray, x: np.ndarray, y: np.ndarray, size: int, cells: i
 
 
 @njit(cache=True, inline="always")
-def bot_xy(i, q, rev, clock, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n, lane_cell, period):
-    """Bot q of car i (driving direction rev) at bot clock `clock`: on its lane at `d0 + speed * clock` of centre
-    line (+ dd), blended into the other lane during a lane change by the smoothstep of the change's elapsed
+def bot_xy(i, q, rev, clock, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n, lane_cell, p):
+    """Bot q of car i (driving direction rev, lap p) at bot clock `clock`: on its lane at `d0 + speed * clock` of
+    centre line (+ dd), blended into the other lane during a lane change by the smoothstep of the change's elapsed
     share (`blend`: lane changes are on)."""
     d = d0[i, q] + speed * clock + dd
     here = 2 * rev if lane[i, q] == 1 else 2 * rev + 1
-    p = period[rev]
     hx, hy = lane_point(here, d, p, paths, lane_n, lane_cell)
     if not blend or clock <= change_start[i, q]:  # not changing lanes (yet): the blend weight is 0
         return hx, hy
@@ -126,9 +125,13 @@ def bots_tick(idx, dt, pause_left, clock, change_end, lane_changes, run_out, due
 
 
 @njit(cache=True)
-def bots_schedule(due, draws, clock, lane, change_start, change_end, change_s):
-    """Bots `due` (car, bot) whose change ended are in the other lane; the next change of each ends draws[k]
-    (U(lower, upper) s) plus the change's duration from now."""
+def bots_drive(rows, due, draws, rev, clock, d0, lane, change_start, change_end, speed, change_s, blend, h, paths,
+               lane_n, lane_cell, period, xy, yaw, lines, seg_len, cum_s, closed, ring_edges, band_start, band_edges,
+               y0, band_h, ccw, hint, arc, dfc, left, order):
+    """The bots of cars `rows` at their clocks, with their params (`measure`). First the bots `due` (car, bot)
+    whose lane change ended are in the other lane and the next change of each ends draws[k] (U(lower, upper) s)
+    plus the change's duration from now. The yaw is the path's direction, a central difference over the clock
+    time h of 5 cm (standing bots: 5 cm of centre line either side)."""
     for k in range(due.shape[0]):
         i = due[k, 0]
         q = due[k, 1]
@@ -137,28 +140,35 @@ def bots_schedule(due, draws, clock, lane, change_start, change_end, change_s):
         end = clock[i] + draws[k]
         change_end[i, q] = end + change_s
         change_start[i, q] = end
-
-
-@njit(cache=True)
-def bots_drive(rows, rev, clock, d0, lane, change_start, speed, change_s, blend, h, paths, lane_n, lane_cell, period,
-               xy, yaw):
-    """Poses of the bots of cars `rows` at their clocks; the yaw is the path's direction, a central difference
-    over the clock time h of 5 cm (standing bots: 5 cm of centre line either side)."""
     dd = 0.0 if h > 0 else 0.05
-    for j in range(rows.size):
-        i = rows[j]
-        r = 1 if rev[i] else 0
-        c = clock[i]
-        for q in range(xy.shape[1]):
-            x, y = bot_xy(i, q, r, c, 0.0, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
-                          lane_cell, period)
-            ax, ay = bot_xy(i, q, r, c + h, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
-                            lane_cell, period)
-            bx, by = bot_xy(i, q, r, c - h, -dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
-                            lane_cell, period)
-            xy[i, q, 0] = x
-            xy[i, q, 1] = y
-            yaw[i, q] = math.atan2(ay - by, ax - bx)
+    for r in range(2):  # one direction at a time: its arrays are taken once
+        line = lines[r]
+        lengths = seg_len[r]
+        along = cum_s[r]
+        p = period[r]
+        for j in range(rows.size):
+            i = rows[j]
+            if rev[i] != (r == 1):
+                continue
+            c = clock[i]
+            for q in range(xy.shape[1]):
+                if not blend or c + h <= change_start[i, q]:  # on its lane at all three clock times
+                    k = 2 * r if lane[i, q] == 1 else 2 * r + 1
+                    x, y = lane_point(k, d0[i, q] + speed * c + 0.0, p, paths, lane_n, lane_cell)
+                    ax, ay = lane_point(k, d0[i, q] + speed * (c + h) + dd, p, paths, lane_n, lane_cell)
+                    bx, by = lane_point(k, d0[i, q] + speed * (c - h) - dd, p, paths, lane_n, lane_cell)
+                else:
+                    x, y = bot_xy(i, q, r, c, 0.0, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
+                                  lane_cell, p)
+                    ax, ay = bot_xy(i, q, r, c + h, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
+                                    lane_cell, p)
+                    bx, by = bot_xy(i, q, r, c - h, -dd, d0, lane, change_start, speed, change_s, blend, paths,
+                                    lane_n, lane_cell, p)
+                xy[i, q, 0] = x
+                xy[i, q, 1] = y
+                yaw[i, q] = math.atan2(ay - by, ax - bx)
+            _measure_car(i, r, xy, line, lengths, along, closed, ring_edges, band_start, band_edges, y0, band_h, ccw,
+                         hint, arc, dfc, left, order)
 
 
 # ---- params -----------------------------------------------------------------------------------------
@@ -180,6 +190,31 @@ def _project(px, py, line, seg_len, cum_s, closed, hint):
     return cum_s[i] + t * seg_len[i], lat, i
 
 
+@njit(cache=True, inline="always")
+def _measure_car(i, r, xy, line, lengths, along, closed, ring_edges, band_start, band_edges, y0, band_h, ccw, hint,
+                 arc, dfc, left, order):
+    """`measure` of car i in driving direction r, whose centre line is (line, lengths, along)."""
+    m = xy.shape[1]
+    for q in range(m):
+        px = xy[i, q, 0]
+        py = xy[i, q, 1]
+        s, lat, seg = _project(px, py, line, lengths, along, closed, hint[i, q])
+        hint[i, q] = seg
+        arc[i, q] = s
+        dfc[i, q] = abs(lat)
+        inner = point_in_road(px, py, ring_edges, band_start, band_edges, y0, band_h)
+        left[i, q] = inner != (not ccw[r])
+    for q in range(m):  # insertion sort: stable, as argsort(kind="stable")
+        order[i, q] = q
+    for q in range(1, m):
+        k = order[i, q]
+        p = q - 1
+        while p >= 0 and arc[i, order[i, p]] > arc[i, k]:
+            order[i, p + 1] = order[i, p]
+            p -= 1
+        order[i, p + 1] = k
+
+
 @njit(cache=True)
 def measure(rows, rev, xy, lines, seg_len, cum_s, closed, ring_edges, band_start, band_edges, y0, band_h, ccw, hint,
             arc, dfc, left, order):
@@ -187,35 +222,14 @@ def measure(rows, rev, xy, lines, seg_len, cum_s, closed, ring_edges, band_start
     each object's projection in the car's driving direction, left of centre (inside the polygon between centre
     line and inner border, XOR not counter-clockwise in that direction) and the objects sorted by arc (stably).
     `hint` (car, object) holds the segments found last time (-1: none), updated."""
-    m = xy.shape[1]
     for r in range(2):  # one direction at a time: its arrays are taken once
         line = lines[r]
         lengths = seg_len[r]
         along = cum_s[r]
         for j in range(rows.size):
-            i = rows[j]
-            if rev[i] != (r == 1):
-                continue
-            for q in range(m):
-                px = xy[i, q, 0]
-                py = xy[i, q, 1]
-                s, lat, seg = _project(px, py, line, lengths, along, closed, hint[i, q])
-                hint[i, q] = seg
-                arc[i, q] = s
-                dfc[i, q] = abs(lat)
-                inner = point_in_road(px, py, ring_edges, band_start, band_edges, y0, band_h)
-                left[i, q] = inner != (not ccw[r])
-    for j in range(rows.size):
-        i = rows[j]
-        for q in range(m):  # insertion sort: stable, as argsort(kind="stable")
-            order[i, q] = q
-        for q in range(1, m):
-            k = order[i, q]
-            p = q - 1
-            while p >= 0 and arc[i, order[i, p]] > arc[i, k]:
-                order[i, p + 1] = order[i, p]
-                p -= 1
-            order[i, p + 1] = k
+            if rev[rows[j]] == (r == 1):
+                _measure_car(rows[j], r, xy, line, lengths, along, closed, ring_edges, band_start, band_edges, y0,
+                             band_h, ccw, hint, arc, dfc, left, order)
 
 
 @njit(cache=True)
@@ -229,6 +243,48 @@ def front_arcs(rows, rev, xy, yaw, lines, seg_len, cum_s, closed, out):
             fx = xy[i, q, 0] + MODEL_POINT_AHEAD_M * math.cos(yaw[i, q])
             fy = xy[i, q, 1] + MODEL_POINT_AHEAD_M * math.sin(yaw[i, q])
             out[j, q] = _project(fx, fy, lines[r], seg_len[r], cum_s[r], closed, -1)[0]
+
+
+@njit(cache=True)
+def closest_and_in_camera(idx, model_s, bx, by, byaw, arc, order, xy, yaw, half_len, half_wid, camera, prev_out,
+                          next_out, in_camera_out):
+    """Per car idx[j] measured at centre-line arc model_s[j] with base pose (bx[j], by[j], byaw[j]): the objects
+    before and after it by arc (`closest_objects`: bisect_right in the sorted arcs, wrapping around) and whether
+    the next one (its centre or a footprint corner, half sizes half_len x half_wid, at the objects' height) is in
+    the camera frustum. `camera`: the camera's x ahead of the base and height, the objects' height, cos and sin of
+    the pitch, tan of half the horizontal and vertical fields of view, near and far distance."""
+    m = arc.shape[1]
+    ahead, cam_z, obj_z, cp, sp, tan_h, tan_v, near, far = camera
+    for j in range(idx.size):
+        i = idx[j]
+        count = 0
+        for k in range(m):
+            if arc[i, order[i, k]] <= model_s[j]:
+                count += 1
+        prev_out[j] = order[i, count - 1 if count > 0 else m - 1]
+        q = order[i, count if count < m else 0]
+        next_out[j] = q
+        c = math.cos(byaw[j])
+        s = math.sin(byaw[j])
+        cam_x = bx[j] + ahead * c
+        cam_y = by[j] + ahead * s
+        co = math.cos(yaw[i, q])
+        so = math.sin(yaw[i, q])
+        seen = False
+        for corner in range(5):  # the centre, then the four corners
+            du = 0.0 if corner == 0 else (half_len if corner < 3 else -half_len)
+            dv = 0.0 if corner == 0 else (half_wid if corner % 2 == 1 else -half_wid)
+            dx = xy[i, q, 0] + du * co - dv * so - cam_x
+            dy = xy[i, q, 1] + du * so + dv * co - cam_y
+            dz = obj_z - cam_z
+            fwd = dx * c + dy * s
+            left = -dx * s + dy * c
+            depth = fwd * cp - dz * sp  # along the optical axis (pitched down)
+            up = fwd * sp + dz * cp
+            if near < depth < far and abs(left) <= depth * tan_h and abs(up) <= depth * tan_v:
+                seen = True
+                break
+        in_camera_out[j] = seen
 
 
 @njit(cache=True)

@@ -250,22 +250,16 @@ def _nearest_object(rows, oxy, pts):
     return dist, nearest
 
 
-def camera_frustum_contains(cam_x, cam_y, cam_z, yaw, px, py, pz) -> np.ndarray:
-    """True where the point (px, py, pz) is inside the camera's view frustum (HFOV 1.13 rad, 4:3, pitched
-    down 0.2618 rad, 0.02-300 m); broadcasts over cars and points."""
-    dx = px - cam_x
-    dy = py - cam_y
-    dz = pz - cam_z
-    c, s = np.cos(yaw), np.sin(yaw)
-    fwd = dx * c + dy * s
-    left = -dx * s + dy * c
-    cp, sp = math.cos(CAMERA_PITCH_RAD), math.sin(CAMERA_PITCH_RAD)
-    depth = fwd * cp - dz * sp  # along the optical axis (pitched down)
-    up = fwd * sp + dz * cp
+def _camera_constants() -> np.ndarray:
+    """The camera frustum as `_object_kernels.closest_and_in_camera` takes it (HFOV 1.13 rad, 4:3, pitched down
+    0.2618 rad, 0.02-300 m; the camera's place on the car; objects seen at OBSTACLE_Z_M)."""
+    cam_ahead, cam_z = camera_position()
     tan_h = math.tan(CAMERA_HFOV_RAD / 2)
-    tan_v = tan_h / CAMERA_ASPECT
-    return ((depth > CAMERA_NEAR_M) & (depth < CAMERA_FAR_M) & (np.abs(left) <= depth * tan_h)
-            & (np.abs(up) <= depth * tan_v))
+    return np.array([cam_ahead, cam_z, OBSTACLE_Z_M, math.cos(CAMERA_PITCH_RAD), math.sin(CAMERA_PITCH_RAD), tan_h,
+                     tan_h / CAMERA_ASPECT, CAMERA_NEAR_M, CAMERA_FAR_M])
+
+
+CAMERA = _camera_constants()
 
 
 class ObjectSet:
@@ -314,6 +308,7 @@ class ObjectSet:
         # everywhere)
         self._hint = np.full((num_cars, m), -1, dtype=np.int64)
         self._bot_cache: dict = {}
+        self._no_due, self._no_draws = np.zeros((0, 2), dtype=np.int64), np.zeros(0)
         speed = self.speed
         self.change_s = race.lane_change_distance / speed if speed > 0 else np.inf
         self.lane_changes = self.bots and race.is_lane_change and speed > 0
@@ -371,11 +366,8 @@ class ObjectSet:
         idx = np.asarray(idx, dtype=np.int64)
         run, due = self._buffers(idx.size)
         nrun, ndue = OK.bots_tick(idx, dt, self.pause_left, self.clock, self.change_end, self.lane_changes, run, due)
-        if nrun == 0:
-            return
-        if ndue:
-            self._schedule_lane_changes(due[:ndue])
-        self._drive(run[:nrun])
+        if nrun:
+            self._drive(run[:nrun], due[:ndue])
 
     def _buffers(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Scratch arrays for `bots_tick`: k running cars and their k * m due bots."""
@@ -384,14 +376,6 @@ class ObjectSet:
             run, due = np.empty(k, dtype=np.int64), np.empty((k * self.num_objects, 2), dtype=np.int64)
             self._bot_cache["buffers"] = (run, due)
         return run, due
-
-    def _schedule_lane_changes(self, due: np.ndarray) -> None:
-        """Bots `due` (car, bot) whose lane change has ended are in the other lane; their next change ends
-        U(lower, upper) s plus the change's duration (`lane_change_distance / bot_car_speed`) from now (AWS's
-        timers)."""
-        r = self.race
-        draws = self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, due.shape[0])
-        OK.bots_schedule(due, draws, self.clock, self.lane, self.change_start, self.change_end, self.change_s)
 
     @functools.cached_property
     def _paths(self) -> tuple:
@@ -405,15 +389,22 @@ class ObjectSet:
         return (np.stack([p[0] for p in packed]), np.array([a[0].size for a in arrays], dtype=np.int64),
                 np.stack([p[1] for p in packed]), period)
 
-    def _drive(self, run: np.ndarray) -> None:
+    def _drive(self, run: np.ndarray, due: np.ndarray | None = None) -> None:
         """Poses of the bots of cars `run` at their clocks: on their lane at `d0 + speed * clock` of centre line,
         blended into the other lane during a lane change (smoothstep of the change's elapsed share, so the path
         leaves and joins the lane lines tangentially); the yaw is the path's direction (a central difference over
-        +-5 cm of centre line). Then their params (`_measure`)."""
+        +-5 cm of centre line); then their params (`_measure`), all in one compiled pass. Bots `due` (car, bot)
+        first end their lane change, if one ended, and get the next: it ends U(lower, upper) s plus the change's
+        duration (`lane_change_distance / bot_car_speed`) from now (AWS's timers; drawn in car-then-bot order)."""
+        r = self.race
+        if due is None or due.shape[0] == 0:
+            due, draws = self._no_due, self._no_draws
+        else:
+            draws = self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, due.shape[0])
         h = 0.05 / self.speed if self.speed > 0 else 0.0  # the clock time of 5 cm
-        OK.bots_drive(run, self.rev, self.clock, self.d0, self.lane, self.change_start, self.speed, self.change_s,
-                      self.lane_changes, h, *self._paths, self.xy, self.yaw)
-        self._measure(run)
+        OK.bots_drive(run, due, draws, self.rev, self.clock, self.d0, self.lane, self.change_start, self.change_end,
+                      self.speed, self.change_s, self.lane_changes, h, *self._paths, self.xy, self.yaw,
+                      *self._geometry, self._hint, self.arc, self.dfc, self.left, self.order)
 
     def follow(self, x, y, yaw, rows=None) -> None:
         """Head-to-model: each car's object is the other car of its pair, at base pose (x, y, yaw) (per car of
@@ -458,21 +449,22 @@ class ObjectSet:
             for i in rows.tolist():
                 self._lists[i] = None
 
-    def _params_lists(self, idx: np.ndarray) -> list:
-        """Per car of `idx`, its per-object params as lists: (location, left of centre, distance, distance from
-        centre, heading). Boxes make theirs once per layout (they stand still between resets); moving objects all
-        at once for the batch."""
+    def _params_lists(self, idx: np.ndarray) -> tuple[list, ...]:
+        """The per-object params of cars `idx` as columns of lists, one list per car: location, left of centre,
+        distance, distance from centre, heading (AWS fills it for bots only). Moving objects' lists are made for
+        the batch at once; boxes make theirs once per layout (they stand still between resets) and the locations
+        are copied (the params dicts own their lists)."""
         if self.bots or self.racers:
-            yaw = self.yaw[idx].tolist() if self.bots else [[0.0] * self.num_objects for _ in range(idx.size)]
-            return list(zip(self.xy[idx].tolist(), self.left[idx].tolist(), self.arc[idx].tolist(),
-                            self.dfc[idx].tolist(), yaw, strict=True))
-        out = []
+            heading = self.yaw[idx].tolist() if self.bots else [[0.0] * self.num_objects for _ in range(idx.size)]
+            return (self.xy[idx].tolist(), self.left[idx].tolist(), self.arc[idx].tolist(), self.dfc[idx].tolist(),
+                    heading)
+        cars = []
         for i in idx.tolist():
             if self._lists[i] is None:
                 self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(),
                                   self.dfc[i].tolist(), [0.0] * self.num_objects)
-            out.append(self._lists[i])
-        return out
+            cars.append(self._lists[i])
+        return ([[[*p] for p in t[0]] for t in cars], *([t[k] for t in cars] for k in range(1, 5)))
 
     def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
@@ -613,50 +605,26 @@ class ObjectSet:
 
     def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
         """The `objects_*` params columns for cars `idx`: the model point's xy (k, 2) and centre-line arc (k,),
-        and the base pose (x, y, yaw) for the camera test."""
-        idx = np.asarray(idx)
-        arcs = self.arc[idx]
-        order = self.order[idx]
-        sorted_arcs = np.take_along_axis(arcs, order, axis=1)
-        m = self.num_objects
-        nxt = (sorted_arcs <= model_s[:, None]).sum(axis=1)  # bisect_right
-        prv = np.where(nxt - 1 < 0, m - 1, nxt - 1)
-        nxt = np.where(nxt == m, 0, nxt)
-        rows = np.arange(idx.size)
-        prev_obj = order[rows, prv]
-        next_obj = order[rows, nxt]
-        in_cam = self.in_camera(idx, next_obj, base_pose)
-        lists = self._params_lists(idx)
-        moving = self.bots or self.racers  # their lists are made afresh at every call
+        and the base pose (x, y, yaw) for the camera test (the next object's centre or a footprint corner, at box
+        height, inside the camera frustum)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        prev_obj = np.empty(idx.size, dtype=np.int64)
+        next_obj = np.empty(idx.size, dtype=np.int64)
+        in_cam = np.empty(idx.size, dtype=np.bool_)
+        bx, by, byaw = (np.asarray(v, dtype=np.float64) for v in base_pose)
+        OK.closest_and_in_camera(idx, np.asarray(model_s, dtype=np.float64), bx, by, byaw, self.arc, self.order,
+                                 self.xy, self.yaw, *self.half, CAMERA, prev_obj, next_obj, in_cam)
+        location, left, distance, dfc, heading = self._params_lists(idx)
         return {
             "closest_objects": (prev_obj.tolist(), next_obj.tolist()),
-            # fresh lists: the dicts own them
-            "objects_location": [t[0] for t in lists] if moving else [[[*p] for p in t[0]] for t in lists],
-            "objects_left_of_center": [t[1] for t in lists],
-            "objects_distance": [t[2] for t in lists],
-            "objects_distance_from_center": [t[3] for t in lists],
-            "objects_heading": [t[4] for t in lists],
-            "objects_speed": [[float(self.speed)] * m] * idx.size,
+            "objects_location": location,
+            "objects_left_of_center": left,
+            "objects_distance": distance,
+            "objects_distance_from_center": dfc,
+            "objects_heading": heading,
+            "objects_speed": [[float(self.speed)] * self.num_objects] * idx.size,
             "object_in_camera": in_cam.tolist(),
         }
-
-    def in_camera(self, idx, obj, base_pose) -> np.ndarray:
-        """Per car: object `obj` (its centre or a footprint corner, at box height) is in the camera frustum."""
-        bx, by, byaw = base_pose
-        cam_ahead, cam_z = camera_position()
-        camx = bx + cam_ahead * np.cos(byaw)
-        camy = by + cam_ahead * np.sin(byaw)
-        ox = self.xy[idx, obj, 0]
-        oy = self.xy[idx, obj, 1]
-        oyaw = self.yaw[idx, obj]
-        hl, hw = self.half
-        du = np.array([0.0, hl, hl, -hl, -hl])
-        dv = np.array([0.0, hw, -hw, hw, -hw])
-        c, s = np.cos(oyaw)[:, None], np.sin(oyaw)[:, None]
-        px = ox[:, None] + du * c - dv * s
-        py = oy[:, None] + du * s + dv * c
-        vis = camera_frustum_contains(camx[:, None], camy[:, None], cam_z, byaw[:, None], px, py, OBSTACLE_Z_M)
-        return vis.any(axis=1)
 
 
 def base_from_model_point(mx, my, heading_deg):
