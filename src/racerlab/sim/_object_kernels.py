@@ -125,6 +125,26 @@ def bots_tick(idx, dt, pause_left, clock, change_end, lane_changes, run_out, due
 
 
 @njit(cache=True)
+def bots_start(idx, revs, start_d0, start_lane, lane_changes, rev, d0, lane, clock, pause_left, change_start,
+               change_end, hint):
+    """Cars `idx` (driving directions revs) put their bots back at the start: evenly spaced ones at
+    start_d0[reversed], start_lane[reversed], clocks at 0, no pause; with lane changes the first is drawn at the
+    first step (change_end 0), else never."""
+    for j in range(idx.size):
+        i = idx[j]
+        r = 1 if revs[j] else 0
+        rev[i] = revs[j]
+        clock[i] = 0.0
+        pause_left[i] = 0.0
+        for q in range(d0.shape[1]):
+            d0[i, q] = start_d0[r, q]
+            lane[i, q] = start_lane[r, q]
+            change_start[i, q] = np.inf
+            change_end[i, q] = 0.0 if lane_changes else np.inf
+            hint[i, q] = -1
+
+
+@njit(cache=True)
 def bots_drive(rows, due, draws, rev, clock, d0, lane, change_start, change_end, speed, change_s, blend, h, paths,
                lane_n, lane_cell, period, xy, yaw, lines, seg_len, cum_s, closed, ring_edges, band_start, band_edges,
                y0, band_h, ccw, hint, arc, dfc, left, order):
@@ -232,17 +252,39 @@ def measure(rows, rev, xy, lines, seg_len, cum_s, closed, ring_edges, band_start
                              band_h, ccw, hint, arc, dfc, left, order)
 
 
+@njit(cache=True, inline="always")
+def _front_arc(i, q, r, xy, yaw, lines, seg_len, cum_s, closed):
+    """The centre-line arc of the front point (`MODEL_POINT_AHEAD_M` ahead of the base) of object q of car i
+    (driving direction r): a car's progress."""
+    fx = xy[i, q, 0] + MODEL_POINT_AHEAD_M * math.cos(yaw[i, q])
+    fy = xy[i, q, 1] + MODEL_POINT_AHEAD_M * math.sin(yaw[i, q])
+    return _project(fx, fy, lines[r], seg_len[r], cum_s[r], closed, -1)[0]
+
+
 @njit(cache=True)
 def front_arcs(rows, rev, xy, yaw, lines, seg_len, cum_s, closed, out):
-    """out[j, q]: the centre-line arc of the front point (`MODEL_POINT_AHEAD_M` ahead of the base) of object q of
-    car rows[j], a car's progress."""
+    """out[j, q]: `_front_arc` of object q of car rows[j]."""
     for j in range(rows.size):
-        i = rows[j]
-        r = 1 if rev[i] else 0
         for q in range(xy.shape[1]):
-            fx = xy[i, q, 0] + MODEL_POINT_AHEAD_M * math.cos(yaw[i, q])
-            fy = xy[i, q, 1] + MODEL_POINT_AHEAD_M * math.sin(yaw[i, q])
-            out[j, q] = _project(fx, fy, lines[r], seg_len[r], cum_s[r], closed, -1)[0]
+            out[j, q] = _front_arc(rows[j], q, 1 if rev[rows[j]] else 0, xy, yaw, lines, seg_len, cum_s, closed)
+
+
+@njit(cache=True)
+def judge_cars(inside, rows, car_arc, length, rev, xy, yaw, lines, seg_len, cum_s, closed, crashed, rear_ended):
+    """Per car rows[j] with a corner inside the objects marked in inside[j]: crashed where such an object (a car)
+    is ahead (its front point less than half a lap ahead of the car's centre-line arc car_arc[j]: the car ran into
+    it), rear-ended where one is behind (it ran into the car)."""
+    for j in range(rows.size):
+        crashed[j] = False
+        rear_ended[j] = False
+        for q in range(inside.shape[1]):
+            if inside[j, q]:
+                i = rows[j]
+                front = _front_arc(i, q, 1 if rev[i] else 0, xy, yaw, lines, seg_len, cum_s, closed)
+                if (front - car_arc[j]) % length < 0.5 * length:
+                    crashed[j] = True
+                else:
+                    rear_ended[j] = True
 
 
 @njit(cache=True)

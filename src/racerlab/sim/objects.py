@@ -324,25 +324,24 @@ class ObjectSet:
             self._copy_layouts(idx, np.asarray(reversed_, dtype=bool))
             return
         revs = np.asarray(reversed_, dtype=bool)
+        if self.bots and not self.race.randomize_bot_car_locations:  # evenly spaced: the same start every reset
+            OK.bots_start(idx, revs, *self._bot_starts, self.lane_changes, self.rev, self.d0, self.lane, self.clock,
+                          self.pause_left, self.change_start, self.change_end, self._hint)
+            self._drive(idx)
+            return
         self.rev[idx] = revs
         self._hint[idx] = -1
         if self.racers:  # the other car is placed by the simulator (`follow`)
             return
-        if self.bots and not self.race.randomize_bot_car_locations:  # evenly spaced: the same start every reset
-            for rev in (False, True):
-                arcs, lane = self._bot_starts(rev)
-                self.d0[idx[revs == rev]] = arcs
-                self.lane[idx[revs == rev]] = lane
-        else:
-            for i, rev in zip(idx.tolist(), revs.tolist(), strict=True):
-                lanes = self.lanes[int(rev)]
-                arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
-                self.lane[i] = lane
-                if self.bots:
-                    self.d0[i] = arcs
-                else:
-                    self.xy[i], self.yaw[i] = lanes.poses(arcs, lane)
-                    self._measure(i)
+        for i, rev in zip(idx.tolist(), revs.tolist(), strict=True):  # random layouts, drawn car by car
+            lanes = self.lanes[int(rev)]
+            arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
+            self.lane[i] = lane
+            if self.bots:
+                self.d0[i] = arcs
+            else:
+                self.xy[i], self.yaw[i] = lanes.poses(arcs, lane)
+                self._measure(i)
         if self.bots:
             self.clock[idx] = 0.0
             self.pause_left[idx] = 0.0
@@ -350,13 +349,12 @@ class ObjectSet:
             self.change_end[idx] = 0.0 if self.lane_changes else np.inf  # 0: the first change is drawn at once
             self._drive(idx)
 
-    def _bot_starts(self, rev: bool) -> tuple[np.ndarray, np.ndarray]:
-        """(centre-line distances, lanes) where evenly spaced bots start in driving direction `rev` (drawn once:
-        no randomness in them)."""
-        key = ("starts", rev)
-        if key not in self._bot_cache:
-            self._bot_cache[key] = obstacle_arcs(self.race, self.lanes[int(rev)].track.length, self.rng)
-        return self._bot_cache[key]
+    @functools.cached_property
+    def _bot_starts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(centre-line distances, lanes) (2, m) where evenly spaced bots start in each driving direction (no
+        randomness in them: worked out once)."""
+        starts = [obstacle_arcs(self.race, lanes.track.length, self.rng) for lanes in self.lanes]
+        return np.stack([a for a, _ in starts]), np.stack([b for _, b in starts]).astype(np.int64)
 
     def advance(self, idx, dt: float) -> None:
         """The bot cars of cars `idx` one step of `dt` s on (BotCarsCtrl): paused bots wait out their penalty,
@@ -592,15 +590,11 @@ class ObjectSet:
 
     def _judge(self, inside, rows, car_arc, length) -> tuple[np.ndarray, np.ndarray]:
         """(crashed, rear_ended) per car from `inside` (k, m): which objects hold a corner of the car."""
-        touched = inside.any(axis=1)
         if not (self.bots or self.racers) or car_arc is None:
-            return touched, np.zeros(rows.size, dtype=bool)
-        crashed, rear = np.zeros(rows.size, dtype=bool), np.zeros(rows.size, dtype=bool)
-        sel = np.flatnonzero(touched)  # only the cars touching an object need its progress
-        if sel.size:
-            inside = inside[sel]
-            ahead = np.mod(self.front_arc(rows[sel]) - car_arc[sel, None], length) < 0.5 * length
-            crashed[sel], rear[sel] = (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
+            return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
+        crashed, rear = np.empty(rows.size, dtype=bool), np.empty(rows.size, dtype=bool)
+        OK.judge_cars(inside, rows, np.asarray(car_arc, dtype=np.float64), float(length), self.rev, self.xy, self.yaw,
+                      *self._geometry[:4], crashed, rear)
         return crashed, rear
 
     def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
