@@ -43,9 +43,9 @@ def _interp_at(paths, k, f, j, x, n):
 
 @njit(cache=True, inline="always")
 def lane_point(k, x, period, paths, lane_n, lane_cell):
-    """(`np.interp(x, u, px, period)`, `np.interp(x, u, py, period)`) on lane path k, to the bit: on a loop x is
-    taken modulo the period (numpy's `%`; x - period is the same for x in [period, 2 period)), the interval is
-    found from a table of cells (`lane_arrays`) and a short walk."""
+    """(`np.interp(x, u, px, period)`, `np.interp(x, u, py, period)`, the path's segment the point is on) on lane
+    path k, the point to the bit: on a loop x is taken modulo the period (numpy's `%`; x - period is the same for
+    x in [period, 2 period)), the interval is found from a table of cells (`lane_arrays`) and a short walk."""
     if period > 0.0 and not 0.0 <= x < period:
         x = x - period if period <= x < 2.0 * period else x % period
     n = lane_n[k]
@@ -60,7 +60,7 @@ def lane_point(k, x, period, paths, lane_n, lane_cell):
             j -= 1
         while j + 1 < n and paths[k, 0, j + 1] <= x:
             j += 1
-    return _interp_at(paths, k, 1, j, x, n), _interp_at(paths, k, 2, j, x, n)
+    return _interp_at(paths, k, 1, j, x, n), _interp_at(paths, k, 2, j, x, n), min(max(j, 0), n - 2)
 
 
 def lane_arrays(u: np.ndarray, x: np.ndarray, y: np.ndarray, size: int, cells: int) -> tuple[np.ndarray, np.ndarray]:
@@ -86,14 +86,14 @@ def bot_xy(i, q, rev, clock, dd, d0, lane, change_start, speed, change_s, blend,
     share (`blend`: lane changes are on)."""
     d = d0[i, q] + speed * clock + dd
     here = 2 * rev if lane[i, q] == 1 else 2 * rev + 1
-    hx, hy = lane_point(here, d, p, paths, lane_n, lane_cell)
+    hx, hy, _ = lane_point(here, d, p, paths, lane_n, lane_cell)
     if not blend or clock <= change_start[i, q]:  # not changing lanes (yet): the blend weight is 0
         return hx, hy
     a = min(max((clock - change_start[i, q]) / change_s, 0.0), 1.0)
     w = a * a * (3.0 - 2.0 * a)
     if w == 0.0:  # on its lane (here + 0 * (there - here) is here)
         return hx, hy
-    tx, ty = lane_point(4 * rev + 1 - here, d, p, paths, lane_n, lane_cell)
+    tx, ty, _ = lane_point(4 * rev + 1 - here, d, p, paths, lane_n, lane_cell)
     return hx + w * (tx - hx), hy + w * (ty - hy)
 
 
@@ -146,12 +146,14 @@ def bots_start(idx, revs, start_d0, start_lane, lane_changes, rev, d0, lane, clo
 
 @njit(cache=True)
 def bots_drive(rows, due, draws, rev, clock, d0, lane, change_start, change_end, speed, change_s, blend, h, paths,
-               lane_n, lane_cell, period, xy, yaw, lines, seg_len, cum_s, closed, ring_edges, band_start, band_edges,
-               y0, band_h, ccw, hint, arc, dfc, left, order):
+               lane_n, lane_cell, period, near_start, near, side, xy, yaw, lines, seg_len, cum_s, closed, ring_edges,
+               band_start, band_edges, y0, band_h, ccw, hint, arc, dfc, left, order):
     """The bots of cars `rows` at their clocks, with their params (`measure`). First the bots `due` (car, bot)
     whose lane change ended are in the other lane and the next change of each ends draws[k] (U(lower, upper) s)
     plus the change's duration from now. The yaw is the path's direction, a central difference over the clock
-    time h of 5 cm (standing bots: 5 cm of centre line either side)."""
+    time h of 5 cm (standing bots: 5 cm of centre line either side). A bot on its lane line is projected onto
+    the centre segments that can be nearest to its lane segment (`near_start`, `near`: `lane_segments`) and its
+    side read from `side` where the lane segment stays clear of the polygon's edges."""
     for k in range(due.shape[0]):
         i = due[k, 0]
         q = due[k, 1]
@@ -171,13 +173,24 @@ def bots_drive(rows, due, draws, rev, clock, d0, lane, change_start, change_end,
             if rev[i] != (r == 1):
                 continue
             c = clock[i]
+            changing = False
             for q in range(xy.shape[1]):
                 if not blend or c + h <= change_start[i, q]:  # on its lane at all three clock times
                     k = 2 * r if lane[i, q] == 1 else 2 * r + 1
-                    x, y = lane_point(k, d0[i, q] + speed * c + 0.0, p, paths, lane_n, lane_cell)
-                    ax, ay = lane_point(k, d0[i, q] + speed * (c + h) + dd, p, paths, lane_n, lane_cell)
-                    bx, by = lane_point(k, d0[i, q] + speed * (c - h) - dd, p, paths, lane_n, lane_cell)
+                    x, y, g = lane_point(k, d0[i, q] + speed * c + 0.0, p, paths, lane_n, lane_cell)
+                    ax, ay, _ = lane_point(k, d0[i, q] + speed * (c + h) + dd, p, paths, lane_n, lane_cell)
+                    bx, by, _ = lane_point(k, d0[i, q] + speed * (c - h) - dd, p, paths, lane_n, lane_cell)
+                    s, lat, seg = _project_among(x, y, line, lengths, along, near_start, near, k, g)
+                    hint[i, q] = seg
+                    arc[i, q] = s
+                    dfc[i, q] = abs(lat)
+                    if side[k, g] == 0:
+                        inner = point_in_road(x, y, ring_edges, band_start, band_edges, y0, band_h)
+                    else:
+                        inner = side[k, g] == 1
+                    left[i, q] = inner != (not ccw[r])
                 else:
+                    changing = True  # measured below
                     x, y = bot_xy(i, q, r, c, 0.0, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
                                   lane_cell, p)
                     ax, ay = bot_xy(i, q, r, c + h, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n,
@@ -187,8 +200,11 @@ def bots_drive(rows, due, draws, rev, clock, d0, lane, change_start, change_end,
                 xy[i, q, 0] = x
                 xy[i, q, 1] = y
                 yaw[i, q] = math.atan2(ay - by, ax - bx)
-            _measure_car(i, r, xy, line, lengths, along, closed, ring_edges, band_start, band_edges, y0, band_h, ccw,
-                         hint, arc, dfc, left, order)
+            if changing:  # some bot is changing lanes: measure them all the general way
+                _measure_car(i, r, xy, line, lengths, along, closed, ring_edges, band_start, band_edges, y0, band_h,
+                             ccw, hint, arc, dfc, left, order)
+            else:
+                _sort_by_arc(i, arc, order)
 
 
 # ---- params -----------------------------------------------------------------------------------------
@@ -224,15 +240,82 @@ def _measure_car(i, r, xy, line, lengths, along, closed, ring_edges, band_start,
         dfc[i, q] = abs(lat)
         inner = point_in_road(px, py, ring_edges, band_start, band_edges, y0, band_h)
         left[i, q] = inner != (not ccw[r])
-    for q in range(m):  # insertion sort: stable, as argsort(kind="stable")
+    _sort_by_arc(i, arc, order)
+
+
+@njit(cache=True, inline="always")
+def _sort_by_arc(i, arc, order):
+    """order[i]: car i's objects by arc, an insertion sort: stable, as argsort(kind="stable")."""
+    for q in range(arc.shape[1]):
         order[i, q] = q
-    for q in range(1, m):
+    for q in range(1, arc.shape[1]):
         k = order[i, q]
         p = q - 1
         while p >= 0 and arc[i, order[i, p]] > arc[i, k]:
             order[i, p + 1] = order[i, p]
             p -= 1
         order[i, p + 1] = k
+
+
+@njit(cache=True, inline="always")
+def _project_among(px, py, line, lengths, along, near_start, near, k, g):
+    """`_project` of p, a point of segment g of lane path k, searching only the centre segments that can be
+    nearest to that lane segment (in increasing order, so the first of equals wins as in a search over all)."""
+    best_i = -1
+    best_d = np.inf
+    best_t = 0.0
+    for e in range(near_start[k, g], near_start[k, g + 1]):
+        i = near[e]
+        d, t = _segment_distance_sq(px, py, line[i, 0], line[i, 1], line[i + 1, 0] - line[i, 0],
+                                    line[i + 1, 1] - line[i, 1], lengths[i] * lengths[i])
+        if d < best_d:
+            best_d = d
+            best_i = i
+            best_t = t
+    ax = line[best_i, 0]
+    ay = line[best_i, 1]
+    cross = (line[best_i + 1, 0] - ax) * (py - ay) - (line[best_i + 1, 1] - ay) * (px - ax)
+    lat = math.sqrt(best_d) if cross >= 0.0 else -math.sqrt(best_d)
+    return along[best_i] + best_t * lengths[best_i], lat, best_i
+
+
+def _segments_apart(a0, a1, b0, b1) -> np.ndarray:
+    """Distance between segments a0-a1 and b0-b1 (arrays of points (..., 2), broadcast): 0 where they cross, else
+    the least distance of an end point to the other segment."""
+    def to_segment(p, s0, s1):
+        d = s1 - s0
+        ll = (d * d).sum(-1)
+        t = np.clip(((p - s0) * d).sum(-1) / np.where(ll > 0, ll, 1.0), 0.0, 1.0)
+        return np.hypot(*np.moveaxis(s0 + t[..., None] * d - p, -1, 0))
+
+    def orient(p, q, r):
+        u, v = q - p, r - p
+        return np.sign(u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0])
+
+    cross = (orient(a0, a1, b0) * orient(a0, a1, b1) < 0) & (orient(b0, b1, a0) * orient(b0, b1, a1) < 0)
+    apart = np.minimum(np.minimum(to_segment(a0, b0, b1), to_segment(a1, b0, b1)),
+                       np.minimum(to_segment(b0, a0, a1), to_segment(b1, a0, a1)))
+    return np.where(cross, 0.0, apart)
+
+
+def lane_segments(path: np.ndarray, line: np.ndarray, ring: np.ndarray, inside, margin: float = 1e-6):
+    """For each segment g of a lane path (points (n, 2)): (the centre segments that can be nearest to a point of
+    it, in CSR form (start (n,), list), its side: 1 inside the ring, 2 outside, 0 too near an edge of the ring to
+    say for all its points). A point of g is at most (D(a) + D(b) + |g|) / 2 from the centre line (D: the distance
+    of g's ends a, b from it), so a centre segment further than that from g (with a margin for rounding) is never
+    the nearest; the others are searched. `inside(points)` is the even-odd test of the ring, read at g's middle
+    when g keeps `margin` from every ring edge."""
+    a, b = path[:-1], path[1:]
+    c0, c1 = line[:-1], line[1:]
+    apart = _segments_apart(a[:, None], b[:, None], c0[None], c1[None])  # (n - 1, segments)
+    ends = _segments_apart(path[:, None], path[:, None], c0[None], c1[None]).min(axis=1)
+    reach = 0.5 * (ends[:-1] + ends[1:] + np.hypot(*(b - a).T)) + margin
+    take = apart <= reach[:, None]
+    start = np.zeros(path.shape[0], dtype=np.int64)
+    np.cumsum(take.sum(axis=1), out=start[1:])
+    edges = _segments_apart(a[:, None], b[:, None], ring[None, :], np.roll(ring, -1, axis=0)[None, :]).min(axis=1)
+    side = np.where(inside(0.5 * (a + b)), 1, 2)
+    return start, np.nonzero(take)[1].astype(np.int64), np.where(edges > margin, side, 0).astype(np.int64)
 
 
 @njit(cache=True)

@@ -44,7 +44,7 @@ from racerlab.sim import _object_kernels as OK
 from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
-from racerlab.track.kernels import build_road_index
+from racerlab.track.kernels import build_road_index, contains_many
 
 BOX_SIZE_M = (0.40, 0.30)  # the box model (along the lane, across): what the lidar and camera see
 BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX_OBSTACLE_DIMENSION (0.4, 0.5)
@@ -384,8 +384,26 @@ class ObjectSet:
         size = max(a[0].size for a in arrays)
         packed = [OK.lane_arrays(*a, size, size) for a in arrays]
         period = np.array([lanes.track.length if lanes.track.closed else 0.0 for lanes in self.lanes])
+        # per lane segment: the centre segments that can be nearest to its points, and its side of the polygon
+        edges, band_start, band_edges, y0, band_h = self._geometry[4:9]
+
+        def inside(pts):
+            out = np.empty(pts.shape[0], dtype=np.bool_)
+            contains_many(np.ascontiguousarray(pts), edges, band_start, band_edges, y0, band_h, out)
+            return out
+
+        near_start, side = np.zeros((4, size + 1), dtype=np.int64), np.zeros((4, size), dtype=np.int64)
+        near = []
+        for k, (_, x, y) in enumerate(arrays):
+            start, lst, sides = OK.lane_segments(np.column_stack([x, y]), self.lanes[k // 2].track.center,
+                                                 self._ring, inside)
+            offset = sum(v.size for v in near)
+            near_start[k, :start.size] = start + offset
+            near_start[k, start.size:] = start[-1] + offset
+            side[k, :sides.size] = sides
+            near.append(lst)
         return (np.stack([p[0] for p in packed]), np.array([a[0].size for a in arrays], dtype=np.int64),
-                np.stack([p[1] for p in packed]), period)
+                np.stack([p[1] for p in packed]), period, near_start, np.concatenate(near), side)
 
     def _drive(self, run: np.ndarray, due: np.ndarray | None = None) -> None:
         """Poses of the bots of cars `run` at their clocks: on their lane at `d0 + speed * clock` of centre line,
@@ -424,12 +442,18 @@ class ObjectSet:
         self.pause_left[rows] = self.race.penalty_seconds
 
     @functools.cached_property
+    def _ring(self) -> np.ndarray:
+        """The polygon between centre line and inner border (AWS's test for `objects_left_of_center`)."""
+        track = self.lanes[0].track
+        return np.vstack([track.center, track.inner[::-1]])
+
+    @functools.cached_property
     def _geometry(self) -> tuple:
         """The track arrays `_object_kernels.measure` takes: both directions' centre lines (points, segment
         lengths, arc lengths), the polygon between centre line and inner border as edges by horizontal band, and
         each direction's counter-clockwise flag."""
         tracks = [lanes.track for lanes in self.lanes]
-        ring = np.vstack([tracks[0].center, tracks[0].inner[::-1]])
+        ring = self._ring
         edges = np.column_stack([ring, np.roll(ring, -1, axis=0)])
         edges = np.ascontiguousarray(edges[edges[:, 1] != edges[:, 3]])  # a level edge is never crossed
         return (np.stack([t.center for t in tracks]), np.stack([t.segment_lengths for t in tracks]),
