@@ -212,13 +212,14 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
 
 
 @njit(cache=True)
-def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid):
-    """`_corners_inside` for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with heading
-    meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars with
-    no object near the model point are passed over without working out the pose. Also returns the number of
-    (car, object) pairs found."""
-    out = np.zeros((rows.size, oxy.shape[1]), dtype=np.bool_)
-    memo = np.full((3, oxy.shape[1]), np.nan)
+def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid, out, memo):
+    """`_corners_inside` into out (k, m) for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with
+    heading meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars
+    with no object near the model point are passed over without working out the pose. Returns the number of (car,
+    object) pairs found. (The arrays are the caller's: a new array handed back to Python costs more than the
+    test.)"""
+    out[:] = False
+    memo[:] = np.nan
     count = 0
     near = _crash_reach(half_len, half_wid) + MODEL_POINT_AHEAD_M + 1e-6
     for j in range(rows.size):
@@ -232,7 +233,7 @@ def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_le
                                     yaw, oxy[i], oyaw[i], half_len, half_wid, out[j], memo)
                 count += out[j].sum()
                 break
-    return out, count
+    return count
 
 
 @njit(cache=True)
@@ -598,7 +599,9 @@ class ObjectSet:
         model point, heading (°) and centre-line arc; the base pose as `base_from_model_point` gives it. None when
         no corner of any of these cars is inside an object (neither crashed nor rear-ended)."""
         rows = np.asarray(rows, dtype=np.int64)
-        inside, count = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half)
+        inside = np.empty((rows.size, self.num_objects), dtype=np.bool_)
+        count = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half, inside,
+                                            np.empty((3, self.num_objects)))
         if count == 0:  # no car touches an object (most steps)
             return None
         car_arc = meas[rows, K.MS] if self.bots or self.racers else None
