@@ -42,10 +42,11 @@ def _interp_at(paths, k, f, j, x, n):
 
 
 @njit(cache=True, inline="always")
-def lane_point(k, x, period, paths, lane_n, lane_cell):
+def lane_point(k, x, period, paths, lane_n, lane_cell, guess=-1):
     """(`np.interp(x, u, px, period)`, `np.interp(x, u, py, period)`, the path's segment the point is on) on lane
     path k, the point to the bit: on a loop x is taken modulo the period (numpy's `%`; x - period is the same for
-    x in [period, 2 period)), the interval is found from a table of cells (`lane_arrays`) and a short walk."""
+    x in [period, 2 period)), the interval is found by a short walk from `guess` (a segment near x) or, without
+    one, from a table of cells (`lane_arrays`)."""
     if period > 0.0 and not 0.0 <= x < period:
         x = x - period if period <= x < 2.0 * period else x % period
     n = lane_n[k]
@@ -54,8 +55,11 @@ def lane_point(k, x, period, paths, lane_n, lane_cell):
     elif x < paths[k, 0, 0]:
         j = -1
     else:
-        cell = min(max(int((x - paths[k, 0, 0]) * lane_cell[k, 0]), 0), lane_cell.shape[1] - 2)
-        j = int(lane_cell[k, 1 + cell])
+        if guess >= 0:
+            j = guess
+        else:
+            cell = min(max(int((x - paths[k, 0, 0]) * lane_cell[k, 0]), 0), lane_cell.shape[1] - 2)
+            j = int(lane_cell[k, 1 + cell])
         while j > 0 and paths[k, 0, j] > x:
             j -= 1
         while j + 1 < n and paths[k, 0, j + 1] <= x:
@@ -178,8 +182,8 @@ def bots_drive(rows, due, draws, rev, clock, d0, lane, change_start, change_end,
                 if not blend or c + h <= change_start[i, q]:  # on its lane at all three clock times
                     k = 2 * r if lane[i, q] == 1 else 2 * r + 1
                     x, y, g = lane_point(k, d0[i, q] + speed * c + 0.0, p, paths, lane_n, lane_cell)
-                    ax, ay, _ = lane_point(k, d0[i, q] + speed * (c + h) + dd, p, paths, lane_n, lane_cell)
-                    bx, by, _ = lane_point(k, d0[i, q] + speed * (c - h) - dd, p, paths, lane_n, lane_cell)
+                    ax, ay, _ = lane_point(k, d0[i, q] + speed * (c + h) + dd, p, paths, lane_n, lane_cell, g)
+                    bx, by, _ = lane_point(k, d0[i, q] + speed * (c - h) - dd, p, paths, lane_n, lane_cell, g)
                     s, lat, seg = _project_among(x, y, line, lengths, along, near_start, near, k, g)
                     hint[i, q] = seg
                     arc[i, q] = s
@@ -413,19 +417,18 @@ def closest_and_in_camera(idx, model_s, bx, by, byaw, arc, order, xy, yaw, half_
 
 
 @njit(cache=True)
-def features_ahead(rows, x, y, yaw, s, length, arc, xy, out):
-    """out[j] for car rows[j] at base pose (x[j], y[j], yaw[j]) on centre-line arc s[j]: its nearest objects ahead
-    along the lap (the first of equals first), (x ahead, y left) in the car's frame divided by 2 m; with fewer
-    objects than out's pairs the list repeats from the nearest."""
+def features_ahead(rows, car, meas, cx, cy, cyaw, ms, length, arc, xy, out, column, f):
+    """out[i, column:column + 2 f] for each car i of `rows` at base pose (car[i, cx], car[i, cy], car[i, cyaw]) on
+    centre-line arc meas[i, ms]: its f nearest objects ahead along the lap (the first of equals first), (x ahead,
+    y left) in the car's frame divided by 2 m; with fewer objects than f the list repeats from the nearest."""
     m = arc.shape[1]
-    f = out.shape[1] // 2
     ahead = np.empty(m)
     taken = np.empty(m, dtype=np.bool_)
     pick = np.empty(f, dtype=np.int64)
     for j in range(rows.size):
         i = rows[j]
         for q in range(m):
-            ahead[q] = (arc[i, q] - s[j]) % length
+            ahead[q] = (arc[i, q] - meas[i, ms]) % length
             taken[q] = False
         for k in range(min(f, m)):
             best = -1
@@ -436,10 +439,10 @@ def features_ahead(rows, x, y, yaw, s, length, arc, xy, out):
             pick[k] = best
         for k in range(m, f):
             pick[k] = pick[k % m]
-        c = math.cos(yaw[j])
-        sn = math.sin(yaw[j])
+        c = math.cos(car[i, cyaw])
+        sn = math.sin(car[i, cyaw])
         for k in range(f):
-            dx = xy[i, pick[k], 0] - x[j]
-            dy = xy[i, pick[k], 1] - y[j]
-            out[j, 2 * k] = (dx * c + dy * sn) * 0.5
-            out[j, 2 * k + 1] = (-dx * sn + dy * c) * 0.5
+            dx = xy[i, pick[k], 0] - car[i, cx]
+            dy = xy[i, pick[k], 1] - car[i, cy]
+            out[i, column + 2 * k] = (dx * c + dy * sn) * 0.5
+            out[i, column + 2 * k + 1] = (-dx * sn + dy * c) * 0.5

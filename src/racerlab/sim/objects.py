@@ -563,13 +563,14 @@ class ObjectSet:
                     yaw[sel] = proj.heading
         return pts, yaw
 
-    def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
-        """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
-        s: the nearest objects ahead along the lap, in the car's frame (x ahead, y left) divided by 2 m, as the
-        centre points of `features`; with fewer objects the list repeats from the nearest."""
-        OK.features_ahead(np.asarray(rows, dtype=np.int64), np.asarray(x, dtype=np.float64),
-                          np.asarray(y, dtype=np.float64), np.asarray(yaw, dtype=np.float64),
-                          np.asarray(s, dtype=np.float64), float(length), self.arc, self.xy, out)
+    def features_ahead(self, rows, car: np.ndarray, meas: np.ndarray, length: float, out: np.ndarray,
+                       column: int) -> None:
+        """Fill out[i, column:column + 2 * FEATURE_OBJECTS] for each car i of `rows`, at its base pose and centre-line
+        arc in the simulator's arrays `car` and `meas`: its nearest objects ahead along the lap, in the car's frame
+        (x ahead, y left) divided by 2 m, as the centre points of `features`; with fewer objects the list repeats
+        from the nearest."""
+        OK.features_ahead(np.asarray(rows, dtype=np.int64), car, meas, K.CX, K.CY, K.CYAW, K.MS, float(length),
+                          self.arc, self.xy, out, column, FEATURE_OBJECTS)
 
     def reset_behind(self, i: int, reversed_: bool, mx: float, my: float) -> tuple[float, float, float, float]:
         """AWS's evaluation reset after car i (model point mx, my) hit a box: (x, y, yaw) on the lane opposite
