@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from racerlab.spec import MODEL_POINT_AHEAD_M
-from racerlab.track.kernels import _segment_distance_sq, nearest_segment, point_in_road
+from racerlab.track.kernels import nearest_segment, point_in_road, segment_distance_sq
 
 
 # ---- lane paths ------------------------------------------------------------------------------------
@@ -219,7 +219,7 @@ def _project(px, py, line, seg_len, cum_s, closed, hint):
     start are one point, the first segment wins as in a search over everything."""
     i, t, d2 = nearest_segment(px, py, line, seg_len, closed, hint)
     if closed and i == line.shape[0] - 2 and t == 1.0:
-        d0, t0 = _segment_distance_sq(px, py, line[0, 0], line[0, 1], line[1, 0] - line[0, 0],
+        d0, t0 = segment_distance_sq(px, py, line[0, 0], line[0, 1], line[1, 0] - line[0, 0],
                                       line[1, 1] - line[0, 1], seg_len[0] * seg_len[0])
         if d0 <= d2:
             i, t, d2 = 0, t0, d0
@@ -270,7 +270,7 @@ def _project_among(px, py, line, lengths, along, near_start, near, k, g):
     best_t = 0.0
     for e in range(near_start[k, g], near_start[k, g + 1]):
         i = near[e]
-        d, t = _segment_distance_sq(px, py, line[i, 0], line[i, 1], line[i + 1, 0] - line[i, 0],
+        d, t = segment_distance_sq(px, py, line[i, 0], line[i, 1], line[i + 1, 0] - line[i, 0],
                                     line[i + 1, 1] - line[i, 1], lengths[i] * lengths[i])
         if d < best_d:
             best_d = d

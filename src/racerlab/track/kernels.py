@@ -15,7 +15,7 @@ LOCAL_MAX_DIST_M = 0.5
 
 
 @njit(cache=True, inline="always")
-def _segment_distance_sq(px, py, ax, ay, dx, dy, seg_len_sq):
+def segment_distance_sq(px, py, ax, ay, dx, dy, seg_len_sq):
     """Squared distance from p to segment a + t*d, t in [0, 1]; returns (dist_sq, t)."""
     t = 0.0
     if seg_len_sq > 0.0:  # clamped to [0, 1] before dividing: the same t (division rounds monotonically), cheaper
@@ -54,7 +54,7 @@ def nearest_segment(px, py, line, seg_len, closed, hint):
                 continue
             ax = line[i, 0]
             ay = line[i, 1]
-            d, t = _segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
+            d, t = segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
                                         seg_len[i] * seg_len[i])
             if d < best_d:
                 best_d = d
@@ -73,7 +73,7 @@ def nearest_segment(px, py, line, seg_len, closed, hint):
     for i in range(nseg):
         ax = line[i, 0]
         ay = line[i, 1]
-        d, t = _segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
+        d, t = segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
                                     seg_len[i] * seg_len[i])
         if d < best_d:
             best_d = d
@@ -149,7 +149,7 @@ def nearest_on_polyline_near(px, py, line, seg, closed, reach):
         ay = line[i, 1]
         dx = line[i + 1, 0] - ax
         dy = line[i + 1, 1] - ay
-        d, t = _segment_distance_sq(px, py, ax, ay, dx, dy, dx * dx + dy * dy)
+        d, t = segment_distance_sq(px, py, ax, ay, dx, dy, dx * dx + dy * dy)
         if d < best_d:
             best_d = d
             bx = ax + t * dx
