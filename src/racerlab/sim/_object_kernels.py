@@ -83,7 +83,7 @@ def lane_arrays(u: np.ndarray, x: np.ndarray, y: np.ndarray, size: int, cells: i
     return out, table
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def bot_xy(i, q, rev, clock, dd, d0, lane, change_start, speed, change_s, blend, paths, lane_n, lane_cell, p):
     """Bot q of car i (driving direction rev, lap p) at bot clock `clock`: on its lane at `d0 + speed * clock` of
     centre line (+ dd), blended into the other lane during a lane change by the smoothstep of the change's elapsed
@@ -230,7 +230,7 @@ def _project(px, py, line, seg_len, cum_s, closed, hint):
     return cum_s[i] + t * seg_len[i], lat, i
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _measure_car(i, r, xy, line, lengths, along, closed, ring_edges, band_start, band_edges, y0, band_h, ccw, hint,
                  arc, dfc, left, order):
     """`measure` of car i in driving direction r, whose centre line is (line, lengths, along)."""
