@@ -11,6 +11,10 @@ Prints one JSON line per measurement:
   avoidance race, `number_of_obstacles = 6`: boxes placed as AWS does, crash rule, objects_* params, the
   sensors see the boxes) against the time trial: camera at 64 cars and lidar at 256 cars, with the ratios
   (target >= 0.70 each). The trials alternate between the two, so that a load change hits both alike;
+- `bots_vs_time_trial` (`--only bots`): side by side in the same way, the vector env at 64 cars with the
+  `features` observation in a head-to-bot race (3 bot cars per car changing lanes, at 0.5 and at 1.0 m/s)
+  against the time trial, without a reward function (no params built) and with one (the params dict of every
+  car every step, `objects_*` included in the race; both call the same centre-line reward); target >= 0.70;
 - `carracing_v3`: Gymnasium's CarRacing-v3 (96×96 RGB, Box2D, random actions) steps/s, and our 64-car camera
   rate divided by it (goal >= 50×). Needs `pip install "racerlab[bench]"`; skipped with a note otherwise.
 
@@ -18,7 +22,7 @@ Each rate is the best of several short trials (the machine may be shared; the be
 idle core), with the median alongside. The process is pinned to one core; `load_avg` is the 1-minute load
 average at the end, for judging how busy the machine was.
 
-Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--only objects]
+Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--only objects|bots]
 """
 
 from __future__ import annotations
@@ -72,9 +76,9 @@ def camera_render(track, cars: int, name: str, seconds: float) -> tuple[float, f
     return rates(obs, cars, seconds)
 
 
-def env_stepper(track, cars: int, observation: str, boxes: int = 0, race=None):
+def env_stepper(track, cars: int, observation: str, boxes: int = 0, race=None, reward=None):
     """A function that steps a vector env of `cars` cars once with random actions."""
-    env = DeepRacerVectorEnv(cars, track, observation=observation, race=race)
+    env = DeepRacerVectorEnv(cars, track, observation=observation, race=race, reward_function=reward)
     env.reset(seed=0)
     if boxes:
         _place_boxes(env, boxes)
@@ -120,6 +124,28 @@ def objects_vs_time_trial(track, seconds: float) -> None:
               "ratio_of_medians": round(r["6_boxes"][1] / r["time_trial"][1], 3), "target": ">= 0.70"})
 
 
+def centre_line_reward(params) -> float:
+    """A reward that reads the params every race has (the AWS console's 'follow the centre line', shortened)."""
+    return 1.0 if params["distance_from_center"] <= 0.25 * params["track_width"] else 1e-3
+
+
+def bots_vs_time_trial(track, seconds: float) -> None:
+    cars = 64
+    for reward in (None, centre_line_reward):
+        fns = {"time_trial": env_stepper(track, cars, "features", reward=reward)}
+        for speed in (0.5, 1.0):
+            race = RaceConfig(type="head_to_bot", number_of_bot_cars=3, bot_car_speed=speed, is_lane_change=True)
+            fns[f"bots_{speed}"] = env_stepper(track, cars, "features", race=race, reward=reward)
+        r = side_by_side(fns, cars, seconds)
+        tt = r.pop("time_trial")
+        for key, (best, med) in r.items():
+            emit({"bench": "bots_vs_time_trial", "observation": "features", "cars": cars, "bot_cars": 3,
+                  "bot_car_speed": float(key.split("_")[1]), "is_lane_change": True,
+                  "reward_params": reward is not None,
+                  "time_trial_car_steps_per_s": round(tt[0]), "bots_car_steps_per_s": round(best),
+                  "ratio": round(best / tt[0], 3), "ratio_of_medians": round(med / tt[1], 3), "target": ">= 0.70"})
+
+
 def _place_boxes(env, n: int) -> None:
     """n AWS-sized box obstacles (about 0.4 × 0.2 m) on the centre line, evenly spread; every car sees them."""
     t = env.sim.track
@@ -154,13 +180,17 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--track", default="lab_technical")
     ap.add_argument("--seconds", type=float, default=3.0)
-    ap.add_argument("--only", choices=["objects"], help="only the objects-vs-time-trial comparison")
+    ap.add_argument("--only", choices=["objects", "bots"],
+                    help="only the objects-vs-time-trial (6 boxes) or bots-vs-time-trial (head-to-bot) comparison")
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     sec = args.seconds
     if args.only == "objects":
         objects_vs_time_trial(args.track, 2 * sec)
+        return
+    if args.only == "bots":
+        bots_vs_time_trial(args.track, 2 * sec)
         return
     cam64 = None
     for name in ("camera", "camera:dr"):

@@ -256,11 +256,7 @@ class Simulator:
         K.features(idx, self.car, self.ctr, self.meas, self._trk_f, self._trk_r, self.track.closed,
                    self.track.length, self.lookahead, self._car_arr, buf)
         if self._object_features:
-            c = self.car[idx]
-            near = np.empty((idx.size, 2 * FEATURE_OBJECTS))
-            self.objects.features_ahead(idx, c[:, K.CX], c[:, K.CY], c[:, K.CYAW], self.meas[idx, K.MS],
-                                        self.track.length, near)
-            buf[idx, self._track_features:] = near
+            self.objects.features_ahead(idx, self.car, self.meas, self.track.length, buf, self._track_features)
         return buf
 
     @property

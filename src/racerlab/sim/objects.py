@@ -40,9 +40,11 @@ from numba import njit
 
 from racerlab.errors import ConfigError
 from racerlab.sim import _kernels as K
+from racerlab.sim import _object_kernels as OK
 from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
+from racerlab.track.kernels import build_road_index, contains_many
 
 BOX_SIZE_M = (0.40, 0.30)  # the box model (along the lane, across): what the lidar and camera see
 BOX_FOOTPRINT_M = (0.5, 0.4)  # (along the lane, across): ObstacleDimensions.BOX_OBSTACLE_DIMENSION (0.4, 0.5)
@@ -57,6 +59,7 @@ CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
 CAMERA_FAR_M = 300.0
 CAMERA_NEAR_M = 0.02
+RING_BAND_M = 0.05  # band height of the index of the centre/inner-border polygon's edges (objects_left_of_center)
 
 
 def as_race(value) -> RaceConfig | None:
@@ -127,6 +130,19 @@ class Lanes:
             out[flag] = (u, lane.center[first])
         return out
 
+    def interp_arrays(self, flag: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(u, x, y) of lane `flag` as `at_centre_dist`'s np.interp works on them: on a loop taken modulo the lap,
+        sorted and padded with one point either side (numpy's periodic interpolation), for the compiled paths."""
+        u, xy = self.by_centre[flag]
+        if not self.track.closed:
+            return u, xy[:, 0], xy[:, 1]
+        period = self.track.length
+        xp = u % period
+        order = np.argsort(xp)
+        xp, fx, fy = xp[order], xy[order, 0], xy[order, 1]
+        return (np.concatenate((xp[-1:] - period, xp, xp[:1] + period)), np.concatenate((fx[-1:], fx, fx[:1])),
+                np.concatenate((fy[-1:], fy, fy[:1])))
+
     def at_centre_dist(self, flag: int, d: np.ndarray) -> np.ndarray:
         """Points (k, 2) of lane `flag` at centre-line distances `d` (linear between the lane's points; on a
         loop the distances wrap around the lap)."""
@@ -196,13 +212,14 @@ def _corners_inside(bx, by, yaw, rows, oxy, oyaw, half_len, half_wid):
 
 
 @njit(cache=True)
-def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid):
-    """`_corners_inside` for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with heading
-    meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars with
-    no object near the model point are passed over without working out the pose. Also returns the number of
-    (car, object) pairs found."""
-    out = np.zeros((rows.size, oxy.shape[1]), dtype=np.bool_)
-    memo = np.full((3, oxy.shape[1]), np.nan)
+def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_len, half_wid, out, memo):
+    """`_corners_inside` into out (k, m) for cars rows[j] measured at model point (meas[i, cx], meas[i, cy]) with
+    heading meas[i, cheading] (°): the base pose is `MODEL_POINT_AHEAD_M` behind it (`base_from_model_point`). Cars
+    with no object near the model point are passed over without working out the pose. Returns the number of (car,
+    object) pairs found. (The arrays are the caller's: a new array handed back to Python costs more than the
+    test.)"""
+    out[:] = False
+    memo[:] = np.nan
     count = 0
     near = _crash_reach(half_len, half_wid) + MODEL_POINT_AHEAD_M + 1e-6
     for j in range(rows.size):
@@ -216,7 +233,7 @@ def _model_point_corners_inside(rows, meas, cx, cy, cheading, oxy, oyaw, half_le
                                     yaw, oxy[i], oyaw[i], half_len, half_wid, out[j], memo)
                 count += out[j].sum()
                 break
-    return out, count
+    return count
 
 
 @njit(cache=True)
@@ -234,34 +251,16 @@ def _nearest_object(rows, oxy, pts):
     return dist, nearest
 
 
-def _point_in_ring(px: np.ndarray, py: np.ndarray, ring: np.ndarray) -> np.ndarray:
-    """Even-odd test of points against a closed ring (first == last not required)."""
-    x1, y1 = ring[:, 0], ring[:, 1]
-    x2, y2 = np.roll(x1, -1), np.roll(y1, -1)
-    px = px[:, None]
-    py = py[:, None]
-    crosses = (y1 > py) != (y2 > py)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xint = x1 + (py - y1) * (x2 - x1) / (y2 - y1)
-    return (crosses & (px < xint)).sum(axis=1) % 2 == 1
-
-
-def camera_frustum_contains(cam_x, cam_y, cam_z, yaw, px, py, pz) -> np.ndarray:
-    """True where the point (px, py, pz) is inside the camera's view frustum (HFOV 1.13 rad, 4:3, pitched
-    down 0.2618 rad, 0.02-300 m); broadcasts over cars and points."""
-    dx = px - cam_x
-    dy = py - cam_y
-    dz = pz - cam_z
-    c, s = np.cos(yaw), np.sin(yaw)
-    fwd = dx * c + dy * s
-    left = -dx * s + dy * c
-    cp, sp = math.cos(CAMERA_PITCH_RAD), math.sin(CAMERA_PITCH_RAD)
-    depth = fwd * cp - dz * sp  # along the optical axis (pitched down)
-    up = fwd * sp + dz * cp
+def _camera_constants() -> np.ndarray:
+    """The camera frustum as `_object_kernels.closest_and_in_camera` takes it (HFOV 1.13 rad, 4:3, pitched down
+    0.2618 rad, 0.02-300 m; the camera's place on the car; objects seen at OBSTACLE_Z_M)."""
+    cam_ahead, cam_z = camera_position()
     tan_h = math.tan(CAMERA_HFOV_RAD / 2)
-    tan_v = tan_h / CAMERA_ASPECT
-    return ((depth > CAMERA_NEAR_M) & (depth < CAMERA_FAR_M) & (np.abs(left) <= depth * tan_h)
-            & (np.abs(up) <= depth * tan_v))
+    return np.array([cam_ahead, cam_z, OBSTACLE_Z_M, math.cos(CAMERA_PITCH_RAD), math.sin(CAMERA_PITCH_RAD), tan_h,
+                     tan_h / CAMERA_ASPECT, CAMERA_NEAR_M, CAMERA_FAR_M])
+
+
+CAMERA = _camera_constants()
 
 
 class ObjectSet:
@@ -276,7 +275,6 @@ class ObjectSet:
         self.race = race
         self.rng = rng
         self.lanes = (Lanes(track), Lanes(track_reversed))
-        self._inner_ring = np.vstack([track.center, track.inner[::-1]])
         self._ccw = (track.is_ccw, track_reversed.is_ccw)
         self.bots = race.num_bot_cars > 0
         self.racers = race.head_to_model  # each car's one object is the other car of its pair
@@ -301,13 +299,17 @@ class ObjectSet:
         self._lists: list = [None] * num_cars
         self._moved_starts: dict = {}  # (reversed, box lane, x, y) of a start near a box -> its moved (x, y, yaw)
         # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
-        # left after a bot rear-ended the car, the current lane change (clock times; inf: none), front-point arc
+        # left after a bot rear-ended the car, the current lane change (clock times; inf: none)
         self.d0 = np.zeros((num_cars, m))
         self.clock = np.zeros(num_cars)
         self.pause_left = np.zeros(num_cars)
         self.change_start = np.full((num_cars, m), np.inf)
         self.change_end = np.full((num_cars, m), np.inf)
-        self.front_arc = np.zeros((num_cars, m))
+        # the centre-line segment each object's projection found last: the next search starts there (-1: search
+        # everywhere)
+        self._hint = np.full((num_cars, m), -1, dtype=np.int64)
+        self._bot_cache: dict = {}
+        self._no_due, self._no_draws = np.zeros((0, 2), dtype=np.int64), np.zeros(0)
         speed = self.speed
         self.change_s = race.lane_change_distance / speed if speed > 0 else np.inf
         self.lane_changes = self.bots and race.is_lane_change and speed > 0
@@ -322,11 +324,18 @@ class ObjectSet:
         if self._layouts is not None:
             self._copy_layouts(idx, np.asarray(reversed_, dtype=bool))
             return
-        for i, rev in zip(idx.tolist(), np.asarray(reversed_, dtype=bool).tolist(), strict=True):
+        revs = np.asarray(reversed_, dtype=bool)
+        if self.bots and not self.race.randomize_bot_car_locations:  # evenly spaced: the same start every reset
+            OK.bots_start(idx, revs, *self._bot_starts, self.lane_changes, self.rev, self.d0, self.lane, self.clock,
+                          self.pause_left, self.change_start, self.change_end, self._hint)
+            self._drive(idx)
+            return
+        self.rev[idx] = revs
+        self._hint[idx] = -1
+        if self.racers:  # the other car is placed by the simulator (`follow`)
+            return
+        for i, rev in zip(idx.tolist(), revs.tolist(), strict=True):  # random layouts, drawn car by car
             lanes = self.lanes[int(rev)]
-            self.rev[i] = rev
-            if self.racers:  # the other car is placed by the simulator (`follow`)
-                continue
             arcs, lane = obstacle_arcs(self.race, lanes.track.length, self.rng)
             self.lane[i] = lane
             if self.bots:
@@ -341,68 +350,78 @@ class ObjectSet:
             self.change_end[idx] = 0.0 if self.lane_changes else np.inf  # 0: the first change is drawn at once
             self._drive(idx)
 
+    @functools.cached_property
+    def _bot_starts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(centre-line distances, lanes) (2, m) where evenly spaced bots start in each driving direction (no
+        randomness in them: worked out once)."""
+        starts = [obstacle_arcs(self.race, lanes.track.length, self.rng) for lanes in self.lanes]
+        return np.stack([a for a, _ in starts]), np.stack([b for _, b in starts]).astype(np.int64)
+
     def advance(self, idx, dt: float) -> None:
         """The bot cars of cars `idx` one step of `dt` s on (BotCarsCtrl): paused bots wait out their penalty,
         the others drive their lane at `bot_car_speed` and change lanes when their next change comes. They never
-        react to the car."""
+        react to the car. One compiled pass for the clocks, the random draws of the lane changes that came due
+        (in car-then-bot order), one compiled pass for the poses and params."""
         idx = np.asarray(idx, dtype=np.int64)
-        paused = self.pause_left[idx] > 1e-9  # (a penalty of k steps is over after k steps, whatever the rounding)
-        left = self.pause_left[idx[paused]] - dt
-        self.pause_left[idx[paused]] = np.where(left > 1e-9, left, 0.0)
-        run = idx[~paused]
-        if run.size == 0:
-            return
-        self.clock[run] += dt
-        if self.lane_changes:
-            self._schedule_lane_changes(run)
-        self._drive(run)
+        run, due = self._buffers(idx.size)
+        nrun, ndue = OK.bots_tick(idx, dt, self.pause_left, self.clock, self.change_end, self.lane_changes, run, due)
+        if nrun:
+            self._drive(run[:nrun], due[:ndue])
 
-    def _schedule_lane_changes(self, run: np.ndarray) -> None:
-        """A bot whose lane change has ended is in the other lane; its next change ends U(lower, upper) s plus
-        the change's duration (`lane_change_distance / bot_car_speed`) from now (AWS's timers)."""
-        now = self.clock[run][:, None]
-        due = now >= self.change_end[run]
-        if not due.any():
-            return
-        rows, cols = np.nonzero(due)
-        cars = run[rows]
-        ended = self.change_end[cars, cols] > 0.0
-        self.lane[cars[ended], cols[ended]] *= -1
+    def _buffers(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Scratch arrays for `bots_tick`: k running cars and their k * m due bots."""
+        run, due = self._bot_cache.get("buffers", (np.empty(0, dtype=np.int64), None))
+        if run.size < k:
+            run, due = np.empty(k, dtype=np.int64), np.empty((k * self.num_objects, 2), dtype=np.int64)
+            self._bot_cache["buffers"] = (run, due)
+        return run, due
+
+    @functools.cached_property
+    def _paths(self) -> tuple:
+        """The bots' lane paths as the kernels take them (`_object_kernels`): for (direction, lane) 2 * reversed +
+        (0 inner, 1 outer) the path arrays (4, 5, P), their lengths and lookup tables, and each direction's period
+        (0 on an open track)."""
+        arrays = [lanes.interp_arrays(flag) for lanes in self.lanes for flag in (1, -1)]
+        size = max(a[0].size for a in arrays)
+        packed = [OK.lane_arrays(*a, size, size) for a in arrays]
+        period = np.array([lanes.track.length if lanes.track.closed else 0.0 for lanes in self.lanes])
+        # per lane segment: the centre segments that can be nearest to its points, and its side of the polygon
+        edges, band_start, band_edges, y0, band_h = self._geometry[4:9]
+
+        def inside(pts):
+            out = np.empty(pts.shape[0], dtype=np.bool_)
+            contains_many(np.ascontiguousarray(pts), edges, band_start, band_edges, y0, band_h, out)
+            return out
+
+        near_start, side = np.zeros((4, size + 1), dtype=np.int64), np.zeros((4, size), dtype=np.int64)
+        near = []
+        for k, (_, x, y) in enumerate(arrays):
+            start, lst, sides = OK.lane_segments(np.column_stack([x, y]), self.lanes[k // 2].track.center,
+                                                 self._ring, inside)
+            offset = sum(v.size for v in near)
+            near_start[k, :start.size] = start + offset
+            near_start[k, start.size:] = start[-1] + offset
+            side[k, :sides.size] = sides
+            near.append(lst)
+        return (np.stack([p[0] for p in packed]), np.array([a[0].size for a in arrays], dtype=np.int64),
+                np.stack([p[1] for p in packed]), period, near_start, np.concatenate(near), side)
+
+    def _drive(self, run: np.ndarray, due: np.ndarray | None = None) -> None:
+        """Poses of the bots of cars `run` at their clocks: on their lane at `d0 + speed * clock` of centre line,
+        blended into the other lane during a lane change (smoothstep of the change's elapsed share, so the path
+        leaves and joins the lane lines tangentially); the yaw is the path's direction (a central difference over
+        +-5 cm of centre line); then their params (`_measure`), all in one compiled pass. Bots `due` (car, bot)
+        first end their lane change, if one ended, and get the next: it ends U(lower, upper) s plus the change's
+        duration (`lane_change_distance / bot_car_speed`) from now (AWS's timers; drawn in car-then-bot order)."""
         r = self.race
-        end = self.clock[cars] + self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, cars.size)
-        self.change_end[cars, cols] = end + self.change_s
-        self.change_start[cars, cols] = end
-
-    def _bot_xy(self, rows: np.ndarray, lanes: Lanes, clock: np.ndarray, dd: float = 0.0) -> np.ndarray:
-        """Bot positions (k, m, 2) of cars `rows` (one driving direction) at bot clock `clock` (k,): on their lane
-        at `d0 + speed * clock` of centre line, blended into the other lane during a lane change (smoothstep of
-        the change's elapsed share, so the path leaves and joins the lane lines tangentially); `dd` m further on."""
-        d = self.d0[rows] + self.speed * clock[:, None] + dd
-        lane = self.lane[rows]
-        inner, outer = lanes.at_centre_dist(1, d), lanes.at_centre_dist(-1, d)
-        here = np.where((lane == 1)[..., None], inner, outer)
-        if not self.lane_changes:
-            return here
-        there = np.where((lane == 1)[..., None], outer, inner)
-        a = np.clip((clock[:, None] - self.change_start[rows]) / self.change_s, 0.0, 1.0)
-        w = (a * a * (3.0 - 2.0 * a))[..., None]
-        return here + w * (there - here)
-
-    def _drive(self, run: np.ndarray) -> None:
-        """Poses of the bots of cars `run` at their clocks; the yaw is the path's direction (a central difference
-        over +-5 cm of centre line)."""
+        if due is None or due.shape[0] == 0:
+            due, draws = self._no_due, self._no_draws
+        else:
+            draws = self.rng.uniform(r.lower_lane_change_time, r.upper_lane_change_time, due.shape[0])
         h = 0.05 / self.speed if self.speed > 0 else 0.0  # the clock time of 5 cm
-        for rev in (False, True):
-            rows = run[self.rev[run] == rev]
-            if rows.size == 0:
-                continue
-            lanes = self.lanes[int(rev)]
-            c = self.clock[rows]
-            self.xy[rows] = self._bot_xy(rows, lanes, c)
-            dd = 0.0 if h > 0 else 0.05  # standing bots: 5 cm along their path
-            ahead = self._bot_xy(rows, lanes, c + h, dd) - self._bot_xy(rows, lanes, c - h, -dd)
-            self.yaw[rows] = np.arctan2(ahead[..., 1], ahead[..., 0])
-        self._measure(run)
+        OK.bots_drive(run, due, draws, self.rev, self.clock, self.d0, self.lane, self.change_start, self.change_end,
+                      self.speed, self.change_s, self.lane_changes, h, *self._paths, self.xy, self.yaw,
+                      *self._geometry, self._hint, self.arc, self.dfc, self.left, self.order)
 
     def follow(self, x, y, yaw, rows=None) -> None:
         """Head-to-model: each car's object is the other car of its pair, at base pose (x, y, yaw) (per car of
@@ -423,37 +442,52 @@ class ObjectSet:
         rows = rows[self.pause_left[rows] <= 0.0]
         self.pause_left[rows] = self.race.penalty_seconds
 
-    def _measure(self, rows) -> None:
-        """The static params of the objects of cars `rows` (an index, or an array of them) at their current poses;
-        their params lists are made again when next asked for."""
-        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
-        m = self.num_objects
-        for rev in (False, True):
-            sel = rows[self.rev[rows] == rev]
-            if sel.size == 0:
-                continue
-            track = self.lanes[int(rev)].track
-            xy = self.xy[sel].reshape(-1, 2)
-            proj = track.project(xy)
-            self.arc[sel] = proj.s.reshape(-1, m)
-            self.dfc[sel] = np.abs(proj.lateral).reshape(-1, m)
-            # AWS: inside the polygon between centre line and inner border, XOR not ccw (driving direction)
-            inner = _point_in_ring(xy[:, 0], xy[:, 1], self._inner_ring) ^ (not self._ccw[int(rev)])
-            self.left[sel] = inner.reshape(-1, m)
-            if self.bots or self.racers:  # a car's progress is that of its front point
-                yaw = self.yaw[sel].reshape(-1)
-                front = xy + MODEL_POINT_AHEAD_M * np.stack([np.cos(yaw), np.sin(yaw)], -1)
-                self.front_arc[sel] = track.project(front).s.reshape(-1, m)
-        self.order[rows] = np.argsort(self.arc[rows], axis=1, kind="stable")
-        for i in rows.tolist():
-            self._lists[i] = None
+    @functools.cached_property
+    def _ring(self) -> np.ndarray:
+        """The polygon between centre line and inner border (AWS's test for `objects_left_of_center`)."""
+        track = self.lanes[0].track
+        return np.vstack([track.center, track.inner[::-1]])
 
-    def _params_lists(self, i: int) -> tuple:
-        """Car i's per-object params as lists, made once per layout (boxes stand still between resets)."""
-        if self._lists[i] is None:
-            self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(), self.dfc[i].tolist(),
-                              self.yaw[i].tolist() if self.bots else [0.0] * self.num_objects)
-        return self._lists[i]
+    @functools.cached_property
+    def _geometry(self) -> tuple:
+        """The track arrays `_object_kernels.measure` takes: both directions' centre lines (points, segment
+        lengths, arc lengths), the polygon between centre line and inner border as edges by horizontal band, and
+        each direction's counter-clockwise flag."""
+        tracks = [lanes.track for lanes in self.lanes]
+        ring = self._ring
+        edges = np.column_stack([ring, np.roll(ring, -1, axis=0)])
+        edges = np.ascontiguousarray(edges[edges[:, 1] != edges[:, 3]])  # a level edge is never crossed
+        return (np.stack([t.center for t in tracks]), np.stack([t.segment_lengths for t in tracks]),
+                np.stack([t.waypoint_s for t in tracks]), tracks[0].closed, edges,
+                *build_road_index(edges, RING_BAND_M), np.array(self._ccw))
+
+    def _measure(self, rows) -> None:
+        """The static params of the objects of cars `rows` (an index, or an array of them) at their current poses
+        in one compiled pass: centre-line arc and distance of their projection in the car's driving direction, left
+        of centre as AWS has it (inside the polygon between centre line and inner border, XOR not counter-clockwise
+        in the driving direction) and the order by arc."""
+        rows = np.atleast_1d(np.asarray(rows, dtype=np.int64))
+        OK.measure(rows, self.rev, self.xy, *self._geometry, self._hint, self.arc, self.dfc, self.left, self.order)
+        if not (self.bots or self.racers):  # boxes keep their params lists between resets
+            for i in rows.tolist():
+                self._lists[i] = None
+
+    def _params_lists(self, idx: np.ndarray) -> tuple[list, ...]:
+        """The per-object params of cars `idx` as columns of lists, one list per car: location, left of centre,
+        distance, distance from centre, heading (AWS fills it for bots only). Moving objects' lists are made for
+        the batch at once; boxes make theirs once per layout (they stand still between resets) and the locations
+        are copied (the params dicts own their lists)."""
+        if self.bots or self.racers:
+            heading = self.yaw[idx].tolist() if self.bots else [[0.0] * self.num_objects for _ in range(idx.size)]
+            return (self.xy[idx].tolist(), self.left[idx].tolist(), self.arc[idx].tolist(), self.dfc[idx].tolist(),
+                    heading)
+        cars = []
+        for i in idx.tolist():
+            if self._lists[i] is None:
+                self._lists[i] = (self.xy[i].tolist(), self.left[i].tolist(), self.arc[i].tolist(),
+                                  self.dfc[i].tolist(), [0.0] * self.num_objects)
+            cars.append(self._lists[i])
+        return ([[[*p] for p in t[0]] for t in cars], *([t[k] for t in cars] for k in range(1, 5)))
 
     def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
@@ -529,18 +563,14 @@ class ObjectSet:
                     yaw[sel] = proj.heading
         return pts, yaw
 
-    def features_ahead(self, rows, x, y, yaw, s, length: float, out: np.ndarray) -> None:
-        """Fill out[j] (2 * FEATURE_OBJECTS columns) for car rows[j] at base pose (x, y, yaw) with centre-line arc
-        s: the nearest objects ahead along the lap, in the car's frame (x ahead, y left) divided by 2 m, as the
-        centre points of `features`; with fewer objects the list repeats from the nearest."""
-        ahead = np.mod(self.arc[rows] - s[:, None], length)
-        order = np.argsort(ahead, axis=1, kind="stable")
-        pick = order[:, np.arange(FEATURE_OBJECTS) % self.num_objects]  # (k, F)
-        dx = self.xy[rows[:, None], pick, 0] - x[:, None]
-        dy = self.xy[rows[:, None], pick, 1] - y[:, None]
-        c, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        out[:, 0::2] = (dx * c + dy * sn) * 0.5
-        out[:, 1::2] = (-dx * sn + dy * c) * 0.5
+    def features_ahead(self, rows, car: np.ndarray, meas: np.ndarray, length: float, out: np.ndarray,
+                       column: int) -> None:
+        """Fill out[i, column:column + 2 * FEATURE_OBJECTS] for each car i of `rows`, at its base pose and centre-line
+        arc in the simulator's arrays `car` and `meas`: its nearest objects ahead along the lap, in the car's frame
+        (x ahead, y left) divided by 2 m, as the centre points of `features`; with fewer objects the list repeats
+        from the nearest."""
+        OK.features_ahead(np.asarray(rows, dtype=np.int64), car, meas, K.CX, K.CY, K.CYAW, K.MS, float(length),
+                          self.arc, self.xy, out, column, FEATURE_OBJECTS)
 
     def nearest(self, i: int, mx: float, my: float) -> int:
         """The index of car i's object nearest to the point (mx, my)."""
@@ -576,63 +606,53 @@ class ObjectSet:
         model point, heading (°) and centre-line arc; the base pose as `base_from_model_point` gives it. None when
         no corner of any of these cars is inside an object (neither crashed nor rear-ended)."""
         rows = np.asarray(rows, dtype=np.int64)
-        inside, count = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half)
+        inside = np.empty((rows.size, self.num_objects), dtype=np.bool_)
+        count = _model_point_corners_inside(rows, meas, K.MX, K.MY, K.MHEADING, self.xy, self.yaw, *self.half, inside,
+                                            np.empty((3, self.num_objects)))
         if count == 0:  # no car touches an object (most steps)
             return None
         car_arc = meas[rows, K.MS] if self.bots or self.racers else None
         return self._judge(inside, rows, car_arc, length)
 
+    def front_arc(self, rows) -> np.ndarray:
+        """(k, m) centre-line arc of the front point (`MODEL_POINT_AHEAD_M` ahead of the base) of each object of
+        cars `rows`: a car's progress, for telling which of two cars ran into the other (worked out when asked)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        out = np.empty((rows.size, self.num_objects))
+        OK.front_arcs(rows, self.rev, self.xy, self.yaw, *self._geometry[:4], out)
+        return out
+
     def _judge(self, inside, rows, car_arc, length) -> tuple[np.ndarray, np.ndarray]:
         """(crashed, rear_ended) per car from `inside` (k, m): which objects hold a corner of the car."""
         if not (self.bots or self.racers) or car_arc is None:
             return inside.any(axis=1), np.zeros(rows.size, dtype=bool)
-        ahead = np.mod(self.front_arc[rows] - car_arc[:, None], length) < 0.5 * length
-        return (inside & ahead).any(axis=1), (inside & ~ahead).any(axis=1)
+        crashed, rear = np.empty(rows.size, dtype=bool), np.empty(rows.size, dtype=bool)
+        OK.judge_cars(inside, rows, np.asarray(car_arc, dtype=np.float64), float(length), self.rev, self.xy, self.yaw,
+                      *self._geometry[:4], crashed, rear)
+        return crashed, rear
 
     def params_columns(self, idx, model_xy, model_s, base_pose) -> dict:
         """The `objects_*` params columns for cars `idx`: the model point's xy (k, 2) and centre-line arc (k,),
-        and the base pose (x, y, yaw) for the camera test."""
-        idx = np.asarray(idx)
-        arcs = self.arc[idx]
-        order = self.order[idx]
-        sorted_arcs = np.take_along_axis(arcs, order, axis=1)
-        m = self.num_objects
-        nxt = (sorted_arcs <= model_s[:, None]).sum(axis=1)  # bisect_right
-        prv = np.where(nxt - 1 < 0, m - 1, nxt - 1)
-        nxt = np.where(nxt == m, 0, nxt)
-        rows = np.arange(idx.size)
-        prev_obj = order[rows, prv]
-        next_obj = order[rows, nxt]
-        in_cam = self.in_camera(idx, next_obj, base_pose)
-        lists = [self._params_lists(i) for i in idx.tolist()]
+        and the base pose (x, y, yaw) for the camera test (the next object's centre or a footprint corner, at box
+        height, inside the camera frustum)."""
+        idx = np.asarray(idx, dtype=np.int64)
+        prev_obj = np.empty(idx.size, dtype=np.int64)
+        next_obj = np.empty(idx.size, dtype=np.int64)
+        in_cam = np.empty(idx.size, dtype=np.bool_)
+        bx, by, byaw = (np.asarray(v, dtype=np.float64) for v in base_pose)
+        OK.closest_and_in_camera(idx, np.asarray(model_s, dtype=np.float64), bx, by, byaw, self.arc, self.order,
+                                 self.xy, self.yaw, *self.half, CAMERA, prev_obj, next_obj, in_cam)
+        location, left, distance, dfc, heading = self._params_lists(idx)
         return {
             "closest_objects": (prev_obj.tolist(), next_obj.tolist()),
-            "objects_location": [[[*p] for p in t[0]] for t in lists],  # fresh lists: the dicts own them
-            "objects_left_of_center": [t[1] for t in lists],
-            "objects_distance": [t[2] for t in lists],
-            "objects_distance_from_center": [t[3] for t in lists],
-            "objects_heading": [t[4] for t in lists],
-            "objects_speed": [[float(self.speed)] * m] * idx.size,
+            "objects_location": location,
+            "objects_left_of_center": left,
+            "objects_distance": distance,
+            "objects_distance_from_center": dfc,
+            "objects_heading": heading,
+            "objects_speed": [[float(self.speed)] * self.num_objects] * idx.size,
             "object_in_camera": in_cam.tolist(),
         }
-
-    def in_camera(self, idx, obj, base_pose) -> np.ndarray:
-        """Per car: object `obj` (its centre or a footprint corner, at box height) is in the camera frustum."""
-        bx, by, byaw = base_pose
-        cam_ahead, cam_z = camera_position()
-        camx = bx + cam_ahead * np.cos(byaw)
-        camy = by + cam_ahead * np.sin(byaw)
-        ox = self.xy[idx, obj, 0]
-        oy = self.xy[idx, obj, 1]
-        oyaw = self.yaw[idx, obj]
-        hl, hw = self.half
-        du = np.array([0.0, hl, hl, -hl, -hl])
-        dv = np.array([0.0, hw, -hw, hw, -hw])
-        c, s = np.cos(oyaw)[:, None], np.sin(oyaw)[:, None]
-        px = ox[:, None] + du * c - dv * s
-        py = oy[:, None] + du * s + dv * c
-        vis = camera_frustum_contains(camx[:, None], camy[:, None], cam_z, byaw[:, None], px, py, OBSTACLE_Z_M)
-        return vis.any(axis=1)
 
 
 def base_from_model_point(mx, my, heading_deg):

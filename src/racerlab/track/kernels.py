@@ -15,16 +15,15 @@ LOCAL_MAX_DIST_M = 0.5
 
 
 @njit(cache=True, inline="always")
-def _segment_distance_sq(px, py, ax, ay, dx, dy, seg_len_sq):
+def segment_distance_sq(px, py, ax, ay, dx, dy, seg_len_sq):
     """Squared distance from p to segment a + t*d, t in [0, 1]; returns (dist_sq, t)."""
-    if seg_len_sq > 0.0:
-        t = ((px - ax) * dx + (py - ay) * dy) / seg_len_sq
-        if t < 0.0:
-            t = 0.0
-        elif t > 1.0:
+    t = 0.0
+    if seg_len_sq > 0.0:  # clamped to [0, 1] before dividing: the same t (division rounds monotonically), cheaper
+        dot = (px - ax) * dx + (py - ay) * dy
+        if dot >= seg_len_sq:
             t = 1.0
-    else:
-        t = 0.0
+        elif dot > 0.0:
+            t = dot / seg_len_sq
     qx = ax + t * dx - px
     qy = ay + t * dy - py
     return qx * qx + qy * qy, t
@@ -43,16 +42,19 @@ def nearest_segment(px, py, line, seg_len, closed, hint):
     best_i = -1
     best_d = np.inf
     best_t = 0.0
-    if hint >= 0 and nseg > 2 * LOCAL_WINDOW + 1:
+    if 0 <= hint < nseg and nseg > 2 * LOCAL_WINDOW + 1:
         for k in range(-LOCAL_WINDOW, LOCAL_WINDOW + 1):
             i = hint + k
-            if closed:
-                i = i % nseg
+            if closed:  # i % nseg (the hint is a segment, so at most one lap out)
+                if i < 0:
+                    i += nseg
+                elif i >= nseg:
+                    i -= nseg
             elif i < 0 or i >= nseg:
                 continue
             ax = line[i, 0]
             ay = line[i, 1]
-            d, t = _segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
+            d, t = segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
                                         seg_len[i] * seg_len[i])
             if d < best_d:
                 best_d = d
@@ -71,7 +73,7 @@ def nearest_segment(px, py, line, seg_len, closed, hint):
     for i in range(nseg):
         ax = line[i, 0]
         ay = line[i, 1]
-        d, t = _segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
+        d, t = segment_distance_sq(px, py, ax, ay, line[i + 1, 0] - ax, line[i + 1, 1] - ay,
                                     seg_len[i] * seg_len[i])
         if d < best_d:
             best_d = d
@@ -147,7 +149,7 @@ def nearest_on_polyline_near(px, py, line, seg, closed, reach):
         ay = line[i, 1]
         dx = line[i + 1, 0] - ax
         dy = line[i + 1, 1] - ay
-        d, t = _segment_distance_sq(px, py, ax, ay, dx, dy, dx * dx + dy * dy)
+        d, t = segment_distance_sq(px, py, ax, ay, dx, dy, dx * dx + dy * dy)
         if d < best_d:
             best_d = d
             bx = ax + t * dx
