@@ -44,7 +44,7 @@ from racerlab.sim.sensors.geometry import (
 MIN_RANGE_M, MAX_RANGE_M = 0.15, 1.0  # AWS ObservationClippingFilter
 NOISE_SIGMA_M = 0.01
 LIDAR_STEP_RAD = (LIDAR_MAX_ANGLE_RAD - LIDAR_MIN_ANGLE_RAD) / (LIDAR_RAYS - 1)
-LIDAR_STEP_COS, LIDAR_STEP_SIN = math.cos(LIDAR_STEP_RAD), math.sin(LIDAR_STEP_RAD)
+ATAN2_ERROR_RAD = 1e-5  # the most the quick atan2 that picks a segment's rays may be off
 SECTORS = 8
 SECTOR_CLIP_M = 0.5
 NOISE_REACH_SIGMAS = 6  # a hit further than max range + 6 σ reads max range whatever the noise
@@ -55,94 +55,106 @@ DISCRETIZED_DEFAULTS = {"num_sectors": 8, "num_values_per_sector": 8, "clipping_
 
 
 @njit(cache=True, inline="always")
-def _ray_segment(ox, oy, dx, dy, ax, ay, bx, by):
-    """Distance along the unit ray (ox, oy) + t (dx, dy) to segment a-b; inf if missed."""
+def _ray_segment(dx, dy, ax, ay, bx, by):
+    """Distance along the unit ray t (dx, dy) from the origin to segment a-b; inf if missed."""
     ex = bx - ax
     ey = by - ay
     den = dx * ey - dy * ex
     if abs(den) < 1e-15:
         return np.inf
-    qx = ax - ox
-    qy = ay - oy
-    t = (qx * ey - qy * ex) / den
-    u = (qx * dy - qy * dx) / den
+    t = (ax * ey - ay * ex) / den
+    u = (ax * dy - ay * dx) / den
     if t >= 0.0 and -1e-12 <= u <= 1.0 + 1e-12:
         return t
     return np.inf
 
 
 @njit(cache=True, inline="always")
-def _turn(step):
-    """(cos, sin) of the angle between neighbouring rays, worked out once for the scan's own step."""
-    if step == LIDAR_STEP_RAD:
-        return LIDAR_STEP_COS, LIDAR_STEP_SIN
-    return math.cos(step), math.sin(step)
+def _atan2(y, x):
+    """atan2(y, x) within ATAN2_ERROR_RAD, without a library call: an odd polynomial on [0, 1] and the octant
+    folded back. It only picks the rays a segment can meet; every pick is then tested exactly."""
+    ax = abs(x)
+    ay = abs(y)
+    if ay <= ax:
+        if ax == 0.0:
+            return 0.0
+        z = ay / ax
+    else:
+        z = ax / ay
+    z2 = z * z
+    a = z * (0.99997726 + z2 * (-0.33262347 + z2 * (0.19354346 + z2 * (-0.11643287 + z2 * (0.05265332
+                                                                                          - 0.01172120 * z2)))))
+    if ay > ax:
+        a = 0.5 * math.pi - a
+    if x < 0.0:
+        a = math.pi - a
+    return -a if y < 0.0 else a
 
 
 @njit(cache=True, inline="always")
-def _hit_rays(ox, oy, base, step, nrays, lo, hi, ax, ay, bx, by, best):
-    """Intersect rays lo..hi (indices, clipped to the scan) with segment a-b; keep the nearer hits in best."""
-    k0 = max(lo, 0)
-    k1 = min(hi, nrays - 1)
-    if k1 < k0:
-        return
-    # ray directions by rotation from the first one: two sines per segment, not two per ray
-    c0 = math.cos(base + k0 * step)
-    s0 = math.sin(base + k0 * step)
-    cs, ss = _turn(step)
-    for k in range(k0, k1 + 1):
-        t = _ray_segment(ox, oy, c0, s0, ax, ay, bx, by)
+def _hit_rays(dirs, lo, hi, ax, ay, bx, by, best):
+    """Intersect rays lo..hi (indices, clipped to the scan; ray k along dirs[k]) with segment a-b, both in the
+    scan frame; keep the nearer hits in best."""
+    for k in range(max(lo, 0), min(hi, dirs.shape[0] - 1) + 1):
+        t = _ray_segment(dirs[k, 0], dirs[k, 1], ax, ay, bx, by)
         if t < best[k]:
             best[k] = t
-        c0, s0 = c0 * cs - s0 * ss, s0 * cs + c0 * ss
 
 
 @njit(cache=True, inline="always")
-def _cast(ox, oy, base, step, nrays, reach, ax, ay, bx, by, best):
-    """Cast segment a-b onto the rays it can meet: those within the angle it spans seen from (ox, oy).
-
-    Ray k points at world angle base + k·step; a segment further than `reach` is skipped.
-    """
+def _cast(dirs, per_rad, reach, ax, ay, bx, by, best):
+    """Cast segment a-b, in the scan frame (origin the lidar, ray k at angle k / per_rad), onto the rays it can
+    meet: those within the angle it spans, a little slack kept for the quick angles. A segment further than
+    `reach` is skipped."""
     ex = bx - ax
     ey = by - ay
     ll = ex * ex + ey * ey
-    t = min(max(((ox - ax) * ex + (oy - ay) * ey) / ll, 0.0), 1.0) if ll > 0.0 else 0.0
+    t = min(max(-(ax * ex + ay * ey) / ll, 0.0), 1.0) if ll > 0.0 else 0.0
     # every hit is at least as far as the segment's nearest point: beyond reach (a hair kept for rounding), none
     # can count
-    gx = ax + t * ex - ox
-    gy = ay + t * ey - oy
+    gx = ax + t * ex
+    gy = ay + t * ey
     if gx * gx + gy * gy > (reach + 1e-9) * (reach + 1e-9):
         return
-    period = 2.0 * math.pi / step
-    u0 = (math.atan2(ay - oy, ax - ox) - base) / step
-    u1 = (math.atan2(by - oy, bx - ox) - base) / step
+    period = 2.0 * math.pi * per_rad
+    u0 = _atan2(ay, ax) * per_rad
+    u1 = _atan2(by, bx) * per_rad
     u0 -= math.floor(u0 / period) * period
     u1 -= math.floor(u1 / period) * period
     lo = min(u0, u1)
     hi = max(u0, u1)
-    eps = 1e-9
-    if hi - lo <= 0.5 * period:
-        _hit_rays(ox, oy, base, step, nrays, int(math.ceil(lo - eps)), int(math.floor(hi + eps)), ax, ay, bx, by,
-                  best)
-    else:  # the span crosses angle `base`: rays from hi up, and from 0 to lo
-        _hit_rays(ox, oy, base, step, nrays, int(math.ceil(hi - eps)), nrays - 1, ax, ay, bx, by, best)
-        _hit_rays(ox, oy, base, step, nrays, 0, int(math.floor(lo + eps)), ax, ay, bx, by, best)
+    slack = ATAN2_ERROR_RAD * 4.0 * per_rad
+    if abs(hi - lo - 0.5 * period) <= slack:  # seen edge on, from (nearly) on its line: too close to call
+        _hit_rays(dirs, 0, dirs.shape[0] - 1, ax, ay, bx, by, best)
+    elif hi - lo < 0.5 * period:
+        _hit_span(dirs, period, lo - slack, hi + slack, ax, ay, bx, by, best)
+    else:  # the span crosses angle 0: from hi round to lo
+        _hit_span(dirs, period, hi - slack, lo + period + slack, ax, ay, bx, by, best)
 
 
 @njit(cache=True, inline="always")
-def _cast_box(ox, oy, base, step, nrays, reach, bx, by, cb, sb, length, width, best):
-    """Cast the sides of an oriented rectangle (centre bx, by, turned by the angle whose cosine and sine are cb, sb)
-    that face (ox, oy); range 0 from inside it. The caller has checked it is in reach (`_in_reach`)."""
+def _hit_span(dirs, period, a, b, ax, ay, bx, by, best):
+    """`_hit_rays` for the rays at angles a..b (ray units, a full turn being `period`; a may be below 0 and b
+    past a full turn: those parts wrap round)."""
+    _hit_rays(dirs, int(math.ceil(a)), int(math.floor(b)), ax, ay, bx, by, best)
+    if a < 0.0:
+        _hit_rays(dirs, int(math.ceil(a + period)), dirs.shape[0] - 1, ax, ay, bx, by, best)
+    if b >= period:
+        _hit_rays(dirs, 0, int(math.floor(b - period)), ax, ay, bx, by, best)
+
+
+@njit(cache=True, inline="always")
+def _cast_box(dirs, per_rad, reach, bx, by, cb, sb, length, width, best):
+    """Cast the sides that face the lidar of an oriented rectangle (centre bx, by in the scan frame, turned by the
+    angle whose cosine and sine are cb, sb); range 0 from inside it."""
     hl = 0.5 * length
     hw = 0.5 * width
-    px = ox - bx
-    py = oy - by
-    if abs(cb * px + sb * py) <= hl and abs(-sb * px + cb * py) <= hw:
+    # the lidar in the box's frame: only the sides that face it can hold a nearest hit (the box is convex)
+    lu = -(cb * bx + sb * by)
+    lv = sb * bx - cb * by
+    if abs(lu) <= hl and abs(lv) <= hw:
         best[:] = 0.0
         return
-    # the sensor in the box's frame: only the sides that face it can hold a nearest hit (the box is convex)
-    lu = cb * px + sb * py
-    lv = -sb * px + cb * py
     gu = max(abs(lu) - hl, 0.0)
     gv = max(abs(lv) - hw, 0.0)
     if gu * gu + gv * gv > (reach + 1e-9) * (reach + 1e-9):  # every side is out of reach (a hair kept for rounding)
@@ -154,15 +166,15 @@ def _cast_box(ox, oy, base, step, nrays, reach, bx, by, cb, sb, length, width, b
         if not facing[q]:
             continue
         r = (q + 1) % 4
-        _cast(ox, oy, base, step, nrays, reach, bx + cb * cx[q] - sb * cy[q], by + sb * cx[q] + cb * cy[q],
+        _cast(dirs, per_rad, reach, bx + cb * cx[q] - sb * cy[q], by + sb * cx[q] + cb * cy[q],
               bx + cb * cx[r] - sb * cy[r], by + sb * cx[r] + cb * cy[r], best)
 
 
 @njit(cache=True, inline="always")
-def _in_reach(ox, oy, bx, by, length, width, reach):
-    """A rectangle (centre bx, by) can meet a ray from (ox, oy) within `reach`, whatever its yaw."""
+def _near(dx, dy, length, width, reach):
+    """A rectangle (centre dx, dy from the lidar) can meet a ray within `reach`, whatever its yaw."""
     far = reach + 0.5 * (length + width)  # >= reach + the half diagonal
-    return (ox - bx) * (ox - bx) + (oy - by) * (oy - by) <= far * far
+    return dx * dx + dy * dy <= far * far
 
 
 @njit(cache=True, inline="always")
@@ -175,96 +187,105 @@ def _memo_turn(memo, m, yaw):
     return memo[1, m], memo[2, m]
 
 
-@njit(cache=True)
-def scan(cars, pose_x, pose_y, pose_yaw, mount_x, first_angle, step, oxy, oyaw, osize, boxes, visible, walls, edges,
-         grid, reach, out, seen):
-    """Raw ranges (inf = nothing within `reach`) of cars `cars` into out[car, ray]; returns the number of hits.
+@njit(cache=True, inline="always")
+def _anything_near(i, px, py, slack, oxy, olen, owid, boxes, visible, reach):
+    """Car i (base at px, py; its lidar within `slack` of it) may have one of its objects or `boxes` in reach."""
+    for m in range(oxy.shape[1]):
+        if _near(oxy[i, m, 0] - px, oxy[i, m, 1] - py, olen, owid, reach + slack):
+            return True
+    for m in range(boxes.shape[0]):
+        if visible[i, m] and _near(boxes[m, 0] - px, boxes[m, 1] - py, boxes[m, 3], boxes[m, 4], reach + slack):
+            return True
+    return False
 
-    Ray k looks at first_angle + k·step from the car's heading. Car i sees its own objects at oxy[i] (K, 2),
-    turned by oyaw[i] (K,), each osize (length, width); the rectangles [x, y, yaw, length, width] of boxes (M, 5)
-    where visible[i, m]; with `walls` the road edges (E, 4) listed for the car's grid cell (grid = (cell_start,
-    cell_edges, x0, y0, cell, nx, ny)). A car with nothing in reach casts no ray: seen[i] is False and out[i] is
-    left as it was (every ray reads inf); otherwise seen[i] is True.
+
+@njit(cache=True)
+def scan(cars, car, mount_x, first_angle, dirs, per_rad, oxy, oyaw, osize, boxes, visible, walls, edges, grid, reach,
+         lo, hi, best, hit_at, hit_raw, ranges):
+    """Ranges of cars `cars` without noise into ranges[car, ray]: the raw range clipped to [lo, hi] where a ray hits
+    something within `reach`, else hi. Returns the number of hits, listed in scan order in hit_at (car * rays +
+    ray) and hit_raw (the raw range), for `add_noise`.
+
+    The cars' base poses are car[:, K.CX], [K.CY], [K.CYAW]; ray k looks along dirs[k] (unit, at angle k / per_rad)
+    from first_angle off the heading. Car i sees its own objects at oxy[i] (K, 2), turned by oyaw[i] (K,), each
+    osize (length, width); the rectangles [x, y, yaw, length, width] of boxes (M, 5) where visible[i, m]; with
+    `walls` the road edges (E, 4) listed for the car's grid cell (grid = (cell_start, cell_edges, x0, y0, cell, nx,
+    ny)). `best` is scratch for one car's rays.
     """
-    nrays = out.shape[1]
     olen = osize[0]
     owid = osize[1]
+    cf = math.cos(first_angle)
+    sf = math.sin(first_angle)
+    nrays = dirs.shape[0]
     hits = 0
     # cos and sin of the last yaw seen for each of the cars' objects: the objects of many cars stand alike
     memo = np.full((3, oxy.shape[1]), np.nan)
     for k in range(cars.shape[0]):
         i = cars[k]
-        c = math.cos(pose_yaw[i])
-        s = math.sin(pose_yaw[i])
-        ox = pose_x[i] + c * mount_x
-        oy = pose_y[i] + s * mount_x
-        base = pose_yaw[i] + first_angle
-        best = out[i]
-        started = walls
-        if walls:
-            best[:] = np.inf
+        px = car[i, K.CX]
+        py = car[i, K.CY]
+        if not walls and not _anything_near(i, px, py, abs(mount_x), oxy, olen, owid, boxes, visible, reach):
+            ranges[i, :] = hi  # (most cars: no trigonometry for them)
+            continue
+        c = math.cos(car[i, K.CYAW])
+        s = math.sin(car[i, K.CYAW])
+        ox = px + c * mount_x
+        oy = py + s * mount_x
+        # the scan frame: origin the lidar, x along ray 0 (first_angle off the heading)
+        cs = c * cf - s * sf
+        ss = s * cf + c * sf
+        best[:] = np.inf
         for m in range(oxy.shape[1]):
-            if _in_reach(ox, oy, oxy[i, m, 0], oxy[i, m, 1], olen, owid, reach):
-                if not started:
-                    best[:] = np.inf
-                    started = True
-                cb, sb = _memo_turn(memo, m, oyaw[i, m])
-                _cast_box(ox, oy, base, step, nrays, reach, oxy[i, m, 0], oxy[i, m, 1], cb, sb, olen, owid, best)
+            dx = oxy[i, m, 0] - ox
+            dy = oxy[i, m, 1] - oy
+            if _near(dx, dy, olen, owid, reach):
+                co, so = _memo_turn(memo, m, oyaw[i, m])
+                _cast_box(dirs, per_rad, reach, cs * dx + ss * dy, cs * dy - ss * dx, co * cs + so * ss,
+                          so * cs - co * ss, olen, owid, best)
         for m in range(boxes.shape[0]):
-            if visible[i, m] and _in_reach(ox, oy, boxes[m, 0], boxes[m, 1], boxes[m, 3], boxes[m, 4], reach):
-                if not started:
-                    best[:] = np.inf
-                    started = True
-                _cast_box(ox, oy, base, step, nrays, reach, boxes[m, 0], boxes[m, 1], math.cos(boxes[m, 2]),
-                          math.sin(boxes[m, 2]), boxes[m, 3], boxes[m, 4], best)
-        seen[i] = started
+            dx = boxes[m, 0] - ox
+            dy = boxes[m, 1] - oy
+            if visible[i, m] and _near(dx, dy, boxes[m, 3], boxes[m, 4], reach):
+                co = math.cos(boxes[m, 2])
+                so = math.sin(boxes[m, 2])
+                _cast_box(dirs, per_rad, reach, cs * dx + ss * dy, cs * dy - ss * dx, co * cs + so * ss,
+                          so * cs - co * ss, boxes[m, 3], boxes[m, 4], best)
         if walls:
-            _cast_walls(ox, oy, base, step, nrays, reach, edges, grid, best)
-        if started:
-            hits += _keep_in_reach(best, reach)
+            _cast_walls(ox, oy, cs, ss, dirs, per_rad, reach, edges, grid, best)
+        for a in range(nrays):
+            v = best[a]
+            if v > reach:
+                ranges[i, a] = hi
+            else:
+                ranges[i, a] = min(max(v, lo), hi)
+                hit_at[hits] = i * nrays + a
+                hit_raw[hits] = v
+                hits += 1
     return hits
 
 
+@njit(cache=True)
+def add_noise(hit_at, hit_raw, noise, lo, hi, ranges):
+    """ranges at the hits `scan` listed: the raw range plus the next noise draw, clipped to [lo, hi]."""
+    nrays = ranges.shape[1]
+    for q in range(noise.shape[0]):
+        ranges[hit_at[q] // nrays, hit_at[q] % nrays] = min(max(hit_raw[q] + noise[q], lo), hi)
+
+
 @njit(cache=True, inline="always")
-def _cast_walls(ox, oy, base, step, nrays, reach, edges, grid, best):
-    """Cast the road edges listed for the grid cell of (ox, oy)."""
+def _cast_walls(ox, oy, cs, ss, dirs, per_rad, reach, edges, grid, best):
+    """Cast the road edges listed for the grid cell of the lidar at (ox, oy), the scan frame turned by the angle
+    whose cosine and sine are cs, ss."""
     cell_start, cell_edges, gx0, gy0, gcell, gnx, gny = grid
     cx = min(max(int((ox - gx0) / gcell), 0), gnx - 1)
     cy = min(max(int((oy - gy0) / gcell), 0), gny - 1)
     for q in range(cell_start[cy * gnx + cx], cell_start[cy * gnx + cx + 1]):
         e = cell_edges[q]
-        _cast(ox, oy, base, step, nrays, reach, edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3], best)
-
-
-@njit(cache=True, inline="always")
-def _keep_in_reach(best, reach):
-    """Ranges beyond `reach` become inf (nothing hit); returns the number of hits left."""
-    hits = 0
-    for a in range(best.shape[0]):
-        if best[a] > reach:
-            best[a] = np.inf
-        else:
-            hits += 1
-    return hits
-
-
-@njit(cache=True)
-def _finish(cars, raw, seen, noise, lo, hi, out):
-    """out[car] = raw ranges plus the next noise draw where a ray hit (in scan order), clipped to [lo, hi]; hi where
-    it hit nothing or the car saw nothing (`seen` False)."""
-    q = 0
-    for i in cars:
-        if not seen[i]:
-            out[i, :] = hi
-            continue
-        for a in range(raw.shape[1]):
-            v = raw[i, a]
-            if v < np.inf:
-                v += noise[q]
-                q += 1
-                out[i, a] = min(max(v, lo), hi)
-            else:
-                out[i, a] = hi
+        ax = edges[e, 0] - ox
+        ay = edges[e, 1] - oy
+        bx = edges[e, 2] - ox
+        by = edges[e, 3] - oy
+        _cast(dirs, per_rad, reach, cs * ax + ss * ay, cs * ay - ss * ax, cs * bx + ss * by, cs * by - ss * bx, best)
 
 
 def edge_grid(edges: np.ndarray, reach: float, cell: float = GRID_CELL_M):
@@ -299,6 +320,8 @@ class Lidar:
         self.reach_m = self.max_range_m + NOISE_REACH_SIGMAS * self.noise_sigma_m
         self.angles = lidar_ray_angles()
         self.step = LIDAR_STEP_RAD
+        k = np.arange(LIDAR_RAYS) * self.step
+        self._dirs = np.ascontiguousarray(np.column_stack([np.cos(k), np.sin(k)]))  # in the scan frame
         self.mount_x = lidar_position()
         self.edges = np.ascontiguousarray(sim.track.road_edges, dtype=np.float64)
         # a cell lists every edge within reach of any point in it (cell diagonal added)
@@ -310,8 +333,9 @@ class Lidar:
         # each car's objects are read from the ObjectSet's arrays at every scan; their model's size is fixed
         self._osize = np.array(objects.box_size_m if self._objects is not None else (0.0, 0.0), dtype=np.float64)
         self._no_objects = (np.zeros((sim.num_cars, 0, 2)), np.zeros((sim.num_cars, 0)))
-        self.raw = np.full((sim.num_cars, LIDAR_RAYS), np.inf)
-        self._seen = np.zeros(sim.num_cars, dtype=np.bool_)
+        self._best = np.empty(LIDAR_RAYS)
+        self._hit_at = np.empty(sim.num_cars * LIDAR_RAYS, dtype=np.int64)
+        self._hit_raw = np.empty(sim.num_cars * LIDAR_RAYS)
         self.ranges = np.full((sim.num_cars, LIDAR_RAYS), self.max_range_m, dtype=np.float32)
         self._all = np.arange(sim.num_cars, dtype=np.int64)
 
@@ -338,13 +362,16 @@ class Lidar:
         # objects move at every reset (and bot cars at every step): read where they stand now
         oxy, oyaw = (self._objects.xy, self._objects.yaw) if self._objects is not None else self._no_objects
         if oxy.shape[1] or self.boxes.shape[0] or self.walls:
-            car = self.sim.car
-            hits = scan(idx, car[:, K.CX], car[:, K.CY], car[:, K.CYAW], self.mount_x,
-                        LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD, self.step, oxy, oyaw, self._osize, self.boxes,
-                        self.visible, self.walls, self.edges, self.grid, self.reach_m, self.raw, self._seen)
-            noise = self.sim.rng.normal(0.0, self.noise_sigma_m, size=hits) if self.noise_sigma_m > 0.0 and hits \
-                else np.zeros(hits)
-            _finish(idx, self.raw, self._seen, noise, MIN_RANGE_M, self.max_range_m, self.ranges)
+            lo, hi = MIN_RANGE_M, self.max_range_m
+            if self._hit_at.size < idx.size * LIDAR_RAYS:  # (rows listed more than once)
+                self._hit_at = np.empty(idx.size * LIDAR_RAYS, dtype=np.int64)
+                self._hit_raw = np.empty(idx.size * LIDAR_RAYS)
+            hits = scan(idx, self.sim.car, self.mount_x, LIDAR_MIN_ANGLE_RAD + LIDAR_YAW_RAD, self._dirs,
+                        1.0 / self.step, oxy, oyaw, self._osize, self.boxes, self.visible, self.walls, self.edges,
+                        self.grid, self.reach_m, lo, hi, self._best, self._hit_at, self._hit_raw, self.ranges)
+            if self.noise_sigma_m > 0.0 and hits:
+                add_noise(self._hit_at, self._hit_raw, self.sim.rng.normal(0.0, self.noise_sigma_m, size=hits), lo,
+                          hi, self.ranges)
         return self.ranges
 
 
