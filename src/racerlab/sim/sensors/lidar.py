@@ -55,21 +55,6 @@ DISCRETIZED_DEFAULTS = {"num_sectors": 8, "num_values_per_sector": 8, "clipping_
 
 
 @njit(cache=True, inline="always")
-def _ray_segment(dx, dy, ax, ay, bx, by):
-    """Distance along the unit ray t (dx, dy) from the origin to segment a-b; inf if missed."""
-    ex = bx - ax
-    ey = by - ay
-    den = dx * ey - dy * ex
-    if abs(den) < 1e-15:
-        return np.inf
-    t = (ax * ey - ay * ex) / den
-    u = (ax * dy - ay * dx) / den
-    if t >= 0.0 and -1e-12 <= u <= 1.0 + 1e-12:
-        return t
-    return np.inf
-
-
-@njit(cache=True, inline="always")
 def _atan2(y, x):
     """atan2(y, x) within ATAN2_ERROR_RAD, without a library call: an odd polynomial on [0, 1] and the octant
     folded back. It only picks the rays a segment can meet; every pick is then tested exactly."""
@@ -93,12 +78,26 @@ def _atan2(y, x):
 
 @njit(cache=True, inline="always")
 def _hit_rays(dirs, lo, hi, ax, ay, bx, by, best):
-    """Intersect rays lo..hi (indices, clipped to the scan; ray k along dirs[k]) with segment a-b, both in the
-    scan frame; keep the nearer hits in best."""
+    """Intersect rays lo..hi (indices, clipped to the scan; ray k along the unit dirs[k] from the origin) with
+    segment a-b, both in the scan frame; keep the nearer hits in best. The ray meets the segment at distance
+    t = tn / den and at share u = un / den along it: a hit where t >= 0 and u is in [0, 1] (a hair either side),
+    tested without dividing; one division for a hit."""
+    ex = bx - ax
+    ey = by - ay
+    tn = ax * ey - ay * ex
     for k in range(max(lo, 0), min(hi, dirs.shape[0] - 1) + 1):
-        t = _ray_segment(dirs[k, 0], dirs[k, 1], ax, ay, bx, by)
-        if t < best[k]:
-            best[k] = t
+        den = dirs[k, 0] * ey - dirs[k, 1] * ex
+        un = ax * dirs[k, 1] - ay * dirs[k, 0]
+        if den >= 1e-15:
+            hit = tn >= 0.0 and -1e-12 * den <= un <= (1.0 + 1e-12) * den
+        elif den <= -1e-15:
+            hit = tn <= 0.0 and -1e-12 * den >= un >= (1.0 + 1e-12) * den
+        else:  # (parallel)
+            hit = False
+        if hit:
+            t = tn / den
+            if t < best[k]:
+                best[k] = t
 
 
 @njit(cache=True, inline="always")
@@ -114,22 +113,22 @@ def _cast(dirs, per_rad, reach, ax, ay, bx, by, best):
     # can count
     gx = ax + t * ex
     gy = ay + t * ey
-    if gx * gx + gy * gy > (reach + 1e-9) * (reach + 1e-9):
-        return
-    period = 2.0 * math.pi * per_rad
-    u0 = _atan2(ay, ax) * per_rad
-    u1 = _atan2(by, bx) * per_rad
-    u0 -= math.floor(u0 / period) * period
-    u1 -= math.floor(u1 / period) * period
-    lo = min(u0, u1)
-    hi = max(u0, u1)
-    slack = ATAN2_ERROR_RAD * 4.0 * per_rad
-    if abs(hi - lo - 0.5 * period) <= slack:  # seen edge on, from (nearly) on its line: too close to call
-        _hit_rays(dirs, 0, dirs.shape[0] - 1, ax, ay, bx, by, best)
-    elif hi - lo < 0.5 * period:
-        _hit_span(dirs, period, lo - slack, hi + slack, ax, ay, bx, by, best)
-    else:  # the span crosses angle 0: from hi round to lo
-        _hit_span(dirs, period, hi - slack, lo + period + slack, ax, ay, bx, by, best)
+    # (no early returns in these inlined helpers: numba compiles them into much slower loops)
+    if gx * gx + gy * gy <= (reach + 1e-9) * (reach + 1e-9):
+        period = 2.0 * math.pi * per_rad
+        u0 = _atan2(ay, ax) * per_rad  # in (-period / 2, period / 2]
+        u1 = _atan2(by, bx) * per_rad
+        u0 = u0 + period if u0 < 0.0 else u0
+        u1 = u1 + period if u1 < 0.0 else u1
+        lo = min(u0, u1)
+        hi = max(u0, u1)
+        slack = ATAN2_ERROR_RAD * 4.0 * per_rad
+        if abs(hi - lo - 0.5 * period) <= slack:  # seen edge on, from (nearly) on its line: too close to call
+            _hit_rays(dirs, 0, dirs.shape[0] - 1, ax, ay, bx, by, best)
+        elif hi - lo < 0.5 * period:
+            _hit_span(dirs, period, lo - slack, hi + slack, ax, ay, bx, by, best)
+        else:  # the span crosses angle 0: from hi round to lo
+            _hit_span(dirs, period, hi - slack, lo + period + slack, ax, ay, bx, by, best)
 
 
 @njit(cache=True, inline="always")
@@ -152,22 +151,19 @@ def _cast_box(dirs, per_rad, reach, bx, by, cb, sb, length, width, best):
     # the lidar in the box's frame: only the sides that face it can hold a nearest hit (the box is convex)
     lu = -(cb * bx + sb * by)
     lv = sb * bx - cb * by
-    if abs(lu) <= hl and abs(lv) <= hw:
-        best[:] = 0.0
-        return
     gu = max(abs(lu) - hl, 0.0)
     gv = max(abs(lv) - hw, 0.0)
-    if gu * gu + gv * gv > (reach + 1e-9) * (reach + 1e-9):  # every side is out of reach (a hair kept for rounding)
-        return
-    facing = (lv > hw, lu < -hl, lv < -hw, lu > hl)  # sides +y, -x, -y, +x, between corners q and q + 1
-    cx = (hl, -hl, -hl, hl)
-    cy = (hw, hw, -hw, -hw)
-    for q in range(4):
-        if not facing[q]:
-            continue
-        r = (q + 1) % 4
-        _cast(dirs, per_rad, reach, bx + cb * cx[q] - sb * cy[q], by + sb * cx[q] + cb * cy[q],
-              bx + cb * cx[r] - sb * cy[r], by + sb * cx[r] + cb * cy[r], best)
+    if abs(lu) <= hl and abs(lv) <= hw:
+        best[:] = 0.0
+    elif gu * gu + gv * gv <= (reach + 1e-9) * (reach + 1e-9):  # else every side is out of reach (a hair kept)
+        facing = (lv > hw, lu < -hl, lv < -hw, lu > hl)  # sides +y, -x, -y, +x, between corners q and q + 1
+        cx = (hl, -hl, -hl, hl)
+        cy = (hw, hw, -hw, -hw)
+        for q in range(4):
+            if facing[q]:
+                r = (q + 1) % 4
+                _cast(dirs, per_rad, reach, bx + cb * cx[q] - sb * cy[q], by + sb * cx[q] + cb * cy[q],
+                      bx + cb * cx[r] - sb * cy[r], by + sb * cx[r] + cb * cy[r], best)
 
 
 @njit(cache=True, inline="always")
@@ -190,13 +186,12 @@ def _memo_turn(memo, m, yaw):
 @njit(cache=True, inline="always")
 def _anything_near(i, px, py, slack, oxy, olen, owid, boxes, visible, reach):
     """Car i (base at px, py; its lidar within `slack` of it) may have one of its objects or `boxes` in reach."""
+    found = False
     for m in range(oxy.shape[1]):
-        if _near(oxy[i, m, 0] - px, oxy[i, m, 1] - py, olen, owid, reach + slack):
-            return True
+        found |= _near(oxy[i, m, 0] - px, oxy[i, m, 1] - py, olen, owid, reach + slack)
     for m in range(boxes.shape[0]):
-        if visible[i, m] and _near(boxes[m, 0] - px, boxes[m, 1] - py, boxes[m, 3], boxes[m, 4], reach + slack):
-            return True
-    return False
+        found |= visible[i, m] and _near(boxes[m, 0] - px, boxes[m, 1] - py, boxes[m, 3], boxes[m, 4], reach + slack)
+    return found
 
 
 @njit(cache=True)
