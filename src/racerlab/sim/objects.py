@@ -297,7 +297,7 @@ class ObjectSet:
         self.lane = np.zeros((num_cars, m), dtype=np.int64)  # a bot's lane (the one it leaves in a lane change)
         self.order = np.zeros((num_cars, m), dtype=np.int64)  # objects sorted by `arc`
         self._lists: list = [None] * num_cars
-        self._moved_starts: dict = {}  # (reversed, box lane, x, y) of a start near a box -> its moved (x, y, yaw)
+        self._moved_starts = MovedStarts()  # (reversed, box lane, x, y) of a start near a box -> its moved pose
         # bot cars: start distance along the centre line, the bots' clock (s driven, pauses excluded), the pause
         # left after a bot rear-ended the car, the current lane change (clock times; inf: none)
         self.d0 = np.zeros((num_cars, m))
@@ -524,30 +524,19 @@ class ObjectSet:
     def clear_starts(self, idx, reversed_, pts: np.ndarray, yaw: np.ndarray) -> None:
         """Move start poses (centre-line points `pts`, headings `yaw`, in place) that are within 1 m of one of
         the car's objects onto the lane on the other side of that object, as AWS starts a training episode."""
-        idx, reversed_ = np.asarray(idx), np.asarray(reversed_)
-        if self.num_objects == 0 or idx.size == 0:
+        if self.num_objects == 0 or len(idx) == 0:
             return
-        dist, nearest = _nearest_object(np.asarray(idx, dtype=np.int64), self.xy, np.asarray(pts, dtype=np.float64))
-        near = np.flatnonzero(dist < CLOSEST_OBJ_GAP_M)
-        if near.size == 0:
-            return
-        revs = reversed_[near].astype(bool)
-        box_lane = self.lane[idx[near], nearest[near]]
         # where a start moves depends on the track alone (the start point, direction and lane): each is worked
-        # out once, as training restarts from the same few points over and over
-        keys = [(r, f, x, y) for r, f, (x, y) in zip(revs.tolist(), box_lane.tolist(), pts[near].tolist(),
-                                                     strict=True)]
+        # out once, as training restarts from the same few points over and over; one compiled pass looks them up
+        idx = np.asarray(idx, dtype=np.int64)
+        revs = np.asarray(reversed_, dtype=np.bool_)
         cache = self._moved_starts
-        new = [j for j, key in enumerate(keys) if key not in cache]
-        if new:
-            if len(cache) + len(new) > MOVED_STARTS_KEPT:
-                cache.clear()
-            sel = near[new]
-            moved_pts, moved_yaw = self._moved(revs[new], box_lane[new], pts[sel], yaw[sel])
-            for j, (x, y), h in zip(new, moved_pts.tolist(), moved_yaw.tolist(), strict=True):
-                cache[keys[j]] = (x, y, h)
-        for j, key in zip(near.tolist(), keys, strict=True):
-            pts[j, 0], pts[j, 1], yaw[j] = cache[key]
+        new, box_lane = cache.apply(idx, revs, self.xy, self.lane, pts, yaw)
+        if new.size == 0:  # (most resets)
+            return
+        moved_pts, moved_yaw = self._moved(revs[new], box_lane, pts[new], yaw[new])
+        cache.add(revs[new], box_lane, pts[new], moved_pts, moved_yaw)
+        pts[new], yaw[new] = moved_pts, moved_yaw
 
     def _moved(self, revs, box_lane, pts, yaw) -> tuple[np.ndarray, np.ndarray]:
         """Start points `pts` (k, 2) with headings `yaw` moved onto the lane on the other side of their box (in
@@ -653,6 +642,87 @@ class ObjectSet:
             "objects_speed": [[float(self.speed)] * self.num_objects] * idx.size,
             "object_in_camera": in_cam.tolist(),
         }
+
+
+class MovedStarts:
+    """Start poses moved away from a box, remembered by (driving direction, the box's lane, start point): an open
+    hash table in arrays (up to `MOVED_STARTS_KEPT` entries; it starts afresh when full) that `_apply_moved` reads
+    in one compiled pass."""
+
+    def __init__(self):
+        size = 2 * MOVED_STARTS_KEPT  # a power of two, never more than half full
+        self.keys = np.zeros((size, 3))  # (2 * reversed + (lane == 1), x, y)
+        self.values = np.zeros((size, 3))  # moved (x, y, yaw)
+        self.used = np.zeros(size, dtype=np.bool_)
+        self.count = 0
+        self._missing = np.empty((0, 2), dtype=np.int64)
+
+    def apply(self, idx, revs, oxy, lane, pts, yaw) -> tuple[np.ndarray, np.ndarray]:
+        """Starts `pts`, `yaw` (of cars idx, in directions revs) within 1 m of one of the car's objects (`oxy`,
+        on `lane`) take their remembered moved pose, in place; returns the rows of those not remembered yet and
+        the lanes of their boxes."""
+        if self._missing.shape[0] < idx.size:
+            self._missing = np.empty((idx.size, 2), dtype=np.int64)
+        n = _apply_moved(idx, revs, oxy, lane, pts, yaw, CLOSEST_OBJ_GAP_M, self.keys, self.values, self.used,
+                         self._missing)
+        return self._missing[:n, 0].copy(), self._missing[:n, 1].copy()
+
+    def add(self, revs, box_lane, pts, moved_pts, moved_yaw) -> None:
+        """Remember the moved poses of starts `pts` (directions revs, next to a box on box_lane)."""
+        if self.count + revs.size > MOVED_STARTS_KEPT:
+            self.used[:] = False
+            self.count = 0
+        self.count += _remember_moved(revs, box_lane, pts, np.column_stack([moved_pts, moved_yaw]), self.keys,
+                                      self.values, self.used)
+
+
+@njit(cache=True, inline="always")
+def _moved_slot(code, x, y, keys, used):
+    """The slot of key (code, x, y) in the open hash table (keys, used): where it is, or the free slot where it
+    goes; and whether it is there."""
+    mask = used.size - 1
+    h = (np.int64(x * 1e4) * 73856093) ^ (np.int64(y * 1e4) * 19349663) ^ (np.int64(code) * 83492791)
+    s = h & mask
+    while used[s] and not (keys[s, 0] == code and keys[s, 1] == x and keys[s, 2] == y):
+        s = (s + 1) & mask
+    return s, used[s]
+
+
+@njit(cache=True)
+def _apply_moved(idx, revs, oxy, lane, pts, yaw, gap, keys, values, used, missing):
+    """`MovedStarts.apply`: the remembered moved poses of the starts within `gap` of an object, in place; the
+    (row, box lane) of those not remembered go to `missing`; returns their number."""
+    dist, nearest = _nearest_object(idx, oxy, pts)
+    n = 0
+    for j in range(idx.size):
+        if dist[j] < gap:
+            flag = lane[idx[j], nearest[j]]
+            s, found = _moved_slot(2.0 * revs[j] + (flag == 1), pts[j, 0], pts[j, 1], keys, used)
+            if found:
+                pts[j, 0] = values[s, 0]
+                pts[j, 1] = values[s, 1]
+                yaw[j] = values[s, 2]
+            else:
+                missing[n, 0] = j
+                missing[n, 1] = flag
+                n += 1
+    return n
+
+
+@njit(cache=True)
+def _remember_moved(revs, box_lane, pts, moved, keys, values, used):
+    """Put the moved poses (k, 3) of starts `pts` in the table; returns the number of new keys."""
+    added = 0
+    for j in range(revs.size):
+        code = 2.0 * revs[j] + (box_lane[j] == 1)
+        s, found = _moved_slot(code, pts[j, 0], pts[j, 1], keys, used)
+        keys[s, 0] = code
+        keys[s, 1] = pts[j, 0]
+        keys[s, 2] = pts[j, 1]
+        values[s] = moved[j]
+        used[s] = True
+        added += not found
+    return added
 
 
 def base_from_model_point(mx, my, heading_deg):
