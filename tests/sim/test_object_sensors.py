@@ -172,6 +172,68 @@ def test_lidar_hits_the_near_face_of_a_box_beside_the_car(straight):
     assert r[int(np.argmin(np.abs(angles + 90.0)))] == pytest.approx(1.0)  # nothing on the right
 
 
+def _reference_ranges(origin, angles, rects, reach):
+    """Ray-rectangle ranges by the slab method (independent of the lidar's side-by-side casting): origin (2,),
+    world ray angles (R,), rectangles (M, 5) [x, y, yaw, length, width]; 0 from inside; inf beyond reach."""
+    best = np.full(angles.size, np.inf)
+    d = np.stack([np.cos(angles), np.sin(angles)], -1)
+    for x, y, yaw, length, width in rects:
+        c, s = math.cos(yaw), math.sin(yaw)
+        rel = origin - (x, y)
+        o = np.array([c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1]])  # the origin in the box's frame
+        du = c * d[:, 0] + s * d[:, 1]
+        dv = -s * d[:, 0] + c * d[:, 1]
+        enter = np.zeros(angles.size)
+        leave = np.full(angles.size, np.inf)
+        for oc, dc, half in ((o[0], du, 0.5 * length), (o[1], dv, 0.5 * width)):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1, t2 = (-half - oc) / dc, (half - oc) / dc
+            parallel = np.abs(dc) < 1e-12
+            inside = abs(oc) <= half
+            enter = np.maximum(enter, np.where(parallel, np.where(inside, 0.0, np.inf), np.minimum(t1, t2)))
+            leave = np.minimum(leave, np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2)))
+        best = np.minimum(best, np.where(enter <= leave, enter, np.inf))
+    return np.where(best <= reach, best, np.inf)
+
+
+def test_lidar_ranges_with_boxes_match_a_reference_ray_cast(aws_track):
+    """Many random poses around each car's own randomly placed boxes on a real track, and a few shared rectangles
+    seen by some cars: every ray equals an independent slab-method cast (clipped as AWS clips)."""
+    from racerlab.sim.sensors.geometry import lidar_position
+
+    t = aws_track("reInvent2019_track")
+    n = 240
+    race = RaceConfig(type="object_avoidance", number_of_obstacles=6, randomize_obstacle_locations=True)
+    sim = Simulator(t, n, seed=4, race=race)
+    rng = np.random.default_rng(11)
+    extra = np.array([[*sim.objects.xy[0, 0] + (0.3, -0.2), 0.7, 0.2, 0.6], [2.0, 1.0, -1.1, 0.5, 0.5],
+                      [*t.center[10], 0.0, 0.05, 0.05]])
+    lidar = Lidar(sim, noise_sigma_m=0.0)
+    lidar.set_objects(extra, visible=rng.random((n, 3)) < 0.5)
+    for i in range(n):
+        m = rng.integers(6)
+        r, a, yaw = rng.uniform(0.0, 1.4), rng.uniform(-math.pi, math.pi), rng.uniform(-math.pi, math.pi)
+        if i < 20:  # on top of the first extra rectangle, or on a box's edge line
+            ox, oy = extra[0, :2] + rng.normal(0.0, 0.2, 2)
+        else:
+            ox, oy = sim.objects.xy[i, m] + r * np.array([math.cos(a), math.sin(a)])
+        sim.relocate(i, ox - lidar_position() * math.cos(yaw), oy - lidar_position() * math.sin(yaw), yaw)
+    got = lidar.scan().astype(float)
+    box_l, box_w = sim.objects.box_size_m
+    hit_rays = 0
+    for i in range(n):
+        yaw = sim.state.yaw[i]
+        origin = np.array([sim.state.x[i], sim.state.y[i]]) + lidar_position() * np.array([math.cos(yaw),
+                                                                                          math.sin(yaw)])
+        rects = np.column_stack([sim.objects.xy[i], sim.objects.yaw[i], np.full(6, box_l), np.full(6, box_w)])
+        rects = np.vstack([rects, extra[lidar.visible[i]]])
+        ref = _reference_ranges(origin, yaw + lidar.angles, rects, lidar.reach_m)
+        want = np.where(np.isfinite(ref), np.clip(ref, 0.15, 1.0), 1.0)
+        np.testing.assert_allclose(got[i], want, atol=1e-6, err_msg=f"car {i}")
+        hit_rays += np.isfinite(ref).sum()
+    assert hit_rays > 10 * n  # most poses see a box close by
+
+
 def test_copied_layouts_equal_placing_each_car(aws_track):
     """Fixed and evenly spaced layouts are placed once per direction and copied: the same arrays and params."""
     from racerlab.sim.objects import ObjectSet

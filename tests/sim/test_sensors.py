@@ -233,6 +233,19 @@ def test_lidar_noise_clipping_and_sectors(straight):
     assert sectors(ranges)[0].tolist() == [0, 0, 0, 1, 0, 0, 0, 0]
 
 
+def test_lidar_quick_atan2_stays_within_its_stated_error():
+    # the lidar picks a segment's rays with a polynomial atan2; its error bound widens the pick (each ray is then
+    # tested exactly), so the bound must hold all the way round and at any distance
+    from racerlab.sim.sensors.lidar import ATAN2_ERROR_RAD, _atan2
+
+    worst = 0.0
+    for r in (1e-6, 0.3, 7.0):
+        for a in np.linspace(-math.pi + 1e-9, math.pi, 20011):
+            y, x = r * math.sin(a), r * math.cos(a)
+            worst = max(worst, abs(_atan2(y, x) - math.atan2(y, x)))
+    assert 0.0 < worst <= ATAN2_ERROR_RAD
+
+
 def test_lidar_walls_are_an_option(straight):
     sim = Simulator(straight, 1, seed=0)
     sim.set_pose(0, 0.0, 0.0, 0.0)
