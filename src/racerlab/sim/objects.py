@@ -492,7 +492,9 @@ class ObjectSet:
     def _copy_layouts(self, idx: np.ndarray, reversed_: np.ndarray) -> None:
         """Give cars `idx` the layout of their direction, placed once by a one-car ObjectSet (every per-car array).
         A car that already holds its direction's layout keeps it: nothing moves boxes between resets."""
-        holds = self._layouts.setdefault("holds", np.full(self.xy.shape[0], -1, dtype=np.int64))
+        holds = self._layouts.get("holds")
+        if holds is None:
+            holds = self._layouts["holds"] = np.full(self.xy.shape[0], -1, dtype=np.int64)
         if (holds[idx] == reversed_).all():  # every car holds its direction's layout already (most resets)
             return
         for rev in (False, True):
@@ -531,9 +533,10 @@ class ObjectSet:
         idx = np.asarray(idx, dtype=np.int64)
         revs = np.asarray(reversed_, dtype=np.bool_)
         cache = self._moved_starts
-        new, box_lane = cache.apply(idx, revs, self.xy, self.lane, pts, yaw)
-        if new.size == 0:  # (most resets)
+        found = cache.apply(idx, revs, self.xy, self.lane, pts, yaw)
+        if found is None:  # (most resets)
             return
+        new, box_lane = found
         moved_pts, moved_yaw = self._moved(revs[new], box_lane, pts[new], yaw[new])
         cache.add(revs[new], box_lane, pts[new], moved_pts, moved_yaw)
         pts[new], yaw[new] = moved_pts, moved_yaw
@@ -657,15 +660,15 @@ class MovedStarts:
         self.count = 0
         self._missing = np.empty((0, 2), dtype=np.int64)
 
-    def apply(self, idx, revs, oxy, lane, pts, yaw) -> tuple[np.ndarray, np.ndarray]:
+    def apply(self, idx, revs, oxy, lane, pts, yaw) -> tuple[np.ndarray, np.ndarray] | None:
         """Starts `pts`, `yaw` (of cars idx, in directions revs) within 1 m of one of the car's objects (`oxy`,
         on `lane`) take their remembered moved pose, in place; returns the rows of those not remembered yet and
-        the lanes of their boxes."""
+        the lanes of their boxes, or None when there are none."""
         if self._missing.shape[0] < idx.size:
             self._missing = np.empty((idx.size, 2), dtype=np.int64)
         n = _apply_moved(idx, revs, oxy, lane, pts, yaw, CLOSEST_OBJ_GAP_M, self.keys, self.values, self.used,
                          self._missing)
-        return self._missing[:n, 0].copy(), self._missing[:n, 1].copy()
+        return (self._missing[:n, 0].copy(), self._missing[:n, 1].copy()) if n else None
 
     def add(self, revs, box_lane, pts, moved_pts, moved_yaw) -> None:
         """Remember the moved poses of starts `pts` (directions revs, next to a box on box_lane)."""
