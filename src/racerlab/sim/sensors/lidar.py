@@ -260,11 +260,12 @@ def scan(cars, car, mount_x, first_angle, dirs, per_rad, oxy, oyaw, osize, boxes
 
 
 @njit(cache=True)
-def add_noise(hit_at, hit_raw, noise, lo, hi, ranges):
-    """ranges at the hits `scan` listed: the raw range plus the next noise draw, clipped to [lo, hi]."""
+def add_noise(hit_at, hit_raw, z, sigma, lo, hi, ranges):
+    """ranges at the hits `scan` listed: the raw range plus sigma times the next standard normal draw z[q] (what
+    `Generator.normal(0, sigma)` draws, to the bit), clipped to [lo, hi]."""
     nrays = ranges.shape[1]
-    for q in range(noise.shape[0]):
-        ranges[hit_at[q] // nrays, hit_at[q] % nrays] = min(max(hit_raw[q] + noise[q], lo), hi)
+    for q in range(z.shape[0]):
+        ranges[hit_at[q] // nrays, hit_at[q] % nrays] = min(max(hit_raw[q] + sigma * z[q], lo), hi)
 
 
 @njit(cache=True, inline="always")
@@ -365,8 +366,8 @@ class Lidar:
                         1.0 / self.step, oxy, oyaw, self._osize, self.boxes, self.visible, self.walls, self.edges,
                         self.grid, self.reach_m, lo, hi, self._best, self._hit_at, self._hit_raw, self.ranges)
             if self.noise_sigma_m > 0.0 and hits:
-                add_noise(self._hit_at, self._hit_raw, self.sim.rng.normal(0.0, self.noise_sigma_m, size=hits), lo,
-                          hi, self.ranges)
+                add_noise(self._hit_at, self._hit_raw, self.sim.rng.standard_normal(hits), self.noise_sigma_m, lo, hi,
+                          self.ranges)
         return self.ranges
 
 
