@@ -1,4 +1,5 @@
-"""The NumPy PPO update for vector networks against torch's autograd and Adam, step by step."""
+"""The PPO update for vector networks without autograd (compiled and NumPy) against torch's autograd and Adam,
+step by step."""
 
 import numpy as np
 import pytest
@@ -30,10 +31,13 @@ def _update_both(fast, slow, batch):
     return fast.update(batch), slow.update(batch)
 
 
-def _pair(metadata, hp, dim, hidden=(32, 32)):
-    fast = PPO({"features": (dim,)}, metadata, hp, device="cpu", seed=3, mlp_hidden=hidden)
+ENGINES = pytest.mark.parametrize("engine", MLPUpdater.ENGINES)
+
+
+def _pair(metadata, hp, dim, hidden=(32, 32), engine="numba"):
+    fast = PPO({"features": (dim,)}, metadata, hp, device="cpu", seed=3, mlp_hidden=hidden, fast_update=engine)
     slow = PPO({"features": (dim,)}, metadata, hp, device="cpu", seed=3, mlp_hidden=hidden, fast_update=False)
-    assert fast._mlp is not None and slow._mlp is None
+    assert fast._mlp is not None and fast._mlp.engine == engine and slow._mlp is None
     return fast, slow
 
 
@@ -41,12 +45,13 @@ def _weights(ppo):
     return [p.detach().numpy().copy() for p in [*ppo.policy_net.parameters(), *ppo.value_net.parameters()]]
 
 
+@ENGINES
 @pytest.mark.parametrize("metadata, loss_type, beta", [
     (DISCRETE, "huber", 0.01), (DISCRETE, "mean squared error", 0.5),
     (CONTINUOUS, "huber", 0.01), (CONTINUOUS, "mean squared error", 0.2)])
-def test_numpy_update_follows_torch(metadata, loss_type, beta):
+def test_update_without_autograd_follows_torch(metadata, loss_type, beta, engine):
     hp = Hyperparameters(num_epochs=3, batch_size=32, loss_type=loss_type, beta_entropy=beta, lr=3e-3)
-    fast, slow = _pair(metadata, hp, dim=6)
+    fast, slow = _pair(metadata, hp, dim=6, engine=engine)
     for it in range(3):  # several iterations: Adam's moments and step count carry over between updates
         batch = _batch(fast, 200, 6, seed=it)
         m_fast, m_slow = _update_both(fast, slow, batch)
@@ -60,9 +65,10 @@ def test_numpy_update_follows_torch(metadata, loss_type, beta):
     assert float(s_fast[0]["step"]) == float(s_slow[0]["step"]) == 3 * 3 * 6
 
 
-def test_probability_floor_blocks_the_gradient_like_torch():
+@ENGINES
+def test_probability_floor_blocks_the_gradient_like_torch(engine):
     hp = Hyperparameters(num_epochs=1, batch_size=16, lr=1e-3)
-    fast, slow = _pair(DISCRETE, hp, dim=3)
+    fast, slow = _pair(DISCRETE, hp, dim=3, engine=engine)
     with torch.no_grad():  # a head that makes some actions far below the 1e-8 floor
         for ppo in (fast, slow):
             ppo.policy_net.head.bias.copy_(torch.tensor([30.0, 0.0, -30.0, 5.0, -5.0]))
@@ -72,9 +78,10 @@ def test_probability_floor_blocks_the_gradient_like_torch():
         np.testing.assert_allclose(a, b, rtol=1e-3, atol=2e-5)
 
 
-def test_checkpoint_round_trip_between_the_two_updates():
+@ENGINES
+def test_checkpoint_round_trip_between_the_two_updates(engine):
     hp = Hyperparameters(num_epochs=2, batch_size=32)
-    fast, slow = _pair(CONTINUOUS, hp, dim=4)
+    fast, slow = _pair(CONTINUOUS, hp, dim=4, engine=engine)
     fast.update(_batch(fast, 100, 4, seed=1))
     slow.load_state_dict(fast.state_dict())  # a torch-updated agent resumes from a NumPy-updated state
     batch = _batch(fast, 100, 4, seed=2)
@@ -125,3 +132,34 @@ def test_checkpoint_of_other_widths_is_a_one_line_error():
     new = PPO({"features": (6,)}, DISCRETE, device="cpu")
     with pytest.raises(ConfigError, match=r"has shape \(256, 6\), this network's is \(64, 6\)"):
         new.load_state_dict(old.state_dict())
+
+
+def test_compiled_blocks_shuffle_as_the_torch_minibatches():
+    """The blocks the compiled update runs are the torch path's minibatches, in order, from the same generator."""
+    hp = Hyperparameters(num_epochs=3, batch_size=32)
+    fast, slow = _pair(DISCRETE, hp, dim=4)
+    slow.generator.set_state(fast.generator.get_state())
+    blocks = list(fast._blocks(300, 32, rows=4))  # 9 minibatches per epoch: blocks of 4, 4 and 1
+    assert [len(b) for b in blocks] == [4, 4, 1] * 3
+    rows = np.concatenate(blocks)
+    assert np.array_equal(rows, np.stack([idx.numpy() for idx in slow._minibatches(300, 32)]))
+    assert all(sorted(rows[e * 9:(e + 1) * 9].ravel()) == sorted(set(rows[e * 9:(e + 1) * 9].ravel()))
+               for e in range(3))  # within an epoch no sample repeats
+    fast.deadline = 0.0  # long past: one minibatch, then nothing
+    assert [b.shape for b in fast._blocks(300, 32)] == [(1, 32)]
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")  # explained variance of inf
+def test_compiled_update_stops_before_a_nonfinite_step():
+    hp = Hyperparameters(num_epochs=2, batch_size=16)
+    fast, _ = _pair(CONTINUOUS, hp, dim=4)
+    fast.update(_batch(fast, 64, 4, seed=3))  # Adam has moments and a step count of 8
+    batch = _batch(fast, 64, 4, seed=4)
+    batch.returns[5] = np.inf  # the value loss of the minibatch that holds sample 5 is inf
+    state = fast.generator.get_state()
+    order = np.concatenate(list(fast._blocks(64, 16)))
+    fast.generator.set_state(state)
+    expected = int(np.flatnonzero((order == 5).any(axis=1))[0])  # the steps before that minibatch
+    m = fast.update(batch)
+    assert m["nonfinite"] == 1.0 and m["charts/gradient_steps"] == expected and fast.finite()
+    assert float(fast.optimizer.state_dict()["state"][0]["step"]) == 8 + expected
