@@ -163,3 +163,24 @@ def test_compiled_update_stops_before_a_nonfinite_step():
     m = fast.update(batch)
     assert m["nonfinite"] == 1.0 and m["charts/gradient_steps"] == expected and fast.finite()
     assert float(fast.optimizer.state_dict()["state"][0]["step"]) == 8 + expected
+
+
+@pytest.mark.parametrize("metadata", [DISCRETE, CONTINUOUS])
+def test_greedy_actions_without_torch_match_the_torch_modules(metadata):
+    hp = Hyperparameters(num_epochs=1, batch_size=32, lr=3e-3)
+    fast, slow = _pair(metadata, hp, dim=6)
+    obs = np.random.default_rng(5).normal(size=(7, 6)).astype(np.float32) * 3
+    for step in range(3):  # the NumPy views follow the weights through updates and a checkpoint load
+        if step == 1:
+            fast.update(_batch(fast, 96, 6, seed=step))
+        if step == 2:
+            fast.load_state_dict(slow.state_dict())
+        with torch.no_grad():
+            expected = fast.policy_net.distribution({"features": torch.from_numpy(obs)}).mode().numpy()
+        got = fast.policy(obs)
+        assert got.shape == expected.shape
+        if metadata is DISCRETE:
+            assert np.array_equal(got, expected)
+        else:
+            np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
+    assert np.array_equal(fast.policy({"features": obs}), got)

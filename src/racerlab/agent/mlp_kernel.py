@@ -98,9 +98,14 @@ def _surrogate(logp, old_logp, adv, m, clip, stats):
 
 
 @_compiled
-def _categorical_head(out, g_out, idx, actions, old_logp, adv, clip, beta, q, stats):
-    """Softmax with the 1e-8 floor: fills dL/d(logits) `g_out` [mb, K]; `q` is scratch [K]."""
+def _categorical_head(out, g_out, idx, actions, old_logp, adv, clip, beta, scratch, stats):
+    """Softmax with the 1e-8 floor: fills dL/d(logits) `g_out` [mb, K]; `scratch` is float64 [2, K].
+
+    log q = max(log p, log 1e-8), with log p = z − log Σ exp z (z = logits − max): one logarithm per sample
+    instead of one per action (the same value as log(softmax) to a few float64 ulps)."""
     mb, k = out.shape
+    p, g = scratch[0], scratch[1]
+    log_floor = math.log(PROB_FLOOR)
     for i in range(mb):
         s = idx[i]
         top = out[i, 0]
@@ -108,26 +113,26 @@ def _categorical_head(out, g_out, idx, actions, old_logp, adv, clip, beta, q, st
             top = max(top, out[i, j])
         total = 0.0
         for j in range(k):
-            q[j] = math.exp(out[i, j] - top)
-            total += q[j]
-        entropy, dot = 0.0, 0.0
-        a = actions[s]
-        for j in range(k):  # q holds p here; the floored probability is max(p, floor)
-            q[j] /= total
-            entropy -= max(q[j], PROB_FLOOR) * math.log(max(q[j], PROB_FLOOR))
-        stats[2] += entropy
-        qa = max(q[a], PROB_FLOOR)
-        g_logp = _surrogate(math.log(qa), old_logp[s], adv[s], mb, clip, stats)
-        for j in range(k):  # dL/dq: 1/q at the action, β(log q + 1)/M from the entropy; none below the floor
-            p = q[j]
-            if p >= PROB_FLOOR:
-                gq = (beta / mb) * (math.log(p) + 1.0) + (g_logp / qa if j == a else 0.0)
-            else:
-                gq = 0.0
-            g_out[i, j] = gq
-            dot += gq * p
+            p[j] = math.exp(out[i, j] - top)
+            total += p[j]
+        log_total = math.log(total)
+        entropy = 0.0
         for j in range(k):
-            g_out[i, j] = q[j] * (g_out[i, j] - dot)
+            p[j] /= total
+            log_q = max(out[i, j] - top - log_total, log_floor)
+            entropy -= max(p[j], PROB_FLOOR) * log_q
+            g[j] = (beta / mb) * (log_q + 1.0)  # d(−β·mean H)/dq
+        stats[2] += entropy
+        a = actions[s]
+        log_qa = max(out[i, a] - top - log_total, log_floor)
+        g[a] += _surrogate(log_qa, old_logp[s], adv[s], mb, clip, stats) / max(p[a], PROB_FLOOR)  # d log q/dq = 1/q
+        dot = 0.0
+        for j in range(k):  # no gradient below the floor (the clamp); then back through the softmax
+            if p[j] < PROB_FLOOR:
+                g[j] = 0.0
+            dot += g[j] * p[j]
+        for j in range(k):
+            g_out[i, j] = p[j] * (g[j] - dot)
 
 
 @_compiled
@@ -221,7 +226,7 @@ def ppo_steps(x, actions_i, actions_f, old_logp, adv, returns, batches, flat, gr
     k_out = p_layers[-1, 3]
     g_pol = np.empty((mb, k_out), dtype=np.float32)
     g_val = np.empty((mb, 1), dtype=np.float32)
-    q = np.empty(k_out, dtype=np.float64)
+    scratch = np.empty((2, k_out), dtype=np.float64)
     g_ls = np.empty(k_out, dtype=np.float64)
     stats = np.zeros(HISTORY_COLUMNS, dtype=np.float64)
     n_p = p_offsets.shape[0] - 2
@@ -240,7 +245,7 @@ def ppo_steps(x, actions_i, actions_f, old_logp, adv, returns, batches, flat, gr
         pol_out = _view(p_acts, p_offsets[n_p], mb, k_out)
         val_out = _view(v_acts, v_offsets[n_v], mb, 1)
         if discrete:
-            _categorical_head(pol_out, g_pol, idx, actions_i, old_logp, adv, clip, beta, q, stats)
+            _categorical_head(pol_out, g_pol, idx, actions_i, old_logp, adv, clip, beta, scratch, stats)
         else:
             log_std = flat[log_std_offset:log_std_offset + k_out]
             _gaussian_head(pol_out, g_pol, idx, actions_f, old_logp, adv, clip, beta, log_std, g_ls, stats)

@@ -175,8 +175,18 @@ class MLPUpdater:
         self._p_layers = _layer_table(self.policy.linears, sizes, 0)
         self._log_std_offset = int(sizes[self._np])
         self._v_layers = _layer_table(self.value.linears, sizes, len(self.torch_params) - 2 * len(self.value.linears))
+        self._weights: list[np.ndarray] | None = None
         if engine == "numba":
             mlp_kernel.warm_up()
+
+    def greedy(self, x: np.ndarray) -> np.ndarray:
+        """The policy's greedy actions for observations [B, F]: the argmax of the logits (the most probable
+        action; the 1e-8 floor never touches the largest probability) or the Gaussian's mean [B, D]."""
+        if self._weights is None:  # views of the torch parameters, which every update changes in place
+            self._weights = [p.detach().numpy() for p in self.policy.parameters()]
+        # no thread limit: OpenBLAS runs products this small on one thread anyway, and the limit costs ~40 µs
+        out = self.policy.forward(self._weights, np.asarray(x, dtype=np.float32).reshape(len(x), -1))[-1]
+        return out.argmax(axis=1) if self.discrete else out
 
     @staticmethod
     def covers(policy_net, value_net, device: torch.device) -> bool:

@@ -296,10 +296,13 @@ class PPO:
         """V(s) [B], e.g. of the final observation of a truncated episode."""
         return self.value_net(to_tensors(obs, self.keys, self.device)).cpu().numpy()
 
-    @torch.inference_mode()
     def policy(self, obs: Obs) -> np.ndarray:
-        """The greedy actions [B] (argmax or mean), as evaluation drives."""
-        return self.policy_net.distribution(to_tensors(obs, self.keys, self.device)).mode().cpu().numpy()
+        """The greedy actions [B] (argmax or mean), as evaluation drives. A vector network computes them in
+        NumPy (`MLPUpdater.greedy`: ~15 µs for a few cars, where the torch modules' dispatch takes ~90 µs)."""
+        if self._mlp is not None:
+            return self._mlp.greedy(obs[self.keys[0]] if isinstance(obs, Mapping) else obs)
+        with torch.inference_mode():
+            return self.policy_net.distribution(to_tensors(obs, self.keys, self.device)).mode().cpu().numpy()
 
     def explore(self, obs: Obs) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """A training rollout's actions and what `learn` needs back for each step (log-probs, values)."""
