@@ -184,3 +184,27 @@ def test_greedy_actions_without_torch_match_the_torch_modules(metadata):
         else:
             np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
     assert np.array_equal(fast.policy({"features": obs}), got)
+
+
+def test_compiled_adam_matches_torch_and_stores_subnormal_moments_as_zero():
+    from racerlab.agent import mlp_kernel
+
+    rng = np.random.default_rng(2)
+    w = rng.normal(size=6).astype(np.float32)
+    g = np.array([0.5, -0.25, 1e-3, 0.0, 0.0, 2.0], dtype=np.float32)
+    m = np.array([0.1, 0.0, -0.2, 1.3e-38, 0.3, 0.0], dtype=np.float32)  # 0.9 × 1.3e-38 is subnormal
+    v = np.array([0.01, 0.0, 0.04, 1.1e-38, 0.09, 1e-6], dtype=np.float32)  # 0.999 × 1.1e-38 too
+    param = torch.nn.Parameter(torch.from_numpy(w.copy()))
+    opt = torch.optim.Adam([param], lr=1e-2, eps=1e-5)
+    param.grad = torch.from_numpy(g.copy())
+    opt.state[param] = {"step": torch.tensor(4.0), "exp_avg": torch.from_numpy(m.copy()),
+                        "exp_avg_sq": torch.from_numpy(v.copy())}
+    opt.step()
+    mlp_kernel._adam(w, g, m, v, 5, 1e-2, 0.9, 0.999, 1e-5)
+    np.testing.assert_allclose(w, param.detach().numpy(), rtol=1e-6)
+    state = opt.state[param]
+    normal = [0, 1, 2, 4, 5]
+    np.testing.assert_allclose(m[normal], state["exp_avg"].numpy()[normal], rtol=1e-6)
+    np.testing.assert_allclose(v[normal], state["exp_avg_sq"].numpy()[normal], rtol=1e-6)
+    tiny = np.finfo(np.float32).tiny
+    assert m[3] == v[3] == 0.0 and 0.0 < state["exp_avg"][3] < tiny and 0.0 < state["exp_avg_sq"][3] < tiny

@@ -32,6 +32,7 @@ HISTORY_COLUMNS = 5  # pg_loss, v_loss, entropy, approx_kl, clipfrac per step
 # division LLVM vectorises the loops (Adam's went from 20 to 5 µs for 12 k weights). No fastmath: the order and
 # rounding of every operation are IEEE's.
 _compiled = njit(cache=True, error_model="numpy")
+_SMALLEST_NORMAL = np.float32(np.finfo(np.float32).tiny)
 
 
 @_compiled
@@ -181,15 +182,22 @@ def _value_head(out, g_out, idx, returns, huber):
 
 @_compiled
 def _adam(flat, grads, m, v, t, lr, beta1, beta2, eps):
-    """torch.optim.Adam's step t (no weight decay, no amsgrad), in place, in float32 as torch computes it."""
+    """torch.optim.Adam's step t (no weight decay, no amsgrad), in place, in float32 as torch computes it.
+
+    One difference: a moment that falls below float32's smallest normal number (1.2e-38) is stored as 0.
+    The first moment of a weight whose gradient is 0 (a dead ReLU unit) shrinks by 0.9 a step and is
+    subnormal after ~800 steps; arithmetic on subnormals is ~100x slower, and with 9 % of them (measured
+    after 6 iterations) Adam took 19 µs instead of 6. Such a moment moves its weight by < 1e-33."""
     step_size = np.float32(lr / (1.0 - beta1 ** t))
     bc2_sqrt = np.float32(math.sqrt(1.0 - beta2 ** t))
     b1, b2, c1, c2 = np.float32(beta1), np.float32(beta2), np.float32(1.0 - beta1), np.float32(1.0 - beta2)
-    e = np.float32(eps)
+    e, zero = np.float32(eps), np.float32(0.0)
     for j in range(flat.shape[0]):
         g = grads[j]
         mj = b1 * m[j] + c1 * g
         vj = b2 * v[j] + c2 * g * g
+        mj = zero if abs(mj) < _SMALLEST_NORMAL else mj
+        vj = zero if vj < _SMALLEST_NORMAL else vj
         m[j] = mj
         v[j] = vj
         flat[j] -= step_size * mj / (np.sqrt(vj) / bc2_sqrt + e)
