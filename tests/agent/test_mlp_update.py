@@ -208,3 +208,39 @@ def test_compiled_adam_matches_torch_and_stores_subnormal_moments_as_zero():
     np.testing.assert_allclose(v[normal], state["exp_avg_sq"].numpy()[normal], rtol=1e-6)
     tiny = np.finfo(np.float32).tiny
     assert m[3] == v[3] == 0.0 and 0.0 < state["exp_avg"][3] < tiny and 0.0 < state["exp_avg_sq"][3] < tiny
+
+
+def test_thread_chooser_runs_the_rest_of_each_period_on_the_faster_count(monkeypatch):
+    from racerlab.agent import common
+
+    clock = [0.0]
+    monkeypatch.setattr(common.time, "perf_counter", lambda: clock[0])
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    chooser = common.ThreadChooser(2, trial=2, every=8)
+    used = []
+    try:
+        for step in range(16):
+            with chooser as n:
+                used.append(n)
+                assert torch.get_num_threads() == n
+                slow_one = step >= 8  # a busy machine in the first period, a free core in the second
+                clock[0] += {1: 0.2 if slow_one else 0.1, 2: 0.1 if slow_one else 0.5}[n] + (5.0 if step == 0 else 0)
+        chooser.restore()
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    # steps 0-3 try 1, 2, 1, 2 (step 0 uncounted), then the faster; at step 8 the trial starts again
+    assert used == [1, 2, 1, 2, 1, 1, 1, 1, 1, 2, 1, 2, 2, 2, 2, 2]
+
+
+def test_torch_update_gives_the_thread_count_back():
+    camera = ModelMetadata(FIVE, ("FRONT_FACING_CAMERA",), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")
+    ppo = PPO({"camera": (40, 60, 1)}, camera, Hyperparameters(num_epochs=1, batch_size=8), device="cpu")
+    before = torch.get_num_threads()
+    rng = np.random.default_rng(0)
+    obs = rng.integers(0, 256, size=(48, 40, 60, 1), dtype=np.uint8)
+    actions, logp, values = ppo.act(obs)
+    m = ppo.update(PPOBatch(obs, actions, logp, values, rng.normal(size=48).astype(np.float32),
+                            rng.normal(size=48).astype(np.float32)))
+    assert m["charts/gradient_steps"] == 6 and torch.get_num_threads() == before

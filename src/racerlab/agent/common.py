@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from collections.abc import Iterator, Mapping
 
 import numpy as np
@@ -74,3 +75,53 @@ def restore_generator(gen: torch.Generator, saved: dict | None) -> None:
     """Restore a generator saved on the same kind of device; a CPU/GPU switch keeps the fresh one."""
     if saved is not None and saved.get("device") == gen.device.type:
         gen.set_state(saved["state"].cpu())
+
+
+class ThreadChooser:
+    """Picks, again and again while an update runs, the faster of `threads` and 1 torch threads.
+
+    On a machine whose other cores are busy, each parallel region of a convolution waits for its slowest
+    thread, and a thread that shares its core with another process is slow: a SHALLOW camera step took
+    500 ms with 2 threads and 180 ms with 1 at load 3.9 on 2 cores, and 85 ms with 2 against 150 ms with
+    1 when a core was free. Which is faster changes within minutes, so every `every` steps the next
+    `2 * trial` steps alternate 1 thread and `threads`, and the rest use the faster (mean step time).
+    The very first step (oneDNN creates its kernels then) is not counted. Results do not depend on the
+    choice beyond float rounding.
+    """
+
+    def __init__(self, threads: int, trial: int = 2, every: int = 40):
+        self.threads, self.trial, self.every = int(threads), int(trial), int(every)
+        self.chosen = self.threads
+        self.step = 0
+        self._times: dict[int, list[float]] = {}
+        self._current = self.threads
+        self._t0 = 0.0
+
+    def __enter__(self) -> int:
+        if self.threads <= 1:
+            return self.threads
+        p = self.step % self.every
+        if p == 0:
+            self._times = {self.threads: [], 1: []}
+        n = (1, self.threads)[p % 2] if p < 2 * self.trial else self.chosen
+        if n != torch.get_num_threads():
+            torch.set_num_threads(n)
+        self._current = n
+        self._t0 = time.perf_counter()
+        return n
+
+    def __exit__(self, *exc) -> None:
+        if self.threads <= 1:
+            return
+        p = self.step % self.every
+        if p < 2 * self.trial and self.step > 0:
+            self._times[self._current].append(time.perf_counter() - self._t0)
+        if p == 2 * self.trial - 1:
+            means = {n: sum(t) / len(t) for n, t in self._times.items() if t}
+            self.chosen = min(means, key=means.get) if len(means) == 2 else self.threads
+        self.step += 1
+
+    def restore(self) -> None:
+        """Back to `threads` (acting and evaluation keep the configured count)."""
+        if torch.get_num_threads() != self.threads:
+            torch.set_num_threads(self.threads)

@@ -44,6 +44,7 @@ from numba import njit
 
 from racerlab.agent.common import (
     Obs,
+    ThreadChooser,
     batch_size_of,
     generator_state,
     make_generator,
@@ -219,6 +220,9 @@ class PPO:
     """
 
     deadline: float | None = None
+    # the torch update picks 1 thread or torch's count, whichever runs faster now (`common.ThreadChooser`);
+    # the trainer turns this off when training.toml's run.threads fixes the count
+    adapt_threads: bool = True
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
                  device: str | torch.device = "auto", seed: int = 0, mlp_hidden=PPO_MLP_HIDDEN,
@@ -387,14 +391,19 @@ class PPO:
         returns = torch.as_tensor(batch.returns, dtype=torch.float32, device=dev)
         advantages = torch.as_tensor(self._standardised(batch.advantages), device=dev)
         history: list[torch.Tensor] = []
-        for idx in self._minibatches(n, mb):
-            losses = self._minibatch_losses(obs, idx, actions, old_log_probs, advantages, returns)
-            if not torch.isfinite(losses.loss):
-                return history, True
-            self.optimizer.zero_grad(set_to_none=True)
-            losses.loss.backward()
-            self.optimizer.step()
-            history.append(torch.stack([x.detach() for x in losses[1:]]))
+        threads = ThreadChooser(torch.get_num_threads() if self.adapt_threads and dev.type == "cpu" else 1)
+        try:
+            for idx in self._minibatches(n, mb):
+                with threads:
+                    losses = self._minibatch_losses(obs, idx, actions, old_log_probs, advantages, returns)
+                    if not torch.isfinite(losses.loss):
+                        return history, True
+                    self.optimizer.zero_grad(set_to_none=True)
+                    losses.loss.backward()
+                    self.optimizer.step()
+                    history.append(torch.stack([x.detach() for x in losses[1:]]))
+        finally:
+            threads.restore()
         return [h.cpu().numpy() for h in history], False
 
     def _update_mlp(self, batch: PPOBatch, n: int, mb: int):

@@ -157,6 +157,8 @@ class Trainer:
         from racerlab.agent.common import learner_threads
 
         torch.set_num_threads(learner_threads(self.agent.networks(), self.cfg.run.threads))
+        if self.cfg.run.threads and hasattr(self.agent, "adapt_threads"):
+            self.agent.adapt_threads = False  # a count the user chose is kept
 
     def _load_track(self, name):
         try:
