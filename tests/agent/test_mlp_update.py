@@ -217,21 +217,25 @@ def test_thread_chooser_runs_the_rest_of_each_period_on_the_faster_count(monkeyp
     monkeypatch.setattr(common.time, "perf_counter", lambda: clock[0])
     before = torch.get_num_threads()
     torch.set_num_threads(2)
-    chooser = common.ThreadChooser(2, trial=2, every=8)
+    chooser = common.ThreadChooser(2, every=4)
+    seconds = {1: 0.1, 2: 0.15}  # 2 threads a little slower: periods stay 4 steps
     used = []
     try:
-        for step in range(16):
+        for step in range(22):
+            if step == 8:
+                seconds = {1: 0.15, 2: 0.1}  # the other core is free now
+            if step == 12:
+                seconds = {1: 0.1, 2: 0.5}  # and busy again, badly: the trials grow rarer
             with chooser as n:
                 used.append(n)
                 assert torch.get_num_threads() == n
-                slow_one = step >= 8  # a busy machine in the first period, a free core in the second
-                clock[0] += {1: 0.2 if slow_one else 0.1, 2: 0.1 if slow_one else 0.5}[n] + (5.0 if step == 0 else 0)
+                clock[0] += seconds[n] + (5.0 if step == 0 else 0.0)  # the first step (warm-up) is not counted
         chooser.restore()
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
-    # steps 0-3 try 1, 2, 1, 2 (step 0 uncounted), then the faster; at step 8 the trial starts again
-    assert used == [1, 2, 1, 2, 1, 1, 1, 1, 1, 2, 1, 2, 2, 2, 2, 2]
+    # each period tries 1 then 2 threads and runs the faster; after a lopsided trial the period doubles
+    assert used == [2,  1, 2, 1, 1,  1, 2, 1, 1,  1, 2, 2, 2,  1, 2, 1, 1, 1, 1, 1, 1,  1]
 
 
 def test_torch_update_gives_the_thread_count_back():
@@ -244,3 +248,15 @@ def test_torch_update_gives_the_thread_count_back():
     m = ppo.update(PPOBatch(obs, actions, logp, values, rng.normal(size=48).astype(np.float32),
                             rng.normal(size=48).astype(np.float32)))
     assert m["charts/gradient_steps"] == 6 and torch.get_num_threads() == before
+
+
+@pytest.mark.parametrize("metadata", [DISCRETE, CONTINUOUS])
+def test_compiled_update_follows_torch_on_a_deeper_chain_of_uneven_widths(metadata):
+    hp = Hyperparameters(num_epochs=2, batch_size=16, lr=3e-3)
+    fast, slow = _pair(metadata, hp, dim=5, hidden=(24, 40, 8))
+    assert len(fast._mlp.policy.linears) == 4
+    for it in range(2):
+        m_fast, m_slow = _update_both(fast, slow, _batch(fast, 80, 5, seed=10 + it))
+        assert m_fast["losses/value"] == pytest.approx(m_slow["losses/value"], rel=1e-3)
+    for a, b in zip(_weights(fast), _weights(slow), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-3, atol=2e-5)

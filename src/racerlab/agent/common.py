@@ -82,28 +82,29 @@ class ThreadChooser:
 
     On a machine whose other cores are busy, each parallel region of a convolution waits for its slowest
     thread, and a thread that shares its core with another process is slow: a SHALLOW camera step took
-    500 ms with 2 threads and 180 ms with 1 at load 3.9 on 2 cores, and 85 ms with 2 against 150 ms with
-    1 when a core was free. Which is faster changes within minutes, so every `every` steps the next
-    `2 * trial` steps alternate 1 thread and `threads`, and the rest use the faster (mean step time).
-    The very first step (oneDNN creates its kernels then) is not counted. Results do not depend on the
-    choice beyond float rounding.
+    500-700 ms with 2 threads and 170 ms with 1 at load 3-4 on 2 cores, and 85 ms with 2 against 150 ms
+    with 1 when a core was free. Which is faster changes within minutes, so at the start of each period
+    one step runs on 1 thread and one on `threads`, and the rest of the period uses the faster. The very
+    first step (oneDNN creates its kernels then) runs on `threads` before the first period. A period is `every` steps,
+    doubled (up to 8x) while the loser takes over twice as long, since each trial of it costs a slow step.
+    Results do not depend on the choice beyond float rounding.
     """
 
-    def __init__(self, threads: int, trial: int = 2, every: int = 40):
-        self.threads, self.trial, self.every = int(threads), int(trial), int(every)
+    def __init__(self, threads: int, every: int = 40):
+        self.threads, self.base = int(threads), int(every)
+        self.every = self.base
         self.chosen = self.threads
-        self.step = 0
-        self._times: dict[int, list[float]] = {}
+        self.step = 0  # steps taken
+        self._start = 1  # the step the current period began at
+        self._times: dict[int, float] = {}
         self._current = self.threads
         self._t0 = 0.0
 
     def __enter__(self) -> int:
         if self.threads <= 1:
             return self.threads
-        p = self.step % self.every
-        if p == 0:
-            self._times = {self.threads: [], 1: []}
-        n = (1, self.threads)[p % 2] if p < 2 * self.trial else self.chosen
+        p = self.step - self._start
+        n = (1, self.threads)[p] if 0 <= p < 2 else self.chosen
         if n != torch.get_num_threads():
             torch.set_num_threads(n)
         self._current = n
@@ -113,13 +114,17 @@ class ThreadChooser:
     def __exit__(self, *exc) -> None:
         if self.threads <= 1:
             return
-        p = self.step % self.every
-        if p < 2 * self.trial and self.step > 0:
-            self._times[self._current].append(time.perf_counter() - self._t0)
-        if p == 2 * self.trial - 1:
-            means = {n: sum(t) / len(t) for n, t in self._times.items() if t}
-            self.chosen = min(means, key=means.get) if len(means) == 2 else self.threads
+        p = self.step - self._start
+        if 0 <= p < 2:
+            self._times[self._current] = time.perf_counter() - self._t0
+        if p == 1:
+            fast, slow = sorted(self._times, key=self._times.get)
+            self.chosen = fast
+            lopsided = self._times[slow] > 2.0 * self._times[fast]
+            self.every = min(self.every * 2, 8 * self.base) if lopsided else self.base
         self.step += 1
+        if self.step - self._start >= self.every:
+            self._start, self._times = self.step, {}
 
     def restore(self) -> None:
         """Back to `threads` (acting and evaluation keep the configured count)."""
