@@ -245,6 +245,8 @@ def test_torch_update_gives_the_thread_count_back():
     rng = np.random.default_rng(0)
     obs = rng.integers(0, 256, size=(48, 40, 60, 1), dtype=np.uint8)
     actions, logp, values = ppo.act(obs)
+    greedy = [ppo.policy(obs[:5]) for _ in range(4)]  # acting and evaluating choose their threads too
+    assert torch.get_num_threads() == before and all(np.array_equal(g, greedy[0]) for g in greedy)
     m = ppo.update(PPOBatch(obs, actions, logp, values, rng.normal(size=48).astype(np.float32),
                             rng.normal(size=48).astype(np.float32)))
     assert m["charts/gradient_steps"] == 6 and torch.get_num_threads() == before

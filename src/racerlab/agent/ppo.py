@@ -32,6 +32,7 @@ How the training loop feeds it (the batch representation):
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import time
 from collections.abc import Mapping
@@ -246,12 +247,14 @@ class PPO:
         # fused: one kernel for all weights (the same update as torch's per-tensor Adam)
         self.optimizer = torch.optim.Adam(params, lr=self.hp.lr, betas=(0.9, 0.999), eps=ADAM_EPS, fused=True)
         self.generator = make_generator(seed, self.device)
-        # small vector networks on the CPU: the same update in NumPy, without autograd's per-step overhead
+        # small vector networks on the CPU: the same update compiled (or in NumPy), without autograd's overhead
         covered = fast_update and MLPUpdater.covers(self.policy_net, self.value_net, self.device)
         engine = "numba" if fast_update is True else fast_update
         self._mlp = MLPUpdater(self.policy_net, self.value_net, self.optimizer, discrete=self.discrete,
                                engine=engine) if covered else None
         self.env_steps = 0  # car-steps acted while exploring: the ε-greedy schedule's clock
+        self._convolutional = any(isinstance(m, torch.nn.Conv2d) for m in self.policy_net.modules())
+        self._inference: dict[str, ThreadChooser] = {}  # thread choice of act and policy, by method
 
     # -- settings -------------------------------------------------------------------------------------
 
@@ -273,6 +276,24 @@ class PPO:
 
     # -- acting ---------------------------------------------------------------------------------------
 
+    @contextlib.contextmanager
+    def _threads(self, method: str):
+        """A convolutional network's inference on the CPU runs on 1 thread or torch's count, whichever is
+        faster now (as its update does; `common.ThreadChooser`, one per calling method), and gives the
+        count back after each call. Anything else runs as it is."""
+        n = torch.get_num_threads()
+        if not (self._convolutional and self.adapt_threads and self.device.type == "cpu" and n > 1):
+            yield
+            return
+        chooser = self._inference.get(method)
+        if chooser is None or chooser.threads != n:
+            chooser = self._inference[method] = ThreadChooser(n)
+        try:
+            with chooser:
+                yield
+        finally:
+            chooser.restore()
+
     @torch.inference_mode()
     def act(self, obs: Obs, greedy: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(actions [B], log_probs [B], values [B]) for a batch of observations.
@@ -281,6 +302,10 @@ class PPO:
         continuous ones (unclipped). Evaluation (greedy=True) takes the argmax or the mean, as AWS.
         log_probs are the policy's own, even for an ε-greedy action: AWS's ratio uses the policy.
         """
+        with self._threads("act"):
+            return self._act(obs, greedy)
+
+    def _act(self, obs: Obs, greedy: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         x = to_tensors(obs, self.keys, self.device)
         dist = self.policy_net.distribution(x)
         if greedy:
@@ -302,10 +327,10 @@ class PPO:
 
     def policy(self, obs: Obs) -> np.ndarray:
         """The greedy actions [B] (argmax or mean), as evaluation drives. A vector network computes them in
-        NumPy (`MLPUpdater.greedy`: ~15 µs for a few cars, where the torch modules' dispatch takes ~90 µs)."""
+        NumPy (`MLPUpdater.greedy`: ~9 µs for 5 cars, where the torch modules' dispatch took ~40 µs)."""
         if self._mlp is not None:
             return self._mlp.greedy(obs[self.keys[0]] if isinstance(obs, Mapping) else obs)
-        with torch.inference_mode():
+        with torch.inference_mode(), self._threads("policy"):
             return self.policy_net.distribution(to_tensors(obs, self.keys, self.device)).mode().cpu().numpy()
 
     def explore(self, obs: Obs) -> tuple[np.ndarray, dict[str, np.ndarray]]:
