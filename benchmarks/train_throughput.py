@@ -4,7 +4,9 @@ For each observation kind (a fresh model from `racerlab init` with AWS default h
 64, num_epochs 10, 20 episodes per iteration) it trains a few iterations and prints one JSON line with
 - the share of the iterations' wall time spent collecting (the simulator, the sensor and acting; reward
   calls excluded), calling the reward function (building params included), updating, evaluating, and
-  logging + checkpointing (the rest of the iteration);
+  logging + checkpointing (the rest of the iteration); `collect_with_reward` adds the training episodes'
+  reward calls to collecting (AWS calls the reward function inside the environment's step, so both
+  readings are defensible: the JSON gives both);
 - the learner's gradient steps per second beside the FLOP-based limit (`racerlab.agent.flops`: the
   networks' FLOPs over a matmul/conv rate measured now on this machine) and the share of it reached;
 - env steps per second while collecting and overall, torch's thread count and the load average.
@@ -107,6 +109,7 @@ def measure(kind: str, iterations: int, track: str | None, threads: int | None) 
         "learned_steps_per_iteration": round(hist[-1]["train_steps"] / len(hist)) if hist else 0,
         "wall_s": round(wall, 2),
         "shares": {k: round(v / wall, 3) for k, v in phases.items()},
+        "collect_with_reward": round((phases["collect"] + r_collect) / wall, 3),
         "seconds": {k: round(v, 2) for k, v in phases.items()},
         "gradient_steps": int(grad_steps), "gradient_steps_per_s": round(steps_per_s, 1),
         **limit.to_json(),

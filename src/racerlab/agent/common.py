@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 from collections.abc import Iterator, Mapping
 
 import numpy as np
@@ -74,3 +75,58 @@ def restore_generator(gen: torch.Generator, saved: dict | None) -> None:
     """Restore a generator saved on the same kind of device; a CPU/GPU switch keeps the fresh one."""
     if saved is not None and saved.get("device") == gen.device.type:
         gen.set_state(saved["state"].cpu())
+
+
+class ThreadChooser:
+    """Picks, again and again while an update runs, the faster of `threads` and 1 torch threads.
+
+    On a machine whose other cores are busy, each parallel region of a convolution waits for its slowest
+    thread, and a thread that shares its core with another process is slow: a SHALLOW camera step took
+    500-700 ms with 2 threads and 170 ms with 1 at load 3-4 on 2 cores, and 85 ms with 2 against 150 ms
+    with 1 when a core was free. Which is faster changes within minutes, so at the start of each period
+    one step runs on 1 thread and one on `threads`, and the rest of the period uses the faster. The very
+    first step (oneDNN creates its kernels then) runs on `threads` before the first period. A period is `every` steps,
+    doubled (up to 8x) while the loser takes over twice as long, since each trial of it costs a slow step.
+    Results do not depend on the choice beyond float rounding.
+    """
+
+    def __init__(self, threads: int, every: int = 40):
+        self.threads, self.base = int(threads), int(every)
+        self.every = self.base
+        self.chosen = self.threads
+        self.step = 0  # steps taken
+        self._start = 1  # the step the current period began at
+        self._times: dict[int, float] = {}
+        self._current = self.threads
+        self._t0 = 0.0
+
+    def __enter__(self) -> int:
+        if self.threads <= 1:
+            return self.threads
+        p = self.step - self._start
+        n = (1, self.threads)[p] if 0 <= p < 2 else self.chosen
+        if n != torch.get_num_threads():
+            torch.set_num_threads(n)
+        self._current = n
+        self._t0 = time.perf_counter()
+        return n
+
+    def __exit__(self, *exc) -> None:
+        if self.threads <= 1:
+            return
+        p = self.step - self._start
+        if 0 <= p < 2:
+            self._times[self._current] = time.perf_counter() - self._t0
+        if p == 1:
+            fast, slow = sorted(self._times, key=self._times.get)
+            self.chosen = fast
+            lopsided = self._times[slow] > 2.0 * self._times[fast]
+            self.every = min(self.every * 2, 8 * self.base) if lopsided else self.base
+        self.step += 1
+        if self.step - self._start >= self.every:
+            self._start, self._times = self.step, {}
+
+    def restore(self) -> None:
+        """Back to `threads` (acting and evaluation keep the configured count)."""
+        if torch.get_num_threads() != self.threads:
+            torch.set_num_threads(self.threads)

@@ -134,12 +134,27 @@ def gradient_step_limit(networks: list[nn.Module], example: dict[str, torch.Tens
                         rate: float | None = None) -> StepLimit:
     """The limit for `networks` (each called as `net(obs)`) on the minibatch `example` ({input: [M, ...]}).
 
-    `rate` overrides the measured matmul FLOP/s (tests); the conv rate is always measured.
+    `rate` overrides the measured matmul FLOP/s (tests); the conv rate is always measured. Each rate is
+    the better of torch's thread count and 1 thread, as the update itself picks (`common.ThreadChooser`):
+    with the other core busy, 2 threads ran the camera's convolutions at a fifth of 1 thread's rate.
     """
     total, convs = Flops(), []
     for net in networks:
         f, c = forward_flops(net, example)
         total, convs = total + f, convs + c
     m = next(iter(example.values())).shape[0]
-    mm = matmul_rate() if rate is None else rate
-    return StepLimit(m, total, mm, conv_rate(convs) if convs else float("nan"))
+    mm = _best_over_threads(matmul_rate) if rate is None else rate
+    return StepLimit(m, total, mm, _best_over_threads(lambda: conv_rate(convs)) if convs else float("nan"))
+
+
+def _best_over_threads(measure) -> float:
+    """The larger of `measure()` on torch's threads and on 1 thread."""
+    threads = torch.get_num_threads()
+    best = measure()
+    if threads > 1:
+        torch.set_num_threads(1)
+        try:
+            best = max(best, measure())
+        finally:
+            torch.set_num_threads(threads)
+    return best

@@ -157,6 +157,8 @@ class Trainer:
         from racerlab.agent.common import learner_threads
 
         torch.set_num_threads(learner_threads(self.agent.networks(), self.cfg.run.threads))
+        if self.cfg.run.threads and hasattr(self.agent, "adapt_threads"):
+            self.agent.adapt_threads = False  # a count the user chose is kept
 
     def _load_track(self, name):
         try:
@@ -399,11 +401,12 @@ class Trainer:
         info = CheckpointInfo(f"{s.iteration}_Step-{s.train_steps}.pt", s.iteration, s.train_steps)
         value = self._record_best(evals, info, t_start)
         self.logs.write_iteration(s.iteration, ro, evals, s.episodes - len(ro.episodes))
-        saved = self.folder.save_checkpoint(self._checkpoint_state(), s.iteration, s.train_steps)
+        state = self._checkpoint_state()
+        saved = self.folder.save_checkpoint(state, s.iteration, s.train_steps)
         best = next((c for c in self.folder.checkpoints() if c.name == s.best_name), None)
         self.folder.update_index(saved, value, best, s.best_metric)
         self.folder.prune(best)
-        self.last_good = self.agent.state_dict()
+        self.last_good = state["agent"]  # the snapshot just saved (a deep copy), not a second one
         entry = self._summary(ro, evals, metrics, learn_s, value)
         self.logs.append_metrics(entry)
         return entry
