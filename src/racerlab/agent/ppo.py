@@ -45,6 +45,7 @@ from racerlab.agent.common import (
     Obs,
     batch_size_of,
     generator_state,
+    learner_threads,
     make_generator,
     resolve_device,
     restore_generator,
@@ -207,6 +208,7 @@ class PPO:
     """
 
     deadline: float | None = None
+    threads: int = 0  # torch CPU threads for the torch update (`common.learner_threads`; 0 = auto)
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
                  device: str | torch.device = "auto", seed: int = 0, mlp_hidden=PPO_MLP_HIDDEN,
@@ -348,6 +350,8 @@ class PPO:
 
     def _update_torch(self, batch: PPOBatch, n: int, mb: int):
         dev = self.device
+        if dev.type == "cpu":  # set again each time: numba's OpenMP launch resets the count torch shares
+            torch.set_num_threads(learner_threads(self.networks(), self.threads))
         obs = to_tensors(batch.obs, self.keys, dev)
         action_dtype = torch.int64 if self.discrete else torch.float32
         actions = torch.as_tensor(batch.actions, dtype=action_dtype, device=dev)

@@ -157,6 +157,7 @@ class Trainer:
         from racerlab.agent.common import learner_threads
 
         torch.set_num_threads(learner_threads(self.agent.networks(), self.cfg.run.threads))
+        self.agent.threads = self.cfg.run.threads  # PPO sets it again before each update
 
     def _load_track(self, name):
         try:
