@@ -5,9 +5,10 @@ uint8 images) and times gradient steps of `PPO.update` on minibatches of 64, spl
 networks and the loss), backward and the Adam step, with the per-layer forward and backward convolution
 times from torch.profiler. Prints one JSON line:
 - gradient steps/s of the real update (`PPO.update`, 10 epochs over `--samples` steps) and of the split loop;
-- the FLOP limit (3 forward passes at the networks' own forward conv rate, measured now) and the share reached;
-- the backward convolutions' own rate (FLOPs of input + weight gradient over their time), so a limit
-  taken at that rate can be read beside the forward one;
+- the FLOP limit (3 forward passes at the networks' own forward conv rate, measured now at the threads the
+  update used, and again at every core) and the share reached of each;
+- from the profile, the backward convolutions' time over the forward ones' (the limit assumes 2: input and
+  weight gradients at the forward rate; the first layer computes no input gradient, so 2 is generous);
 - with --threads-ab, a step's median time at 1 thread and at every core, interleaved;
 - torch's thread count and the load average.
 
@@ -117,7 +118,9 @@ def _profile_convs(ppo: PPO, batch: PPOBatch, steps: int) -> dict:
         if ev.key in ("aten::convolution_backward", "aten::mkldnn_convolution", "aten::_convolution",
                       "aten::convolution", "aten::conv2d"):
             total[ev.key] = round(ev.cpu_time_total / 1e3 / steps, 3)
-    return {"per_op_self_ms": top, "conv_total_ms": total}
+    fwd, bwd = total.get("aten::mkldnn_convolution"), total.get("aten::convolution_backward")
+    ratio = round(bwd / fwd, 2) if fwd and bwd else None
+    return {"per_op_self_ms": top, "conv_total_ms": total, "conv_backward_over_forward_time": ratio}
 
 
 def _timed_update(ppo: PPO, batch: PPOBatch) -> tuple[float, int]:
@@ -148,10 +151,16 @@ def main():
     split = _split(ppo, batch, 10)
     example = {"camera": torch.randint(0, 256, (MINIBATCH, *SHAPE), dtype=torch.uint8)}
     limit = gradient_step_limit([ppo.policy_net, ppo.value_net], example)
+    used = torch.get_num_threads()
+    torch.set_num_threads(os.cpu_count() or 1)  # the stricter limit: every core's rates, measured now
+    all_cores = gradient_step_limit([ppo.policy_net, ppo.value_net], example)
+    torch.set_num_threads(used)
     out = {"bench": "camera_update", "threads": torch.get_num_threads(), "samples": args.samples,
            "gradient_steps": steps, "update_s": round(best, 3), "gradient_steps_per_s": round(update_steps_per_s, 2),
            **split, "split_steps_per_s": round(1e3 / split["step_ms"], 2), **limit.to_json(),
-           "share_of_limit": round(update_steps_per_s / limit.steps_per_s, 3)}
+           "share_of_limit": round(update_steps_per_s / limit.steps_per_s, 3),
+           "limit_all_cores_gradient_steps_per_s": round(all_cores.steps_per_s, 1),
+           "share_of_limit_all_cores": round(update_steps_per_s / all_cores.steps_per_s, 3)}
     if args.threads_ab:
         out["threads_ab"] = _threads_ab(ppo, batch, args.threads_ab)
     if not args.no_profile:
