@@ -85,6 +85,7 @@ def measure(kind: str, iterations: int, track: str | None, threads: int | None) 
         trainer = Trainer(folder.path, progress=False, **overrides)
         if threads:
             torch.set_num_threads(threads)
+            trainer.agent.threads = threads  # PPO's torch update sets its count again each time
         clock = _Clock()
         _instrument(trainer, clock)
         load_before = os.getloadavg()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import time
 from collections.abc import Iterator, Mapping
@@ -30,14 +31,23 @@ def seeded(seed: int) -> Iterator[None]:
         yield
 
 
-def learner_threads(networks, requested: int = 0) -> int:
-    """Torch CPU threads for training `networks`: `requested` when > 0; else every core for a network with
-    convolutions (large products that split well) and 1 for dense networks on vectors, whose small
-    products gain nothing from a second thread and lose much when the machine is busy."""
+def learner_threads(networks, requested: int = 0, load: float | None = None) -> int:
+    """Torch CPU threads for training `networks`: `requested` when > 0; else 1 for dense networks on vectors,
+    whose small products gain nothing from a second thread and lose much when the machine is busy, and
+    for a network with convolutions the cores nobody else is using: every core less the 1-minute load
+    average beyond this process's own one (`load`, default `os.getloadavg()`), at least 1.
+
+    An OpenMP parallel region waits for its slowest thread, so a thread sharing its core with another
+    busy process holds up all of them: on a 2-core machine at load 4.5 a camera PPO gradient step took
+    1.06 s with 2 threads and 0.27 s with 1 (docs/learner.md, "Camera update on CPU")."""
     if requested > 0:
         return int(requested)
-    convolutional = any(isinstance(m, torch.nn.Conv2d) for net in networks for m in net.modules())
-    return (os.cpu_count() or 1) if convolutional else 1
+    if not any(isinstance(m, torch.nn.Conv2d) for net in networks for m in net.modules()):
+        return 1
+    cores = os.cpu_count() or 1
+    if load is None:
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    return max(1, min(cores, math.floor(cores + 1.0 - load)))
 
 
 def make_generator(seed: int, device: torch.device) -> torch.Generator:

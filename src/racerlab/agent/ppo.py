@@ -48,6 +48,7 @@ from racerlab.agent.common import (
     ThreadChooser,
     batch_size_of,
     generator_state,
+    learner_threads,
     make_generator,
     resolve_device,
     restore_generator,
@@ -224,6 +225,7 @@ class PPO:
     # the torch update picks 1 thread or torch's count, whichever runs faster now (`common.ThreadChooser`);
     # the trainer turns this off when training.toml's run.threads fixes the count
     adapt_threads: bool = True
+    threads: int = 0  # torch CPU threads for the torch update (`common.learner_threads`; 0 = auto)
 
     def __init__(self, obs, metadata, hyperparameters: Hyperparameters | None = None, *,
                  device: str | torch.device = "auto", seed: int = 0, mlp_hidden=PPO_MLP_HIDDEN,
@@ -409,6 +411,8 @@ class PPO:
 
     def _update_torch(self, batch: PPOBatch, n: int, mb: int):
         dev = self.device
+        if dev.type == "cpu":  # set again each time: numba's OpenMP launch resets the count torch shares
+            torch.set_num_threads(learner_threads(self.networks(), self.threads))
         obs = to_tensors(batch.obs, self.keys, dev)
         action_dtype = torch.int64 if self.discrete else torch.float32
         actions = torch.as_tensor(batch.actions, dtype=action_dtype, device=dev)

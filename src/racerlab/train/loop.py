@@ -159,6 +159,7 @@ class Trainer:
         torch.set_num_threads(learner_threads(self.agent.networks(), self.cfg.run.threads))
         if self.cfg.run.threads and hasattr(self.agent, "adapt_threads"):
             self.agent.adapt_threads = False  # a count the user chose is kept
+        self.agent.threads = self.cfg.run.threads  # PPO sets it again before each update
 
     def _load_track(self, name):
         try:
