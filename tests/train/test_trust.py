@@ -186,7 +186,9 @@ def test_a_learning_rate_of_10_is_caught_and_named(model):
     with pytest.raises(TrainingDiverged) as err:
         train(model.path, iterations=3, **SMALL)
     msg = str(err.value)
-    assert "learning rate" in msg and "lr" in msg and str(model.hyperparameters_path) in msg
+    assert "learning rate" in msg and "lr 10 in" in msg and str(model.hyperparameters_path) in msg
+    # the advice names the file's rate and one below it, not a rate the rollbacks already went under
+    assert "(halved to 2.5 by rollbacks)" in msg and "try 0.0003 or lower" in msg
     assert model.resolve_checkpoint("last").iteration == 0  # nothing collapsed reached a checkpoint
 
 

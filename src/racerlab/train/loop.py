@@ -312,11 +312,11 @@ class Trainer:
                         f"the reward scale: {self.folder.reward_path} returned rewards up to {top:.3g}; keep them "
                         f"within about 0..{MAX_SENSIBLE_REWARD:g} per step")
             return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
-                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+                    self._lr_cause())
         kl = metrics.get("losses/approx_kl")
         if kl is not None and kl > KL_LIMIT:
             return (f"the policy moved {kl:.3g} nats in one update (approx KL over {KL_LIMIT:g})",
-                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+                    self._lr_cause())
         ent = metrics.get("losses/entropy")
         ev = float(np.mean([e.progress for e in evals])) if evals else None
         prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
@@ -325,8 +325,16 @@ class Trainer:
         falling = ev < prev if prev is not None else ev < 10.0
         if ent < COLLAPSED_ENTROPY and falling:
             return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %",
-                    f"the learning rate: lr {self.agent.lr:g} in {self.hp.source} is too high; try 0.0003 or lower")
+                    self._lr_cause())
         return None
+
+    def _lr_cause(self) -> str:
+        """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): AWS's
+        default 0.0003 when the file's is higher, else a tenth of the file's."""
+        lr, ours = self.hp.lr, self.agent.lr
+        now = f" (halved to {ours:g} by rollbacks)" if ours < lr else ""
+        hint = 0.0003 if lr > 0.0003 else lr / 10
+        return f"the learning rate: lr {lr:g} in {self.hp.source}{now} is too high; try {hint:g} or lower"
 
     def _rollback(self, what: str, cause: str) -> None:
         """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
