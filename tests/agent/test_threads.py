@@ -41,10 +41,18 @@ def test_the_torch_update_sets_its_thread_count_again_each_time():
     batch = PPOBatch({"camera": rng.integers(0, 256, (n, 40, 60, 1), dtype=np.uint8)},
                      rng.integers(0, 5, n), np.full(n, -np.log(5), np.float32), np.zeros(n, np.float32),
                      rng.normal(size=n).astype(np.float32), rng.normal(size=n).astype(np.float32))
+    seen, real = [], ppo._minibatch_losses
+
+    def counting(*args):
+        seen.append(torch.get_num_threads())
+        return real(*args)
+
+    ppo._minibatch_losses = counting
     before = torch.get_num_threads()
     try:
-        torch.set_num_threads(2)
+        torch.set_num_threads(2)  # as numba's launch leaves it
         ppo.update(batch)
-        assert torch.get_num_threads() == 1
+        assert seen and set(seen) == {1}  # every step ran on the count asked for
+        assert torch.get_num_threads() == 2  # and the caller's count is given back
     finally:
         torch.set_num_threads(before)

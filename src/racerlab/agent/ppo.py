@@ -411,6 +411,7 @@ class PPO:
 
     def _update_torch(self, batch: PPOBatch, n: int, mb: int):
         dev = self.device
+        given = torch.get_num_threads()  # the caller's count, given back at the end
         if dev.type == "cpu":  # set again each time: numba's OpenMP launch resets the count torch shares
             torch.set_num_threads(learner_threads(self.networks(), self.threads))
         obs = to_tensors(batch.obs, self.keys, dev)
@@ -433,6 +434,7 @@ class PPO:
                     history.append(torch.stack([x.detach() for x in losses[1:]]))
         finally:
             threads.restore()
+            torch.set_num_threads(given)
         return [h.cpu().numpy() for h in history], False
 
     def _update_mlp(self, batch: PPOBatch, n: int, mb: int):
