@@ -190,7 +190,8 @@ class Trainer:
         if self.cfg.race.head_to_model:  # the cars race in pairs: every track gets whole pairs
             if n % 2 or n < 2 * len(tracks):
                 raise ConfigError(f"{self.cfg.source}: run.num_cars (or --cars) {n}: a head_to_model race pairs the "
-                                  f"cars, so it needs an even number, at least 2 per track ({len(tracks)} tracks)")
+                                  f"cars, so it needs an even number, at least 2 per track "
+                                  f"({len(tracks)} track{'s' if len(tracks) != 1 else ''})")
             pairs = n // 2
             counts = [2 * (pairs // len(tracks) + (1 if k < pairs % len(tracks) else 0)) for k in range(len(tracks))]
         pairs = enumerate(zip(tracks, counts, strict=True))
