@@ -23,16 +23,16 @@ import torch
 from racerlab.agent import PPO
 from racerlab.exchange import export_car, export_drfc, export_droa, import_model
 from racerlab.exchange.local import aws_shapes
-from racerlab.model import init_model
+from racerlab.model import TrainingState, init_model
 
 
 def make_model(path: Path):
     folder = init_model(path, sensor="camera")
     meta = folder.metadata()
     agent = PPO(aws_shapes(meta), meta, device="cpu", seed=0)
-    state = {"format": "racerlab.checkpoint/1", "agent": agent.state_dict(), "metadata": meta.to_json()}
-    folder.save_checkpoint(state, 3, 1200)
-    return folder, state
+    state = TrainingState(agent.state_dict(), meta.to_json(), iteration=3, train_steps=1200)
+    folder.save_state(state)
+    return folder, state.to_dict()
 
 
 def best_of(fn, repeat: int) -> float:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from racerlab.line import racing_line
 from racerlab.model import init_model
-from racerlab.rewards import TEMPLATES, top_speed, write_reward
+from racerlab.reward import TEMPLATES, reward_source
 from racerlab.train import train
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,7 +37,8 @@ def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float
     with tempfile.TemporaryDirectory() as tmp:
         folder = init_model(Path(tmp) / "m", track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
                             best_model_metric="laptime")
-        write_reward(folder.reward_path, reward, str(track), top_speed(folder.metadata().actions))
+        line = racing_line(str(track)) if reward == "racing_line" else None
+        folder.write_reward(reward_source(reward, line, folder.metadata().actions.top_speed))
         r = train(folder.path, minutes=minutes, progress=False)
     laps = [(h["eval/best_lap"], h["iteration"], h["env_steps"]) for h in r.history if h.get("eval/best_lap")]
     best = min(laps) if laps else (float("nan"), None, None)

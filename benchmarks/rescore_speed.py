@@ -25,7 +25,7 @@ from racerlab.analysis.plots import cell_statistic
 from racerlab.analysis.rescore import compare, log_params, rescore, score
 from racerlab.logs.layout import training_simtrace_path
 from racerlab.logs.simtrace import SimtraceWriter
-from racerlab.model import EXAMPLE_REWARD, load_reward_function
+from racerlab.reward import EXAMPLE_REWARD, load_reward_function
 from racerlab.spec import STEP_S
 
 REPO = Path(__file__).resolve().parents[1]

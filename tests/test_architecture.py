@@ -2,8 +2,10 @@
 
 The allowed table lives in one place, docs/architecture.md ("Who may import whom"); this test
 reads it, reads every import in src/racerlab (module level and inside functions alike) and fails
-on an import the table does not allow, on a package the table does not list, and on any import
-of another package's private module (a name starting with `_`).
+on an import the table does not allow, on a package the table does not list, on any import of
+another part's private module or name (one starting with `_`), on another part's private name
+reached through an imported name (`Trainer._make_world`, `sim._kernels`), and on an edge the table
+allows that no import uses (a stale row hides how the parts really depend on each other).
 """
 
 from __future__ import annotations
@@ -53,29 +55,96 @@ def _module_name(path: Path, src: Path) -> list[str]:
     return parts
 
 
-def imports_of(path: Path, src: Path) -> list[tuple[int, str]]:
-    """(line, absolute dotted name) of every racerlab import in a file, relative imports resolved."""
-    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def _bindings(tree: ast.AST, path: Path, src: Path):
+    """(line, absolute dotted name, local name bound to it or None, whether the name is a module imported as
+    such) of every import in a tree, relative imports resolved."""
     here = _module_name(path, src)
     package = here if path.name == "__init__.py" else here[:-1]
-    found = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            found += [(node.lineno, a.name) for a in node.names]
+            for a in node.names:  # `import racerlab.sim.core` binds `racerlab` (to the root), `... as c` the module
+                yield node.lineno, a.name, a.asname or (a.name if "." not in a.name else None), True
         elif isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package[: len(package) - node.level + 1]
                 mod = ".".join(base + ([node.module] if node.module else []))
             else:
                 mod = node.module or ""
-            if mod == "racerlab":  # `from racerlab import sim` names the part
-                found += [(node.lineno, f"racerlab.{a.name}") for a in node.names]
-                continue
-            found.append((node.lineno, mod))
-            # `from racerlab.sim import _kernels` names a module too
-            found += [(node.lineno, f"{mod}.{a.name}") for a in node.names
-                      if a.name.startswith("_") and not a.name.startswith("__")]
+            if mod != "racerlab":  # `from racerlab import sim` names the part itself
+                yield node.lineno, mod, None, True
+            for a in node.names:
+                yield node.lineno, f"{mod}.{a.name}", a.asname or a.name, False
+
+
+def imports_of(path: Path, src: Path) -> list[tuple[int, str]]:
+    """(line, absolute dotted name) of every racerlab import in a file: the modules, the parts taken from the root
+    (`from racerlab import sim`) and the private names taken from a module (`from racerlab.sim import _kernels`)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found = [(line, name) for line, name, _, module in _bindings(tree, path, src)
+             if module or name.count(".") == 1 or _is_private(name.rsplit(".", 1)[-1])]
     return [(ln, m) for ln, m in found if m == "racerlab" or m.startswith("racerlab.")]
+
+
+def reached_privates(path: Path, src: Path) -> list[tuple[int, str]]:
+    """(line, dotted name) of each private attribute reached through a name imported from racerlab: after
+    `from racerlab.train.loop import Trainer`, `Trainer._make_world` reaches racerlab.train.loop.Trainer._make_world."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    names = {bound: name for _, name, bound, _ in _bindings(tree, path, src)
+             if bound is not None and name.startswith("racerlab.")}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and _is_private(node.attr):
+            chain, base = [node.attr], node.value
+            while isinstance(base, ast.Attribute):
+                chain.append(base.attr)
+                base = base.value
+            if isinstance(base, ast.Name) and base.id in names:
+                found.append((node.lineno, ".".join([names[base.id], *reversed(chain)])))
+    return found
+
+
+def _class_privates(src: Path, dotted: str) -> set[str]:
+    """Private names a class defines or sets on `self` (`racerlab.train.loop.Trainer` → {"_make_world", ...})."""
+    module, _, cls = dotted.rpartition(".")
+    base = src.parent.joinpath(*module.split("."))
+    path = base / "__init__.py" if base.is_dir() else base.with_suffix(".py")
+    if not path.is_file():
+        return set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ClassDef) and node.name == cls:
+            own = {n.name for n in node.body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)}
+            own |= {a.attr for a in ast.walk(node) if isinstance(a, ast.Attribute) and isinstance(a.value, ast.Name)
+                    and a.value.id == "self"}
+            return {n for n in own if _is_private(n)}
+    return set()
+
+
+def inherited_privates(path: Path, src: Path) -> list[tuple[int, str]]:
+    """(line, dotted name) of each private name of a base class from racerlab that a subclass overrides or uses
+    through `self` or `super()`: subclassing `Trainer` to replace `_checkpoint_state` is reaching into it."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    names = {bound: name for _, name, bound, _ in _bindings(tree, path, src)
+             if bound is not None and name.startswith("racerlab.")}
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.ClassDef):
+            continue
+        for b in node.bases:
+            if not (isinstance(b, ast.Name) and b.id in names):
+                continue
+            privates = _class_privates(src, names[b.id])
+            for n in ast.walk(node):
+                if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef) and n.name in privates:
+                    found.append((n.lineno, f"{names[b.id]}.{n.name}"))
+                elif isinstance(n, ast.Attribute) and n.attr in privates and (
+                        isinstance(n.value, ast.Name) and n.value.id == "self"
+                        or isinstance(n.value, ast.Call) and getattr(n.value.func, "id", "") == "super"):
+                    found.append((n.lineno, f"{names[b.id]}.{n.attr}"))
+    return sorted(set(found))
 
 
 def violations(src: Path, table: dict[str, set[str]]) -> list[str]:
@@ -100,16 +169,46 @@ def violations(src: Path, table: dict[str, set[str]]) -> list[str]:
             where = f"{path.relative_to(src.parent)}:{line}"
             if target != unit and target not in allowed:
                 problems.append(f"{where}: {unit} imports {name}, but {unit} may import only {sorted(allowed)}")
-            private = [p for p in parts[2:] if p.startswith("_") and not p.startswith("__")]
+            private = [p for p in parts[2:] if _is_private(p)]
             if target != unit and private:
-                problems.append(f"{where}: {unit} imports {name}, a private module of {target}")
+                problems.append(f"{where}: {unit} imports {name}, a private name of {target}")
+        for line, name in reached_privates(path, src) + inherited_privates(path, src):
+            target = name.split(".")[1]
+            if target != unit:
+                problems.append(f"{path.relative_to(src.parent)}:{line}: {unit} reaches {name}, a private name of "
+                                f"{target}; give {target} a public way to do it")
     return problems
+
+
+def used_edges(src: Path) -> set[tuple[str, str]]:
+    """(part, part it imports) of every import between two parts."""
+    edges = set()
+    for path in sorted(src.rglob("*.py")):
+        mine = _module_name(path, src)
+        unit = mine[1] if len(mine) > 1 else "__init__"
+        for _, name in imports_of(path, src):
+            parts = name.split(".")
+            if len(parts) > 1 and not parts[1].startswith("__") and parts[1] != unit:
+                edges.add((unit, parts[1]))
+    return edges
+
+
+def unused_edges(src: Path, table: dict[str, set[str]]) -> list[str]:
+    used = used_edges(src)
+    return [f"{unit} → {target}" for unit in table for target in sorted(table[unit]) if (unit, target) not in used]
 
 
 def test_every_import_follows_the_table():
     table = read_table(DOC.read_text(encoding="utf-8"))
     problems = violations(SRC, table)
     assert not problems, "import rule broken (docs/architecture.md):\n" + "\n".join(problems)
+
+
+def test_every_edge_of_the_table_is_used():
+    table = read_table(DOC.read_text(encoding="utf-8"))
+    stale = unused_edges(SRC, table)
+    assert not stale, ("docs/architecture.md allows imports that no module makes; remove them from the table "
+                       "(or the code that used them went elsewhere): " + ", ".join(stale))
 
 
 def test_table_names_only_real_parts():
@@ -156,8 +255,53 @@ def test_private_modules_and_unlisted_parts_fail(tmp_path):
                            "sim/__init__.py": "", "sim/core.py": "from racerlab.track import _k\n",
                            "extra/__init__.py": "from racerlab import errors\n"})
     problems = violations(src, read_table(TABLE))
-    assert any("a private module of track" in p for p in problems)
+    assert any("racerlab.track._k, a private name of track" in p for p in problems)
     assert any(p.startswith("extra: not in the table") for p in problems)
+
+
+@pytest.mark.parametrize("source, reached", [
+    # the cluster's worker borrowed the trainer's world builders this way (issue 26)
+    ("from racerlab.track.core import Track\n\nclass W:\n    load = Track._load\n", "racerlab.track.core.Track._load"),
+    ("from racerlab.track.core import _helper\n", "racerlab.track.core._helper"),
+    ("import racerlab.track.core as tc\n\nx = tc.Track._cache\n", "racerlab.track.core.Track._cache"),
+    ("from racerlab import track\n\ndef f():\n    return track.core._grid\n", "racerlab.track.core._grid"),
+])
+def test_a_private_name_reached_across_parts_fails(tmp_path, source, reached):
+    src = _tree(tmp_path, {"__init__.py": "", "errors.py": "", "track/__init__.py": "", "track/core.py": "",
+                           "sim/__init__.py": "", "sim/core.py": source})
+    problems = violations(src, read_table(TABLE))
+    assert len(problems) == 1 and reached in problems[0] and "a private name of track" in problems[0], problems
+    assert problems[0].startswith("racerlab/sim/core.py:")
+
+
+def test_a_subclass_that_overrides_or_uses_a_private_of_another_part_fails(tmp_path):
+    # the cluster's trainer replaced four private hooks of `Trainer` and called its logs' `_simtrace` (issue 26)
+    base = "class Track:\n    def _cache(self):\n        self._grid = 1\n\n    def public(self):\n        pass\n"
+    sub = ("from racerlab.track.core import Track\n\nclass Mine(Track):\n    def _cache(self):\n"
+           "        return super()._cache()\n\n    def mine(self):\n        return self._grid, self._own\n\n"
+           "    def public(self):\n        self._own = 1\n")
+    src = _tree(tmp_path, {"__init__.py": "", "errors.py": "", "track/__init__.py": "", "track/core.py": base,
+                           "sim/__init__.py": "", "sim/core.py": sub})
+    problems = violations(src, read_table(TABLE))
+    assert [p.split(": ")[0] for p in problems] == ["racerlab/sim/core.py:4", "racerlab/sim/core.py:5",
+                                                    "racerlab/sim/core.py:8"]
+    assert all("a private name of track" in p for p in problems)
+    assert "Track._cache" in problems[0] and "Track._grid" in problems[2]
+
+
+def test_a_part_may_reach_its_own_private_names(tmp_path):
+    src = _tree(tmp_path, {"__init__.py": "", "errors.py": "", "track/__init__.py": "",
+                           "track/core.py": "class Track:\n    _n = 1\n",
+                           "track/grid.py": "from racerlab.track.core import Track\n\nx = Track._n\n",
+                           "sim/__init__.py": "",
+                           "sim/core.py": "from racerlab.track.core import Track\n\nx = Track.n\n"})
+    assert violations(src, read_table(TABLE)) == []
+
+
+def test_an_allowed_edge_no_import_uses_is_listed(tmp_path):
+    src = _tree(tmp_path, {"__init__.py": "", "errors.py": "", "track/__init__.py": "from racerlab import errors\n",
+                           "sim/__init__.py": "from racerlab.track import x\n"})
+    assert unused_edges(src, read_table(TABLE)) == ["sim → errors"]
 
 
 def test_allowed_imports_pass(tmp_path):

@@ -110,6 +110,18 @@ def _parse_position(item, where: str) -> tuple[float, int]:
     return frac, int(lane)
 
 
+# ---- evaluation race rules: DRfC's DR_EVAL_* defaults and the simapp's (facts §8); `evaluate.RaceRules` --
+EVAL_TRIALS = 3  # DR_EVAL_NUMBER_OF_TRIALS
+EVAL_OFF_TRACK_PENALTY_S = 5.0  # DR_EVAL_OFF_TRACK_PENALTY
+EVAL_COLLISION_PENALTY_S = 5.0  # DR_EVAL_COLLISION_PENALTY
+EVAL_MAX_RESETS = 100  # DR_EVAL_MAX_RESETS (NUMBER_OF_RESETS)
+EVAL_MAX_RESETS_AFTER_CRASH = 3  # simapp MAX_RESETS_AFTER_CRASH
+EVAL_RESET_AHEAD_DIST_M = 1.0  # simapp RESET_AHEAD_DIST (racerlab's choice: RESET_BEHIND_DIST's 1 m)
+
+# ---- model archives ---------------------------------------------------------------------------------------
+MAX_ARCHIVE_BYTES = 4 << 30  # a DeepRacer model archive unpacks to far less; more is refused before unpacking
+
+
 @dataclass(frozen=True)
 class RaceConfig:
     """A race's settings with DRfC's names (lower case); `where` names the source in error messages.

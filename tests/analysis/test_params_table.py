@@ -15,8 +15,8 @@ from racerlab.analysis import load
 from racerlab.analysis.rescore import log_params
 from racerlab.logs import SIMTRACE_COLUMNS, write_simtrace
 from racerlab.sim import Simulator, StartRules, Status
+from racerlab.sim.params import ParamsBuilder
 from racerlab.sim.pursuit import PurePursuit
-from racerlab.sim.reward import ParamsBuilder
 from racerlab.spec import NO_OBJECTS, REWARD_PARAM_NAMES, REWARD_PARAMS, STATUS_NAMES, STEP_S, ParamsMaker
 from racerlab.track import load_file
 from tests.conftest import aws_track_path

@@ -8,7 +8,7 @@ import pytest
 
 from racerlab.analysis.reward_tools import check_reward, parse_heading, reward_map, sample_states
 from racerlab.cli import main
-from racerlab.model import EXAMPLE_REWARD
+from racerlab.reward import EXAMPLE_REWARD
 from tests.conftest import aws_track_path
 
 PLANTED = """\

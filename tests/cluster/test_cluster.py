@@ -20,7 +20,7 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
-from racerlab.cluster import ClusterTrainer, merge_rollouts, split_episodes, train_on_cluster  # noqa: E402
+from racerlab.cluster import ClusterTraining, merge_rollouts, split_episodes, train_on_cluster  # noqa: E402
 from racerlab.cluster.sweep import run_sweep  # noqa: E402
 from racerlab.model import init_model  # noqa: E402
 
@@ -142,7 +142,7 @@ def test_two_workers_one_iteration_writes_drfc_multi_worker_logs(cluster, tmp_pa
 
 def test_a_worker_killed_mid_run_costs_its_episodes_only_and_resume_continues(cluster, tmp_path, capsys):
     model = _small_model(tmp_path / "m")
-    trainer = ClusterTrainer(model, 2, cluster, progress=True, iterations=2)
+    trainer = ClusterTraining(model, 2, cluster, progress=True, iterations=2)
     pids = [i["pid"] for i in trainer.collector.info]
     os.kill(pids[1], signal.SIGKILL)
     r = trainer.run()
@@ -217,7 +217,7 @@ def test_a_worker_drives_with_the_learners_weights_but_its_own_random_stream(tmp
     assert w.describe()["start_offset"] == 0.5 and w.describe()["cars"] == 1
     ro, starts = w.collect(weights, 2, 10_000, 0)
     assert len(ro.episodes) == 2 and len(starts) == 1 and starts[0] >= 2  # one world, its round-robin counter
-    obs = learner.worlds[0].observe(np.arange(2))
+    obs = learner.eval_world.observe(np.arange(1))
     assert np.array_equal(w.agent.policy(obs), learner.agent.policy(obs))
     assert w.agent.generator.initial_seed() != learner.agent.generator.initial_seed()
     assert worker_tracks(("a", "b", "c"), 1, 2) == ("b",) and worker_tracks(("a",), 1, 2) == ("a",)

@@ -44,7 +44,10 @@ def write_checkpoint(folder: ModelFolder, iteration: int = 1, metadata: dict | N
     sim = Simulator(load(folder.config().track.names[0]), 1)
     obs = make_observation(folder.config().run.observation or None, sim, meta)
     agent = make_agent(obs.space, meta, folder.hyperparameters(), device="cpu", seed=0)
-    state = {"agent": agent.state_dict(), "metadata": metadata or meta.to_json()}
-    info = folder.save_checkpoint(state, iteration, 100 * iteration)
+    from racerlab.model import TrainingState
+
+    state = TrainingState(agent.state_dict(), metadata or meta.to_json(), iteration=iteration,
+                          train_steps=100 * iteration)
+    info = folder.save_state(state)
     folder.update_index(info, 0.0, info, 0.0)
     return info

@@ -86,7 +86,7 @@ def test_checkpoint_of_another_action_space_is_one_line(tmp_path, wide):
     meta = json.loads(folder.metadata_path.read_text())
     meta["action_space"] = meta["action_space"][:1]
     folder.metadata_path.write_text(json.dumps(meta))
-    with pytest.raises(RacerlabError, match="does not match .*2 actions vs 1") as err:
+    with pytest.raises(RacerlabError, match="does not match .*number of actions 2 → 1") as err:
         evaluate(folder.path)
     assert "\n" not in str(err.value)
 

@@ -9,7 +9,7 @@ import torch
 
 from racerlab.agent import PPO, SAC
 from racerlab.exchange.local import aws_shapes
-from racerlab.model import init_model
+from racerlab.model import TrainingState, init_model
 
 N_OBS = 100
 
@@ -35,9 +35,8 @@ def make_model(path, sensor="camera", action_space="discrete", algorithm="clippe
         for net in nets:
             for p in net.parameters():
                 p.add_(0.05 * torch.randn(p.shape, generator=gen))
-    state = {"format": "racerlab.checkpoint/1", "agent": agent.state_dict(), "metadata": meta.to_json(),
-             "iteration": 3, "episodes": 40, "env_steps": 1200, "train_steps": 1200}
-    folder.save_checkpoint(state, 3, 1200)
+    folder.save_state(TrainingState(agent.state_dict(), meta.to_json(), iteration=3, episodes=40, env_steps=1200,
+                                    train_steps=1200))
     return folder
 
 

@@ -19,6 +19,8 @@ from racerlab.logs import (
     evaluation_dir,
     evaluation_dirs,
     export_drfc_metadata,
+    follow_metrics_jsonl,
+    last_metrics_entry,
     metrics_jsonl_path,
     new_evaluation_dir,
     read_metrics_jsonl,
@@ -101,6 +103,24 @@ def test_metrics_jsonl_bad_middle_line_names_file_and_line(tmp_path):
     path.write_text('{"a": 1}\nnot json\n{"a": 2}\n')
     with pytest.raises(LogFileError, match=r"metrics.jsonl:2: not valid JSON"):
         read_metrics_jsonl(path)
+
+
+def test_following_a_metrics_jsonl_as_it_is_written(tmp_path):
+    """The console's chart reads each new complete line once; a line still being written waits for its newline."""
+    path = tmp_path / "metrics.jsonl"
+    assert follow_metrics_jsonl(path, 0) == ([], 0) and last_metrics_entry(path) is None  # no training yet
+    first = '{"iteration": 1}\n'
+    path.write_text(first + '{"iteration": 2')
+    entries, offset = follow_metrics_jsonl(path, 0)
+    assert entries == [{"iteration": 1}] and offset == len(first)
+    assert last_metrics_entry(path) == {"iteration": 1}
+    with open(path, "a") as f:
+        f.write(', "x": 3}\nnot json\n{"iteration": 3}\n')
+    entries, offset = follow_metrics_jsonl(path, offset)
+    assert entries == [{"iteration": 2, "x": 3}, {"iteration": 3}] and offset == path.stat().st_size
+    assert last_metrics_entry(path) == {"iteration": 3}
+    assert last_metrics_entry(path, tail_bytes=10) is None  # a tail cut mid-line holds no whole entry
+    assert follow_metrics_jsonl(path, offset) == ([], offset)
 
 
 def test_atomic_writes_leave_no_temp_files(tmp_path):

@@ -6,7 +6,7 @@ import pytest
 
 from racerlab import track as tracks
 from racerlab.errors import ConfigError, TrackError
-from racerlab.model import ModelFolder, init_model, load_training_config, resolve_track
+from racerlab.model import ModelFolder, TrainingState, init_model, load_training_config, resolve_track
 from racerlab.model.metadata import OBSERVATION_NAMES
 
 
@@ -57,9 +57,15 @@ def test_model_files_and_checkpoint_paths(tmp_path):
     assert [p.name for p in folder.model_files] == ["reward_function.py", "model_metadata.json",
                                                     "hyperparameters.json", "training.toml"]
     assert all(p.is_file() and p.parent == folder.path for p in folder.model_files)
-    info = folder.save_checkpoint({"x": 1}, iteration=3, steps=120)
+    info = folder.save_state(TrainingState({"x": 1}, iteration=3, train_steps=120, best_name="2_Step-80.pt",
+                                           collection={"starts": [4, 5]}))
     assert folder.checkpoint_path(info) == folder.checkpoints_dir / "3_Step-120.pt"
-    assert folder.checkpoint_path(info).is_file() and folder.load_checkpoint(info) == {"x": 1}
+    assert folder.checkpoint_path(info).is_file()
+    back = folder.load_state(info)
+    assert back.agent == {"x": 1} and (back.iteration, back.train_steps, back.best_name) == (3, 120, "2_Step-80.pt")
+    assert back.collection == {"starts": [4, 5]} and not back.cloned
+    raw = folder.load_checkpoint(info)  # the file's keys, as racerlab has always written them
+    assert raw["format"] == "racerlab.checkpoint/1" and raw["starts"] == [4, 5] and "cloned" not in raw
     folder.reward_path.write_text("def reward_function(params):\n    return 2.0 * params['speed']\n")
     assert folder.reward_function()({"speed": 1.5}) == 3.0
 

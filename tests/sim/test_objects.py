@@ -12,7 +12,7 @@ import pytest
 from racerlab.errors import ConfigError
 from racerlab.sim import Simulator
 from racerlab.sim.objects import RaceConfig
-from racerlab.sim.reward import ParamsBuilder
+from racerlab.sim.params import ParamsBuilder
 from racerlab.spec import NO_OBJECTS
 
 TRACK = "reInvent2019_track"
@@ -273,7 +273,7 @@ def test_init_object_avoidance_writes_a_race_and_a_reward_that_reads_objects(tmp
         if world.done(codes)[0].any():
             world.sim.reset(world.done(codes)[0])
     assert len(world.params[0]["objects_location"]) == 3 and all(x >= 0 for x in rewards)
-    from racerlab.model.reward import load_reward_function
+    from racerlab.reward import load_reward_function
 
     fn = load_reward_function(tmp_path / "oa" / "reward_function.py")
     base = dict(world.params[0], is_offtrack=False, is_crashed=False, all_wheels_on_track=True, x=0.0, y=0.0,

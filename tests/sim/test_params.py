@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from racerlab.sim import Simulator
-from racerlab.sim.reward import ParamsBuilder
+from racerlab.sim.params import ParamsBuilder
 
 AHEAD = 0.14
 

@@ -32,15 +32,15 @@ def test_preset_writes_generated_tracks(tmp_path):
 
 def test_cars_spread_over_generated_tracks_redrawn_each_period(preset_model):
     t = Trainer(preset_model.path, progress=False)
-    first = [w.sim.track for w in t.worlds]
-    assert [w.sim.num_cars for w in t.worlds] == [3, 3, 2]
+    first = [w.sim.track for w in t.collector.worlds]
+    assert [w.sim.num_cars for w in t.collector.worlds] == [3, 3, 2]
     assert all(tr.name.startswith("generated_0_") for tr in first)
     assert t.eval_world.sim.track.name == "lab_technical"  # evaluation stays on the named track
     t._resume_or_start()
     t.iterate(0.0)
-    assert [w.sim.track.name for w in t.worlds] == [tr.name for tr in first]  # iteration 1 drove draw 0
+    assert [w.sim.track.name for w in t.collector.worlds] == [tr.name for tr in first]  # iteration 1 drove draw 0
     t.iterate(0.0)
-    drawn = [w.sim.track for w in t.worlds]
+    drawn = [w.sim.track for w in t.collector.worlds]
     assert all(tr.name.startswith("generated_1_") for tr in drawn)
     assert not any(a.length == b.length for a, b in zip(first, drawn, strict=True))
     t.logs.close()
@@ -55,7 +55,7 @@ def test_training_on_generated_tracks_under_randomisation_runs_and_resumes(prese
     r = train(preset_model.path, iterations=1, progress=False)
     assert r.iterations == 3
     t = Trainer(preset_model.path, progress=False)
-    assert all(w.actuation is not None for w in t.worlds) and t.eval_world.actuation is None
+    assert all(w.actuation is not None for w in t.collector.worlds) and t.eval_world.actuation is None
     t.logs.close()
 
 

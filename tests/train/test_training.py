@@ -55,15 +55,15 @@ def test_checkpoints_logs_and_round_trip(model):
     assert len(train_eps) == r.episodes and doc["version"] == 2.0
     assert [m["iteration"] for m in read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")] == list(range(1, 7))
     # a checkpoint round trip gives identical actions
-    ck = f.load_checkpoint(f.resolve_checkpoint("last"))
+    ck = f.load_state(f.resolve_checkpoint("last"))
     obs = np.random.default_rng(0).normal(size=(32, 20)).astype(np.float32)
     meta, hp = f.metadata(), f.hyperparameters()
     import gymnasium as gym
 
     space = gym.spaces.Box(-10, 10, (20,), np.float32)
     a, b = make_agent(space, meta, hp, device="cpu", seed=1), make_agent(space, meta, hp, device="cpu", seed=2)
-    a.load_state_dict(ck["agent"])
-    b.load_state_dict(ck["agent"])
+    a.load_state_dict(ck.agent)
+    b.load_state_dict(ck.agent)
     assert np.array_equal(a.act(obs, greedy=True)[0], b.act(obs, greedy=True)[0])
     assert np.allclose(a.act(obs, greedy=True)[2], b.act(obs, greedy=True)[2])
 
@@ -160,7 +160,7 @@ def test_nan_guard_rolls_back_then_stops(model, monkeypatch):
     assert lrs == [0.0003, 0.00015, 0.000075]
     f = ModelFolder(model.path)
     assert f.resolve_checkpoint("last").iteration == 1  # nothing non-finite reached a checkpoint
-    assert f.load_checkpoint(f.resolve_checkpoint("last"))["agent"]["policy"] is not None
+    assert f.load_state(f.resolve_checkpoint("last")).agent["policy"] is not None
 
 
 def test_multi_track_spreads_cars(model):
@@ -168,8 +168,8 @@ def test_multi_track_spreads_cars(model):
 
     t = Trainer(model.path, progress=False, num_cars=5,
                 tracks=[str(aws_track_path("reInvent2019_track")), str(aws_track_path("reinvent_base"))])
-    assert [w.sim.num_cars for w in t.worlds] == [3, 2]
-    assert t.worlds[1].sim.track.name == "reinvent_base"
+    assert [w.sim.num_cars for w in t.collector.worlds] == [3, 2]
+    assert t.collector.worlds[1].sim.track.name == "reinvent_base"
 
 
 @pytest.mark.parametrize("algorithm", ["clipped_ppo", "sac"])

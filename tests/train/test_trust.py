@@ -315,15 +315,15 @@ def test_ctrl_c_while_an_iteration_is_written_leaves_it_whole(model, monkeypatch
     import signal as signals
 
     _small(model)
-    real_save = ModelFolder.save_checkpoint
+    real_save = ModelFolder.save_state
 
-    def interrupted_save(self, *args, **kwargs):
-        saved = real_save(self, *args, **kwargs)
-        if args[1] >= 1:  # not the untrained checkpoint of iteration 0
+    def interrupted_save(self, state):
+        saved = real_save(self, state)
+        if state.iteration >= 1:  # not the untrained checkpoint of iteration 0
             os.kill(os.getpid(), signals.SIGINT)  # Ctrl-C right after the checkpoint is on disk
         return saved
 
-    monkeypatch.setattr(ModelFolder, "save_checkpoint", interrupted_save)
+    monkeypatch.setattr(ModelFolder, "save_state", interrupted_save)
     r = train(model.path, iterations=5, **SMALL)
     assert r.stopped.startswith("interrupted") and r.iterations == 1
     last = read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")[-1]
@@ -342,9 +342,9 @@ def test_a_far_policy_move_is_rolled_back_only_when_the_evaluation_got_worse(mod
     t = Trainer(model.path, progress=False, num_cars=2)
     far = {"losses/approx_kl": 40.0, "losses/value": 0.5, "losses/entropy": -3.3}
     laps = [SimpleNamespace(progress=100.0)] * 5
-    t.last_eval = 100.0
-    assert t._collapse(far, laps, np.ones(4)) is None  # still lapping: not a collapse
-    assert t._collapse({**far, "losses/approx_kl": 0.03}, laps, np.ones(4)) is None
-    what, cause = t._collapse(far, [SimpleNamespace(progress=35.0)] * 5, np.ones(4))
+    t.health.last_eval = 100.0
+    assert t.health.collapse(far, laps, np.ones(4)) is None  # still lapping: not a collapse
+    assert t.health.collapse({**far, "losses/approx_kl": 0.03}, laps, np.ones(4)) is None
+    what, cause = t.health.collapse(far, [SimpleNamespace(progress=35.0)] * 5, np.ones(4))
     assert "40 nats" in what and "learning rate" in cause and str(model.hyperparameters_path) in cause
-    assert t._collapse(far, [], np.ones(4)) is not None  # no evaluation: the move alone decides
+    assert t.health.collapse(far, [], np.ones(4)) is not None  # no evaluation: the move alone decides

@@ -1,5 +1,14 @@
 """Clipped PPO as AWS DeepRacer configures it (facts §6), in one file, top to bottom.
 
+Which update a model runs: one loss, three implementations that the tests hold equal step by step.
+- Dense-layer networks on one vector input (the default `features` model, lidar) on the CPU run
+  `agent/mlp_kernel.py`: the minibatch loop, gradients written out by hand and Adam, compiled with numba
+  (`MLPUpdater`, engine "numba", ~8x faster than the torch update on 64-wide layers).
+- `fast_update="numpy"` runs the same steps in NumPy (`agent/mlp_update.py`), the reference the kernel
+  was written from.
+- Every other network (cameras, several inputs, a GPU, or `fast_update=False`) runs `PPO.update` below:
+  torch autograd on `ppo_losses`, the readable version of the loss the two above implement.
+
 What AWS does, and so what this does:
 - separate policy and value networks (`networks.py`); Adam with lr, eps 1e-5, betas (0.9, 0.999);
   no gradient clipping, no value clipping, no L2;

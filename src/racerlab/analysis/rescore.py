@@ -23,7 +23,6 @@ is numpy over all rows.
 from __future__ import annotations
 
 import math
-import numbers
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,12 +31,20 @@ import numpy as np
 import pandas as pd
 from numba import njit
 
-from racerlab.analysis.episodes import wrap_degrees
-from racerlab.model.reward import error_location
-from racerlab.sim.reward import MAX_ABS_REWARD, describe_exception, return_location
+from racerlab.analysis.episodes import episode_summary, wrap_degrees
+from racerlab.reward import (
+    MAX_ABS_REWARD,
+    as_reward_function,
+    check_value,
+    describe_exception,
+    describe_params,
+    error_location,
+    return_location,
+    source_of,
+)
 from racerlab.spec import MODEL_POINT_AHEAD_M, NO_OBJECTS, REWARD_PARAM_NAMES, CarParams, ParamsMaker
 from racerlab.track import Track
-from racerlab.track.kernels import nearest_on_polyline_near, nearest_segment
+from racerlab.track.kernels import measure_on_track
 
 NOT_SCORED = ("prepare", "pause")
 CHUNK_ROWS = 1 << 16  # rows turned into Python lists at a time (keeps memory flat for 10 M-row logs)
@@ -51,40 +58,24 @@ MAX_ERROR_DETAILS = 5
 @njit(cache=True)
 def _measure_points(px, py, new_run, center, seg_len, cum_s, inner, outer, wp_ndist, closed, length,
                     driving_ccw, arc, dist, left, width, wprev, wnext, thead):
-    """Track params of model points (px, py) as the simulator's `measure` computes them.
+    """Track params of model points (px, py) with the simulator's kernel (`track.kernels.measure_on_track`).
 
     `new_run[j]` is True where point j does not follow point j-1 of the same episode (no search hint).
     """
     hint = -1
-    n = wp_ndist.shape[0]
     for j in range(px.shape[0]):
-        mx = px[j]
-        my = py[j]
         if new_run[j]:
             hint = -1
-        seg, t, d2 = nearest_segment(mx, my, center, seg_len, closed, hint)
-        hint = seg
-        ax = center[seg, 0]
-        ay = center[seg, 1]
-        dx = center[seg + 1, 0] - ax
-        dy = center[seg + 1, 1] - ay
-        a = cum_s[seg] + t * seg_len[seg]
-        cpx = ax + t * dx
-        cpy = ay + t * dy
-        ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 2)
-        ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 2)
-        nearer_inner = math.hypot(mx - ix, my - iy) < math.hypot(mx - ox, my - oy)
-        nxt = np.searchsorted(wp_ndist, a / length, side="right")
-        prv = max(nxt - 1, 0)
-        if nxt >= n:
-            nxt = 0
+        seg, a, lat, lft, w, prv, nxt, th = measure_on_track(px[j], py[j], center, seg_len, cum_s, inner, outer,
+                                                             wp_ndist, closed, length, driving_ccw, hint)
         arc[j] = a
-        dist[j] = math.sqrt(d2)
-        left[j] = nearer_inner != (not driving_ccw)
-        width[j] = math.hypot(ix - ox, iy - oy)
+        dist[j] = abs(lat)
+        left[j] = lft
+        width[j] = w
         wprev[j] = prv
         wnext[j] = nxt
-        thead[j] = math.atan2(dy, dx)
+        thead[j] = th
+        hint = seg
 
 
 def track_columns(track: Track, x, y, new_run=None) -> dict[str, np.ndarray]:
@@ -251,8 +242,6 @@ class RewardProblem:
     label: str = "row"  # what `row` counts: log rows, sampled states, ...
 
     def describe(self) -> str:
-        from racerlab.sim.reward import describe_params
-
         times = f" ({self.count} times)" if self.count > 1 else ""
         return f"{self.message}{times}, first at {self.label} {self.row}\n  params: {describe_params(self.params)}"
 
@@ -290,15 +279,10 @@ class _Problems:
         self.add(f"{where}: {describe_exception(exc, params)}", row, params)
 
     def value(self, fn, r, row: int, params: dict) -> float:
-        """The reward as a float, or NaN after recording why it is not acceptable."""
-        if isinstance(r, bool) or not isinstance(r, numbers.Real):
-            what = f"returned {type(r).__name__} {r!r}, not a number"
-        else:
-            r = float(r)
-            if math.isfinite(r) and abs(r) <= MAX_ABS_REWARD:
-                return r
-            what = f"returned {r!r}, not a finite number" if not math.isfinite(r) else \
-                f"returned {r!r}, beyond ±1e5 (AWS stops the job)"
+        """The reward as a float, or NaN after recording why `check_value` refuses it."""
+        r, what = check_value(r)
+        if what is None:
+            return r
         if what not in self.where:  # find the `return` line once per kind of bad value
             self.where[what] = return_location(fn, params) or str(self.source or "reward_function")
         self.add(f"{self.where[what]}: reward_function {what}", row, params)
@@ -312,8 +296,7 @@ def score(fn, pc: ParamsColumns, rows=None, *, max_problems: int = MAX_ERROR_DET
     occurrence; failing rows get NaN.
     """
     t0 = time.perf_counter()
-    src = getattr(fn, "__racerlab_source__", None)
-    problems = _Problems(Path(src) if src else None, max_problems)
+    problems = _Problems(source_of(fn), max_problems)
     out = np.full(len(pc), np.nan)
     idx = np.arange(len(pc)) if rows is None else np.flatnonzero(rows) if np.asarray(rows).dtype == bool \
         else np.asarray(rows, np.int64)
@@ -358,8 +341,6 @@ def rescore(df: pd.DataFrame, reward, track: Track, *, reverse: bool | None = No
     Rows are taken in episode and step order, so a reward function that keeps state between calls sees
     them as the simulator did.
     """
-    from racerlab.sim.reward import as_reward_function
-
     fn = as_reward_function(reward)
     t0 = time.perf_counter()
     pc = log_params(df, track, reverse)
@@ -377,8 +358,6 @@ def compare(df: pd.DataFrame, new_reward) -> pd.DataFrame:
 
     Rows whose new reward failed (NaN) make that episode's `new_reward` NaN.
     """
-    from racerlab.analysis.episodes import episode_summary
-
     eps = episode_summary(df)
     new = pd.Series(np.asarray(new_reward, dtype=np.float64)).groupby(df["unique_episode"].to_numpy()).sum(
         min_count=1)

@@ -169,7 +169,7 @@ def check_reward(reward, track: Track, *, per_segment: int = 100, seed: int = 0)
     Never raises for the reward's own failures: exceptions (with the params that caused them), values that
     are not numbers, not finite or beyond ±1e5 are collected in `problems`.
     """
-    from racerlab.sim.reward import as_reward_function
+    from racerlab.reward import as_reward_function
 
     fn = as_reward_function(reward)
     st = sample_states(track, per_segment, seed)
@@ -311,7 +311,7 @@ def reward_map(reward, track: Track, *, speed: float = 2.0, heading: str = "alon
     the borders, plus `margin` (fraction of the width) beyond each border, with the given speed, heading rule
     (`parse_heading`) and steering. Progress is measured from the start line; steps are those of driving
     there at `speed`."""
-    from racerlab.sim.reward import as_reward_function
+    from racerlab.reward import as_reward_function
 
     fn = as_reward_function(reward)
     kind, value = parse_heading(heading)

@@ -8,20 +8,27 @@ from pathlib import Path
 
 
 def _rule_flags(p) -> None:
+    from racerlab import spec
+
     p.add_argument("--track", help="track name or path (default: the (first) model's training track)")
-    p.add_argument("--trials", type=int, default=3, help="laps (continuous) or trials to drive (default 3)")
+    p.add_argument("--trials", type=int, default=spec.EVAL_TRIALS,
+                   help=f"laps (continuous) or trials to drive (default {spec.EVAL_TRIALS})")
     p.add_argument("--continuous", action=argparse.BooleanOptionalAction, default=True,
                    help="drive the trials as consecutive laps of one episode (default) or each from the start line")
-    p.add_argument("--off-track-penalty", type=float, default=5.0, metavar="S",
-                   help="seconds held after an off-track or reversal (default 5, as DRfC)")
-    p.add_argument("--collision-penalty", type=float, default=5.0, metavar="S", help="seconds held after a crash")
-    p.add_argument("--max-resets", type=int, default=100, metavar="N",
-                   help="resets per episode; the next incident ends it (default 100)")
+    p.add_argument("--off-track-penalty", type=float, default=spec.EVAL_OFF_TRACK_PENALTY_S, metavar="S",
+                   help=f"seconds held after an off-track or reversal (default {spec.EVAL_OFF_TRACK_PENALTY_S:g}, "
+                        "as DRfC)")
+    p.add_argument("--collision-penalty", type=float, default=spec.EVAL_COLLISION_PENALTY_S, metavar="S",
+                   help=f"seconds held after a crash (default {spec.EVAL_COLLISION_PENALTY_S:g})")
+    p.add_argument("--max-resets", type=int, default=spec.EVAL_MAX_RESETS, metavar="N",
+                   help=f"resets per episode; the next incident ends it (default {spec.EVAL_MAX_RESETS})")
     p.add_argument("--enable-mercy-reset", action="store_true",
                    help="simapp's mercy reset: the Nth crash in a row into the same box (--max-resets-after-crash) "
                         "restarts the car --reset-ahead-dist ahead of the box instead of behind it")
-    p.add_argument("--max-resets-after-crash", type=int, default=3, metavar="N", help="default 3, as the simapp")
-    p.add_argument("--reset-ahead-dist", type=float, default=1.0, metavar="M", help="m of centre line (default 1)")
+    p.add_argument("--max-resets-after-crash", type=int, default=spec.EVAL_MAX_RESETS_AFTER_CRASH, metavar="N",
+                   help=f"default {spec.EVAL_MAX_RESETS_AFTER_CRASH}, as the simapp")
+    p.add_argument("--reset-ahead-dist", type=float, default=spec.EVAL_RESET_AHEAD_DIST_M, metavar="M",
+                   help=f"m of centre line (default {spec.EVAL_RESET_AHEAD_DIST_M:g})")
     p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
     p.add_argument("--reverse", action="store_true", help="drive the track the other way round")
     p.add_argument("--ranking-laps", type=int, default=3, metavar="N",

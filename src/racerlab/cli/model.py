@@ -11,7 +11,7 @@ from racerlab.errors import RacerlabError
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
     from racerlab.model.init import PRESETS
-    from racerlab.rewards import TEMPLATES as REWARD_TEMPLATES
+    from racerlab.reward import TEMPLATES as REWARD_TEMPLATES
 
     p = sub.add_parser("init", help="create a model folder with AWS-default files",
                        description="Write reward_function.py, model_metadata.json, hyperparameters.json and "
@@ -71,10 +71,15 @@ def run_init(args) -> int:
                         best_model_metric=args.best_model_metric, force=args.force, race=args.race,
                         preset=args.preset)
     if args.reward != "example":
-        from racerlab.rewards import top_speed, write_reward
+        from racerlab.reward import reward_source
+        from racerlab.reward.templates import NEEDS_LINE
 
-        metadata = folder.metadata()
-        write_reward(folder.reward_path, args.reward, folder.config().track.names[0], top_speed(metadata.actions))
+        line = None
+        if args.reward in NEEDS_LINE:
+            from racerlab.line import racing_line
+
+            line = racing_line(folder.config().track.names[0])
+        folder.write_reward(reward_source(args.reward, line, folder.metadata().actions.top_speed))
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     if args.sensor == "features":

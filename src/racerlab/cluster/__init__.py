@@ -4,7 +4,8 @@ Nothing here is imported by `racerlab train` without `--workers`, so Ray stays o
 """
 
 from racerlab.cluster.collector import RayCollector, merge_rollouts, split_episodes
-from racerlab.cluster.training import ClusterTrainer, train_on_cluster
+from racerlab.cluster.training import ClusterCollection, ClusterTraining, WorkerLogs, train_on_cluster
 from racerlab.cluster.worker import RolloutWorker
 
-__all__ = ["ClusterTrainer", "RayCollector", "RolloutWorker", "merge_rollouts", "split_episodes", "train_on_cluster"]
+__all__ = ["ClusterCollection", "ClusterTraining", "RayCollector", "RolloutWorker", "WorkerLogs", "merge_rollouts",
+           "split_episodes", "train_on_cluster"]

@@ -23,7 +23,6 @@ SPEC.toml (paths relative to the file)::
 from __future__ import annotations
 
 import json
-import shutil
 import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -87,7 +86,7 @@ def prepare_model(spec_path: Path, out: Path, entry: dict, track: str, cars: int
         src = (spec_path.parent / entry["reward"]).resolve()
         if not src.is_file():
             raise RacerlabError(f"{spec_path}: model {entry['name']!r}: reward file {src} does not exist; fix the path")
-        shutil.copyfile(src, folder.reward_path)
+        folder.write_reward(src.read_text())
     hp_over = entry.get("hyperparameters") or {}
     if hp_over:
         hp = json.loads(folder.hyperparameters_path.read_text())
@@ -96,7 +95,7 @@ def prepare_model(spec_path: Path, out: Path, entry: dict, track: str, cars: int
             raise RacerlabError(f"{spec_path}: model {entry['name']!r}: unknown hyperparameter {sorted(unknown)[0]!r}; "
                                 f"use one of {', '.join(sorted(hp))}")
         hp.update(hp_over)
-        folder.hyperparameters_path.write_text(json.dumps(hp, indent=2) + "\n")
+        folder.write_hyperparameters(hp)
         folder.hyperparameters()  # validates the values, naming the file
     return folder.path
 

@@ -1,7 +1,7 @@
 """One rollout worker: a batched `World` (or one per track) and a CPU copy of the policy.
 
-The class is plain Python; `racerlab.cluster.collector` makes it a Ray actor. It borrows the
-trainer's own world builders so a worker's worlds are exactly those `racerlab train` would build,
+The class is plain Python; `racerlab.cluster.collector` makes it a Ray actor. It builds its worlds with
+`racerlab.train.worlds`, so a worker's worlds are exactly those `racerlab train` would build,
 with the worker's share of the cars, its own seed and its own round-robin start offset (DRfC
 gives each robomaker its own start counter).
 """
@@ -12,12 +12,12 @@ import os
 from dataclasses import replace
 
 from racerlab.model import ModelFolder
-from racerlab.sim.reward import RewardCaller
-from racerlab.train.loop import Trainer, apply_overrides
+from racerlab.reward import RewardCaller, RewardWatchdog
+from racerlab.train import WorldBuilder, apply_overrides
 from racerlab.train.rollout import Collector
-from racerlab.train.watchdog import RewardWatchdog
 
 _LEARNER_ONLY = ("optimizer", "generator")  # state keys a worker keeps its own of
+WORKER_SEED_STRIDE = 1_009  # worker k's run.seed is the model's + 1009 k: apart from the draws' 1000 strides
 
 
 def broadcast_state(agent) -> dict:
@@ -50,10 +50,6 @@ def worker_cars(num_cars: int, index: int, workers: int, unit: int = 1) -> int:
 class RolloutWorker:
     """Collects whole training episodes with the weights the learner broadcasts."""
 
-    _make_world = Trainer._make_world
-    _make_worlds = Trainer._make_worlds
-    _load_track = Trainer._load_track
-
     def __init__(self, model_dir: str, index: int, workers: int, overrides: dict):
         import torch
 
@@ -70,14 +66,14 @@ class RolloutWorker:
                         start_offset=(r.start_offset + index / workers) % 1.0)
         unit = 2 if cfg.race.head_to_model else 1
         run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers, unit),
-                      seed=cfg.run.seed + 1009 * index, device="cpu")
+                      seed=cfg.run.seed + WORKER_SEED_STRIDE * index, device="cpu")
         self.cfg = replace(cfg, track=track, run=run)
-        self._track_flag = bool(overrides.get("tracks"))
-        self.draw = 0  # generated tracks ([track] generated): a worker keeps its first draw
         self.watchdog = RewardWatchdog(folder.reward_function(), cfg.run.reward_budget_s,
                                        lambda text: print(f"worker {index}: {text}", flush=True))
         self.reward = RewardCaller(self.watchdog)
-        self.worlds = self._make_worlds()
+        # generated tracks ([track] generated): a worker keeps its first draw
+        builder = WorldBuilder(self.cfg, self.metadata, self.reward, track_flag=bool(overrides.get("tracks")))
+        self.worlds = builder.training_worlds()
         self.collector = Collector(self.worlds)
         from racerlab.agent import make_agent
 

@@ -222,7 +222,7 @@ def _live_routes(app: FastAPI) -> None:
     def defaults(sensor: str = "features", action_space: str = "discrete", algorithm: str = "clipped_ppo",
                  max_speed: float = 1.0):
         from racerlab.console.modelapi import SENSORS, Hyperparameters, make_metadata
-        from racerlab.console.wizard import EXAMPLE_REWARD
+        from racerlab.reward import EXAMPLE_REWARD
 
         meta = make_metadata(sensor, action_space, algorithm, max_speed)
         hp = Hyperparameters().to_json()

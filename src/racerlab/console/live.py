@@ -45,21 +45,9 @@ def _chart_point(entry: dict) -> dict:
 
 
 def _read_lines(path: Path, offset: int) -> tuple[list[dict], int]:
-    """Complete JSON lines after byte `offset`, and the offset after the last complete one."""
-    try:
-        with open(path, "rb") as f:
-            f.seek(offset)
-            data = f.read()
-    except OSError:
-        return [], offset
-    end = data.rfind(b"\n") + 1
-    out = []
-    for line in data[:end].splitlines():
-        try:
-            out.append(_chart_point(json.loads(line)))
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            continue
-    return out, offset + end
+    """Chart points of the complete lines after byte `offset`, and the offset after the last complete one."""
+    entries, end = logs.follow_metrics_jsonl(path, offset)
+    return [_chart_point(e) for e in entries], end
 
 
 async def metric_events(workspace, name: str, is_disconnected, poll_s: float = POLL_S):

@@ -29,14 +29,15 @@ def ws(request: Request):
     return request.app.state.workspace
 
 
+_RULE_KEYS = {"trials": int, "continuous": bool, "off_track_penalty": float, "collision_penalty": float,
+              "max_resets": int, "reverse": bool}  # what the page may set; the rest are RaceRules' defaults
+
+
 def _rules(body: dict):
     from racerlab.evaluate import RaceRules
 
     try:
-        return RaceRules(trials=int(body.get("trials", 3)), continuous=bool(body.get("continuous", True)),
-                         off_track_penalty=float(body.get("off_track_penalty", 5.0)),
-                         collision_penalty=float(body.get("collision_penalty", 5.0)),
-                         max_resets=int(body.get("max_resets", 100)), reverse=bool(body.get("reverse", False)))
+        return RaceRules(**{key: kind(body[key]) for key, kind in _RULE_KEYS.items() if key in body})
     except (TypeError, ValueError) as exc:
         raise ConsoleError(f"race rules: {exc}") from None
 

@@ -23,13 +23,13 @@ import tarfile
 from pathlib import Path, PurePosixPath
 
 from racerlab.errors import RacerlabError
+from racerlab.spec import MAX_ARCHIVE_BYTES
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 COOKIE = "racerlab_console"
 CSRF_HEADER = "X-CSRF-Token"
 MAX_UPLOAD_BYTES = 512 * 1024 * 1024
 MAX_ARCHIVE_MEMBERS = 100_000
-MAX_ARCHIVE_BYTES = 8 * 1024 * 1024 * 1024
 SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 
 

@@ -3,7 +3,6 @@ the same `init_model` as `racerlab init`."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -17,15 +16,13 @@ from racerlab.console.modelapi import (
 )
 from racerlab.console.security import ConsoleError, check_name
 from racerlab.errors import RacerlabError
+from racerlab.reward import EXAMPLE_REWARD, load_reward_function
 
-EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
 MAX_REWARD_BYTES = 256 * 1024
 
 
 def check_reward_text(text: str, where: str = "reward_function.py"):
     """Import the reward function from `text` (in a temporary file); its one-line error when it fails."""
-    from racerlab.sim.reward import load_reward_function
-
     if not isinstance(text, str) or not text.strip():
         raise ConsoleError(f"{where}: empty; write a reward_function(params)")
     if len(text.encode()) > MAX_REWARD_BYTES:
@@ -73,9 +70,9 @@ def create_model(workspace, body: dict) -> str:
         folder = init_model(path, track=track, sensor=str(body.get("sensor", "features")),
                             action_space=meta.action_space_type, algorithm=meta.training_algorithm,
                             max_speed=float(body.get("max_speed", 1.0)), num_cars=int(cars) if cars else None)
-        folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
-        folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
-        folder.reward_path.write_text(reward, encoding="utf-8")
+        folder.write_metadata(meta)
+        folder.write_hyperparameters(hp)
+        folder.write_reward(reward)
     except (RacerlabError, OSError, ValueError):
         shutil.rmtree(path, ignore_errors=True)
         raise

@@ -30,24 +30,6 @@ STATE_DIR = ".console"
 TAIL_BYTES = 64 * 1024
 
 
-def last_jsonl_entry(path: Path) -> dict | None:
-    """The last complete JSON line of a file, reading only its tail."""
-    try:
-        with open(path, "rb") as f:
-            f.seek(0, os.SEEK_END)
-            size = f.tell()
-            f.seek(max(size - TAIL_BYTES, 0))
-            lines = f.read().splitlines()
-    except OSError:
-        return None
-    for line in reversed(lines):
-        try:
-            return json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            continue
-    return None
-
-
 def _pid_alive(pid: int, folder: Path) -> bool:
     """True while `pid` runs `racerlab train` on `folder` (a reused pid of another program is not ours)."""
     try:
@@ -117,7 +99,7 @@ class Workspace:
             out["track"] = list(folder.config().track.names)
         except RacerlabError as exc:
             out["error"] = str(exc)
-        last = last_jsonl_entry(logs.metrics_jsonl_path(folder.path))
+        last = logs.last_metrics_entry(logs.metrics_jsonl_path(folder.path))
         if last:
             lap = last.get("best/lap_time")
             out.update(iteration=last.get("iteration", 0), episodes=last.get("episodes", 0),

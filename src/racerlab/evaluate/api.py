@@ -23,9 +23,12 @@ from racerlab import logs
 from racerlab.errors import RacerlabError
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
 from racerlab.evaluate.rules import RaceRules
-from racerlab.evaluate.runner import EvalRun, run_evaluation
-from racerlab.model import ModelFolder, nonfinite_tensors, parse_model_metadata, resolve_track
-from racerlab.spec import RaceConfig
+from racerlab.evaluate.runner import EvalRun, run_evaluation, run_head_to_model
+from racerlab.model import ModelFolder, TrainingState, nonfinite_tensors, parse_model_metadata, resolve_track
+from racerlab.spec import MAX_SPEED, RaceConfig
+
+HUD_MIN_TOP_SPEED = 0.5  # m/s: a slow model's speed bar still spans this much
+RACE_SEED = 0  # every race draws the same random stream (boxes, bots, randomisation): results repeat
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -91,7 +94,7 @@ class LoadedModel:
     folder: ModelFolder
     metadata: object  # ModelMetadata
     checkpoint: str
-    state: dict
+    state: TrainingState
     observation: str
 
 
@@ -102,33 +105,22 @@ def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
     meta = folder.metadata()
     cfg = folder.config()
     info = folder.resolve_checkpoint(checkpoint)
-    ck = folder.load_checkpoint(info)
+    ck = folder.load_state(info)
     where = folder.checkpoint_path(info)
-    if not isinstance(ck, dict) or "agent" not in ck:
-        raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
-    bad = nonfinite_tensors(ck["agent"])
+    bad = nonfinite_tensors(ck.agent)
     if bad:
         older = [c.iteration for c in folder.checkpoints() if c.iteration != info.iteration]
         hint = f"pick an older one with --checkpoint {older[-1]}" if older else "train it again"
         raise RacerlabError(f"{where}: non-finite weights ({bad[0]}); the training diverged there: {hint}")
-    if ck.get("metadata") is not None:
-        _check_same_model(ck["metadata"], meta, where, folder.metadata_path)
+    if ck.metadata is not None:
+        _check_same_model(ck.metadata, meta, where, folder.metadata_path)
     return LoadedModel(folder, meta, info.name, ck, cfg.run.observation)
 
 
 def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
-    trained = parse_model_metadata(ck_meta, f"{where} (its model_metadata)")
-    diffs = []
-    if trained.action_space_type != meta.action_space_type:
-        diffs.append(f"action space {trained.action_space_type} vs {meta.action_space_type}")
-    elif meta.action_space_type == "discrete" and trained.actions.n != meta.actions.n:
-        diffs.append(f"{trained.actions.n} actions vs {meta.actions.n}")
-    for name in ("sensor", "neural_network", "training_algorithm"):
-        a, b = getattr(trained, name), getattr(meta, name)
-        if a != b:
-            diffs.append(f"{name} {list(a) if name == 'sensor' else a} vs {list(b) if name == 'sensor' else b}")
+    diffs = parse_model_metadata(ck_meta, f"{where} (its model_metadata)").differences(meta)
     if diffs:
-        raise RacerlabError(f"{where} does not match {meta_path}: it was trained with {'; '.join(diffs)}; restore "
+        raise RacerlabError(f"{where} does not match {meta_path} (trained → now): {'; '.join(diffs)}; restore "
                             "the model_metadata.json it was trained with or train again")
 
 
@@ -137,10 +129,10 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
     from racerlab.agent import make_agent
 
     agent = make_agent(world.observation.space, model.metadata, model.folder.hyperparameters(), device=device,
-                       seed=0)
+                       seed=RACE_SEED)  # greedy: the seed draws nothing, but every agent is built the same way
     obs_name = getattr(world.observation, "name", None) or model.observation or "default"
     try:
-        agent.load_state_dict(model.state["agent"])
+        agent.load_state_dict(model.state.agent)
     except (RuntimeError, ValueError, KeyError, TypeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RacerlabError(f"{model.folder.checkpoints_dir / model.checkpoint}: its weights do not fit the network "
@@ -164,7 +156,8 @@ def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate")
     return RaceConfig.from_mapping({**table, **race}, where=where)
 
 
-def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = 0, reward=None, race=None, randomise=None):
+def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = RACE_SEED, reward=None, race=None,
+               randomise=None):
     """The race world. The model folder's reward_function.py is never imported (racing someone's model must
     not run their code): the reward column is 0, as AWS's evaluation logs it, unless `reward` (a callable or
     a path the user chose) is given. `race` (a RaceConfig, or [race] keys over the model's): see `race_config`.
@@ -182,11 +175,11 @@ def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=Non
              where: str = "racerlab evaluate"):
     """Two loaded models (or one model twice) in one head-to-model world, a car each, under `rules`: the
     worlds (one per car, sharing the simulator) and each car's `EvalRun`."""
-    from racerlab.evaluate.runner import run_head_to_model
     from racerlab.sim import StartRules, World
 
     first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
-                  max_episode_steps=rules.max_episode_steps, seed=0, race=RaceConfig(type="head_to_model", where=where))
+                  max_episode_steps=rules.max_episode_steps, seed=RACE_SEED,
+                  race=RaceConfig(type="head_to_model", where=where))
     worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim)]
     policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
     image_of = None
@@ -201,8 +194,10 @@ def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=Non
 # ---- evaluate -------------------------------------------------------------------------------------
 
 
-def evaluate(model_dir, track=None, trials: int = 3, continuous: bool = True, off_track_penalty: float = 5.0,
-             collision_penalty: float = 5.0, max_resets: int = 100, checkpoint: str | int = "best",
+def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: bool = RaceRules.continuous,
+             off_track_penalty: float = RaceRules.off_track_penalty,
+             collision_penalty: float = RaceRules.collision_penalty, max_resets: int = RaceRules.max_resets,
+             checkpoint: str | int = "best",
              reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
              ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
              progress: bool = False, on_lap=None, reward=None, race=None, randomise=None) -> EvaluationResult:
@@ -282,8 +277,7 @@ def _write_summary(result: EvaluationResult) -> None:
 
 
 def _top_speed(metadata) -> float:
-    acts = metadata.actions
-    top = max(acts.speed) if hasattr(acts, "speed") else acts.speed_high
-    return float(min(max(top, 0.5), 4.0))
+    """The video's speed-bar scale: the action space's top speed, at least HUD_MIN_TOP_SPEED, at most MAX_SPEED."""
+    return min(max(metadata.actions.top_speed, HUD_MIN_TOP_SPEED), MAX_SPEED)
 
 

@@ -25,6 +25,7 @@ from racerlab.errors import RacerlabError, TrackError
 from racerlab.evaluate.api import load_model, make_policy
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import run_evaluation
+from racerlab.spec import STEPS_PER_SECOND
 from racerlab.track.core import load_file
 
 DIRECTION_SUFFIX = re.compile(r"_(ccw|cw)$")
@@ -147,7 +148,8 @@ def evaluate_tracks(model_dir, tracks, trials: int = 1, checkpoint: str | int = 
     model = load_model(model_dir, checkpoint)
     loaded = _load_closed([t for t in tracks if not hasattr(t, "center")]) if tracks else []
     objs = [t for t in tracks if hasattr(t, "center")] + loaded
-    rules = RaceRules(trials=trials, continuous=False, max_resets=0, max_episode_steps=int(MAX_LAP_SECONDS * 15))
+    rules = RaceRules(trials=trials, continuous=False, max_resets=0,
+                      max_episode_steps=int(MAX_LAP_SECONDS * STEPS_PER_SECOND))
     runs = [plain, randomise] if randomise is not None else [plain]
     results: list[list[TrackOutcome]] = [[] for _ in runs]
     for track in objs:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.api import EvaluationResult, evaluate
+from racerlab.evaluate.api import EvaluationResult, _write, evaluate, load_model, run_pair
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, race_result, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
@@ -92,8 +92,6 @@ def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = Non
     sensors and `objects_*` params seeing the other car, crashes between them judged by the crash rule (the car
     behind crashed). Each model's evaluation folder gets its simtrace, EvalMetrics and summary (and video); the
     leaderboard ranks the two as `race` does. `on_lap(k, lap)` is called as car k ends a lap."""
-    from racerlab.evaluate.api import _write, load_model, run_pair
-
     rules = rules or RaceRules()
     dirs = [Path(model_a), Path(model_b)]
     models = [load_model(m, checkpoint) for m in dirs]

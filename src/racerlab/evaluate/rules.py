@@ -15,7 +15,15 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from racerlab.errors import RacerlabError
-from racerlab.spec import STEP_S
+from racerlab.spec import (
+    EVAL_COLLISION_PENALTY_S,
+    EVAL_MAX_RESETS,
+    EVAL_MAX_RESETS_AFTER_CRASH,
+    EVAL_OFF_TRACK_PENALTY_S,
+    EVAL_RESET_AHEAD_DIST_M,
+    EVAL_TRIALS,
+    STEP_S,
+)
 
 # AWS MAX_STEPS of DeepRacerRacetrackEnv (facts §2): the step cap of one evaluation episode
 AWS_MAX_EPISODE_STEPS = 100_000
@@ -33,20 +41,20 @@ class RaceRules:
     next incident ends the episode.
     """
 
-    trials: int = 3  # DR_EVAL_NUMBER_OF_TRIALS
+    trials: int = EVAL_TRIALS
     continuous: bool = True  # DR_EVAL_IS_CONTINUOUS
-    off_track_penalty: float = 5.0  # DR_EVAL_OFF_TRACK_PENALTY, s
-    collision_penalty: float = 5.0  # DR_EVAL_COLLISION_PENALTY, s
+    off_track_penalty: float = EVAL_OFF_TRACK_PENALTY_S  # s
+    collision_penalty: float = EVAL_COLLISION_PENALTY_S  # s
     reverse_penalty: float | None = None  # simapp REVERSE_PENALTY: None = the off-track penalty
     immobilized_penalty: float = 0.0  # simapp IMMOBILIZED_PENALTY
-    max_resets: int = 100  # DR_EVAL_MAX_RESETS (NUMBER_OF_RESETS)
+    max_resets: int = EVAL_MAX_RESETS
     reverse: bool = False  # drive the track the other way
     max_episode_steps: int = AWS_MAX_EPISODE_STEPS
     # simapp ENABLE_MERCY_RESET: the max_resets_after_crash-th consecutive crash into the same box puts the car
     # reset_ahead_dist m of centre line ahead of it (instead of behind); off unless asked (docs/objects.md)
     enable_mercy_reset: bool = False
-    max_resets_after_crash: int = 3  # simapp MAX_RESETS_AFTER_CRASH
-    reset_ahead_dist: float = 1.0  # m, simapp RESET_AHEAD_DIST (racerlab's choice: RESET_BEHIND_DIST's 1 m)
+    max_resets_after_crash: int = EVAL_MAX_RESETS_AFTER_CRASH
+    reset_ahead_dist: float = EVAL_RESET_AHEAD_DIST_M  # m of centre line
 
     def __post_init__(self):
         if isinstance(self.trials, bool) or int(self.trials) != self.trials or self.trials < 1:

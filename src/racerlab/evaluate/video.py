@@ -21,9 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import RacerlabError
+from racerlab.spec import STEPS_PER_SECOND
 from racerlab.track.core import Track
 
-FPS = 15
+FPS = STEPS_PER_SECOND  # one frame per simulator step: real time
 CAR_LENGTH_M = 0.324  # BOT_CAR_DIMENSION (facts §2), centred on the base pose
 CAR_WIDTH_M = 0.196
 SPEED_CMAP = "plasma"

@@ -25,10 +25,10 @@ from racerlab.exchange.local import (
     parse_hyperparameters_text,
     write_imported_model,
 )
+from racerlab.spec import MAX_ARCHIVE_BYTES
 
 CKPT_RE = re.compile(r"^(\d+)_Step-(\d+)\.ckpt\.index$")
 KEPT = ("reward_function.py", "hyperparameters.json", "training_params.yaml", "model_metadata.json")
-MAX_ARCHIVE_BYTES = 4 << 30
 
 
 def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool) -> None:
@@ -69,8 +69,8 @@ def safe_extract(archive: Path, dest: Path) -> None:
 
 def _check_size(archive: Path, total: int) -> None:
     if total > MAX_ARCHIVE_BYTES:
-        raise ConfigError(f"{archive}: unpacks to {total / 2**30:.1f} GiB, more than a DeepRacer model (<= 4 GiB); "
-                          "not extracting it")
+        raise ConfigError(f"{archive}: unpacks to {total / 2**30:.1f} GiB, more than a DeepRacer model "
+                          f"(<= {MAX_ARCHIVE_BYTES / 2**30:g} GiB); not extracting it")
 
 
 class ModelFiles:

@@ -7,28 +7,26 @@ hyperparameters, folder, training config) and the training checkpoint format.
 from __future__ import annotations
 
 import json
-import math
-import time
 from dataclasses import dataclass, replace
 
 from racerlab.errors import ConfigError, RacerlabError
 from racerlab.model import (
-    EXAMPLE_REWARD,
     CheckpointInfo,
     Hyperparameters,
     ModelFolder,
     ModelMetadata,
     TrainingConfig,
+    TrainingState,
     load_model_metadata,
     parse_hyperparameters,
     parse_model_metadata,
 )
 from racerlab.model.config import TrackSettings
+from racerlab.reward import EXAMPLE_REWARD
 
 __all__ = ["CheckpointInfo", "Hyperparameters", "LocalModel", "ModelFolder", "ModelMetadata", "aws_shapes",
            "load_local_model", "load_model_metadata", "parse_model_metadata", "write_imported_model"]
 
-CHECKPOINT_FORMAT = "racerlab.checkpoint/1"  # racerlab.train.loop.STATE_FORMAT: the dict a training checkpoint holds
 IMPORTED_DIR = "imported"
 
 
@@ -81,11 +79,8 @@ def load_local_model(model_dir, checkpoint: str | int = "best") -> LocalModel:
     meta = folder.metadata()
     shapes = aws_shapes(meta)
     info = folder.resolve_checkpoint(checkpoint)
-    ck = folder.load_checkpoint(info)
-    where = folder.checkpoints_dir / info.name
-    agent = ck.get("agent") if isinstance(ck, dict) else None
-    if not isinstance(agent, dict):
-        raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+    agent = folder.load_state(info).agent
+    where = folder.checkpoint_path(info)
     nets = build_networks(shapes, meta)
     names = ("actor",) if meta.training_algorithm == "sac" else ("policy", "value")
     networks = {}
@@ -133,21 +128,17 @@ def write_imported_model(dst, metadata: ModelMetadata, networks: dict, hyperpara
     header = ("# racerlab import: this is racerlab's example reward. The imported model's own reward function is\n"
               f"# kept as text, never run, in {IMPORTED_DIR}/reward_function.py.txt: read it, then copy it here\n"
               "# to train with it.\n\n") if "reward_function.py" in originals else ""
-    folder.reward_path.write_text(header + EXAMPLE_REWARD.read_text())
-    folder.metadata_path.write_text(json.dumps(metadata.to_json(), indent=2) + "\n")
-    folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
+    folder.write_reward(header + EXAMPLE_REWARD.read_text())
+    folder.write_metadata(metadata)
+    folder.write_hyperparameters(hp)
     cfg = TrainingConfig()
     cfg = replace(cfg, run=replace(cfg.run, num_cars=16))  # as `racerlab init` for sensor models
     if track:
         cfg = replace(cfg, track=TrackSettings(names=(track,)))
-    folder.config_path.write_text(cfg.to_toml())
-    state = {"format": CHECKPOINT_FORMAT, "agent": agent.state_dict(), "metadata": metadata.to_json(),
-             "iteration": 0, "episodes": 0, "env_steps": 0, "train_steps": 0, "best_name": None,
-             "best_metric": None, "best_lap_time": math.nan, "rollbacks": 0, "starts": None, "first_lap": None,
-             "saved_at": time.time(), "cloned": True}
-    info = folder.save_checkpoint(state, 0, 0)
+    folder.write_config(cfg)
+    info = folder.save_state(TrainingState(agent.state_dict(), metadata.to_json(), train_steps=0, cloned=True))
     folder.update_index(info, float("nan"), None, None)
-    (folder.path / "lineage.json").write_text(json.dumps({"imported": note}, indent=2) + "\n")
+    folder.write_lineage({"imported": note})
     return folder
 
 

@@ -59,6 +59,8 @@ from racerlab.logs.metrics import (
     MetricsLog,
     TrainingMetrics,
     finite_json,
+    follow_metrics_jsonl,
+    last_metrics_entry,
     read_metrics_jsonl,
 )
 from racerlab.logs.retention import SimtraceRetention, thin_simtrace
@@ -70,8 +72,8 @@ __all__ = [
     "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_layouts_path",
     "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
-    "finite_json", "format_rows", "metrics_jsonl_path", "new_evaluation_dir", "read_metrics_jsonl",
-    "remove_stale_temps",
+    "finite_json", "follow_metrics_jsonl", "format_rows", "last_metrics_entry", "metrics_jsonl_path",
+    "new_evaluation_dir", "read_metrics_jsonl", "remove_stale_temps",
     "remove_training_simtrace_after", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
     "training_simtrace_path", "thin_simtrace", "write_simtrace",
 ]

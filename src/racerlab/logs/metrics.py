@@ -218,21 +218,58 @@ class MetricsLog:
 
 
 def read_metrics_jsonl(path: str | os.PathLike) -> list[dict]:
-    """Entries of a `metrics.jsonl` ([] when missing); a torn final line is ignored."""
+    """Entries of a `metrics.jsonl` ([] when missing); a torn final line is ignored, a bad line elsewhere is an
+    error naming the file and line."""
     path = Path(path)
     if not path.is_file():
         return []
-    lines = path.read_text(encoding="utf-8").split("\n")
+    *whole, last = path.read_bytes().split(b"\n")
+    out = _parse_lines(whole, path, strict=True)
+    return out + _parse_lines([last], path, strict=False)  # without its newline: complete, or a write cut off
+
+
+def follow_metrics_jsonl(path: str | os.PathLike, offset: int = 0) -> tuple[list[dict], int]:
+    """For a reader following a training as it writes: the entries of the complete lines after byte `offset`, and
+    the offset after the last complete line (a line still being written is read next time; a line that does not
+    parse is skipped). A missing file gives ([], offset)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(offset)
+            data = f.read()
+    except OSError:
+        return [], offset
+    end = data.rfind(b"\n") + 1
+    return _parse_lines(data[:end].split(b"\n"), Path(path), strict=False), offset + end
+
+
+def last_metrics_entry(path: str | os.PathLike, tail_bytes: int = 64 * 1024) -> dict | None:
+    """The last complete entry of a `metrics.jsonl`, reading only its last `tail_bytes` (None when there is none)."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(f.tell() - tail_bytes, 0))
+            lines = f.read().split(b"\n")
+    except OSError:
+        return None
+    for line in reversed(lines):
+        found = _parse_lines([line], Path(path), strict=False)
+        if found:
+            return found[0]
+    return None
+
+
+def _parse_lines(lines: list[bytes], path: Path, strict: bool) -> list[dict]:
+    """The JSON entries of `lines` (blank ones skipped); a line that does not parse is a `LogFileError` naming the
+    file and line with `strict`, and skipped without."""
     out = []
     for i, line in enumerate(lines, 1):
         if not line.strip():
             continue
         try:
             out.append(json.loads(line))
-        except json.JSONDecodeError as e:
-            if i == len(lines):  # the last line has no newline: a write that was cut off
-                break
-            raise LogFileError(f"{path}:{i}: not valid JSON ({e.msg})") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            if strict:
+                raise LogFileError(f"{path}:{i}: not valid JSON ({getattr(e, 'msg', e)})") from None
     return out
 
 

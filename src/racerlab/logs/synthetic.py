@@ -14,6 +14,7 @@ import numpy as np
 
 from racerlab.logs.layout import training_simtrace_path
 from racerlab.logs.simtrace import SimtraceWriter
+from racerlab.spec import STEPS_PER_SECOND
 
 TRACK_LEN = 2 * np.pi * 2.5
 
@@ -34,7 +35,7 @@ def episode_columns(episodes: np.ndarray, steps: np.ndarray, rng: np.random.Gene
     steer = rng.choice([-30.0, -15.0, 0.0, 15.0, 30.0], n)
     speed = rng.choice([1.0, 2.0, 3.0], n)
     action = np.stack([steer, speed], 1) if continuous else ((steer + 30) // 15 * 3 + speed - 1).astype(np.int64)
-    tstamp = np.round(np.repeat(rng.uniform(0, 5000, len(episodes)), steps) + step / 15, 3)
+    tstamp = np.round(np.repeat(rng.uniform(0, 5000, len(episodes)), steps) + step / STEPS_PER_SECOND, 3)
     return {
         "episode": ep, "steps": step, "X": 2.5 * np.cos(angle), "Y": 2.5 * np.sin(angle),
         "yaw": np.degrees(np.arctan2(np.cos(angle), -np.sin(angle))), "steer": steer, "throttle": speed,

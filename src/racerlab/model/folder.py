@@ -11,33 +11,19 @@ from __future__ import annotations
 import json
 import os
 import pickle
-import re
 import shlex
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from racerlab.errors import RacerlabError
 from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_text, finite_json
+from racerlab.model.checkpoint import CheckpointInfo, TrainingState
 from racerlab.model.config import TrainingConfig, load_training_config
 from racerlab.model.hyperparameters import Hyperparameters, load_hyperparameters
 from racerlab.model.metadata import ModelMetadata, load_model_metadata
-from racerlab.model.reward import load_reward_function
+from racerlab.reward import load_reward_function
 
 KEEP_LAST = 4
-CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
-
-
-@dataclass(frozen=True)
-class CheckpointInfo:
-    name: str
-    iteration: int
-    steps: int
-
-    @classmethod
-    def parse(cls, name: str) -> CheckpointInfo | None:
-        m = CHECKPOINT_RE.match(name)
-        return cls(name, int(m.group(1)), int(m.group(2))) if m else None
 
 
 class ModelFolder:
@@ -118,6 +104,35 @@ class ModelFolder:
             return ()
         return self.config().track.names
 
+    # ---- writing the model's files (each atomically: a kill leaves the old file or the new one) ----------
+    def write_reward(self, text: str) -> None:
+        self._write(self.reward_path, text)
+
+    def write_metadata(self, metadata: ModelMetadata) -> None:
+        self._write(self.metadata_path, json.dumps(metadata.to_json(), indent=2) + "\n")
+
+    def write_hyperparameters(self, hp: Hyperparameters | dict) -> None:
+        """hyperparameters.json from `Hyperparameters` or a dict of its keys (validated by the next read)."""
+        self._write(self.hyperparameters_path, json.dumps(hp if isinstance(hp, dict) else hp.to_json(), indent=2)
+                    + "\n")
+
+    def write_config(self, cfg: TrainingConfig, header: str = "") -> None:
+        """training.toml from `cfg`, after `header` (comment lines for the reader)."""
+        self._write(self.config_path, header + cfg.to_toml())
+
+    def write_lineage(self, lineage: dict) -> None:
+        self._write(self.lineage_path, json.dumps(lineage, indent=2) + "\n")
+
+    def copy_model_files(self, src: ModelFolder) -> None:
+        """The four model files of `src` (those it has) into this folder."""
+        for p in src.model_files:
+            if p.is_file():
+                self._write(self.path / p.name, p.read_bytes())
+
+    def _write(self, path: Path, data: str | bytes) -> None:
+        self.path.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(path, data.encode("utf-8") if isinstance(data, str) else data)
+
     # ---- the training lock ---------------------------------------------------------------------
     def lock(self) -> TrainingLock:
         """The folder's training lock (`with folder.lock(): ...`): one trainer per folder at a time."""
@@ -160,7 +175,12 @@ class ModelFolder:
                                 f"{', '.join(str(c.iteration) for c in cps)}")
         return hit[0]
 
+    def load_state(self, info: CheckpointInfo) -> TrainingState:
+        """The checkpoint's `TrainingState`; a file without agent weights is a one-line error."""
+        return TrainingState.from_dict(self.load_checkpoint(info), self.checkpoint_path(info))
+
     def load_checkpoint(self, info: CheckpointInfo) -> dict:
+        """The checkpoint file's dict as it is (`load_state` reads it for you)."""
         import torch
 
         path = self.checkpoint_path(info)
@@ -176,14 +196,15 @@ class ModelFolder:
             raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {_first_line(exc)})"
                                 ) from None
 
-    def save_checkpoint(self, state: dict, iteration: int, steps: int) -> CheckpointInfo:
+    def save_state(self, state: TrainingState) -> CheckpointInfo:
+        """Write `state` as its iteration's checkpoint (atomically: a kill leaves the previous files whole)."""
         import io
 
         import torch
 
-        info = CheckpointInfo(f"{iteration}_Step-{steps}.pt", iteration, steps)
+        info = state.info
         buf = io.BytesIO()
-        torch.save(state, buf)
+        torch.save(state.to_dict(), buf)
         atomic_write_bytes(self.checkpoint_path(info), buf.getvalue())
         return info
 

@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import json
-import shutil
 from dataclasses import replace
-from pathlib import Path
 
 from racerlab.errors import RacerlabError
 from racerlab.model.config import TrackSettings, TrainingConfig
 from racerlab.model.folder import ModelFolder
 from racerlab.model.hyperparameters import Hyperparameters
 from racerlab.model.metadata import ContinuousActions, ModelMetadata, default_discrete_actions
+from racerlab.reward import EXAMPLE_REWARDS
 from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, RaceConfig
 
-EXAMPLE_REWARD = Path(__file__).resolve().parent.parent / "data" / "examples" / "reward_function.py"
-EXAMPLE_REWARDS = {"time_trial": EXAMPLE_REWARD,
-                   "object_avoidance": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py"),
-                   "head_to_bot": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py"),
-                   "head_to_model": EXAMPLE_REWARD.with_name("reward_function_object_avoidance.py")}
 # `init --race head_to_bot`: DRfC's template (DR_H2B_NUMBER_OF_BOT_CARS=3), the simulator's bot defaults
 HEAD_TO_BOT_CARS = 3
 # `init --race object_avoidance`: three fixed boxes that pass the console's rules (first >= 7 %, last <= 90 %,
@@ -105,11 +98,10 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
     elif race == "head_to_model":  # self-play: the cars race in pairs, each the other's object
         cfg = replace(cfg, race=RaceConfig(type=race))
     cfg = apply_preset(cfg, preset, sensor)
-    folder.path.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(EXAMPLE_REWARDS[race], folder.reward_path)
-    folder.metadata_path.write_text(json.dumps(meta.to_json(), indent=2) + "\n")
-    folder.hyperparameters_path.write_text(json.dumps(hp.to_json(), indent=2) + "\n")
-    folder.config_path.write_text(_TOML_HEADER + cfg.to_toml())
+    folder.write_reward(EXAMPLE_REWARDS[race].read_text())
+    folder.write_metadata(meta)
+    folder.write_hyperparameters(hp)
+    folder.write_config(cfg, _TOML_HEADER)
     return folder
 
 

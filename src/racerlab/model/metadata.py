@@ -25,10 +25,17 @@ KNOWN_KEYS = {"action_space", "action_space_type", "sensor", "neural_network", "
               "lidar_config", "preprocess_type", "racerlab"}
 
 # What a model may observe (training.toml's run.observation): racerlab's `features` vector and the sensor
-# combinations. `racerlab.sim.observations` builds each and its `register_observation` appends new names.
+# combinations. `racerlab.sim.observations` builds each; an observation registered there is added with
+# `accept_observation_name`.
 OBSERVATION_NAMES = ["features", "camera", "stereo", "lidar", "sector_lidar", "discretized_sector_lidar",
                      "camera+lidar", "camera+sector_lidar", "camera+discretized_sector_lidar", "stereo+lidar",
                      "stereo+sector_lidar", "stereo+discretized_sector_lidar"]
+
+
+def accept_observation_name(name: str) -> None:
+    """Let training.toml's run.observation name a newly registered observation."""
+    if name not in OBSERVATION_NAMES:
+        OBSERVATION_NAMES.append(name)
 
 
 def split_observation_name(name: str) -> tuple[str, tuple[str, ...]]:
@@ -48,6 +55,11 @@ class DiscreteActions:
     def n(self) -> int:
         return len(self.speed)
 
+    @property
+    def top_speed(self) -> float:
+        """The fastest action's speed, m/s (what the physical car's full throttle stands for)."""
+        return float(max(self.speed))
+
     def lookup(self, index) -> tuple[np.ndarray, np.ndarray]:
         """Commanded (steering °, speed) for integer action indices (any shape)."""
         idx = np.asarray(index, dtype=np.int64)
@@ -66,6 +78,11 @@ class ContinuousActions:
     steering_high: float
     speed_low: float
     speed_high: float
+
+    @property
+    def top_speed(self) -> float:
+        """The range's top speed, m/s (what the physical car's full throttle stands for)."""
+        return float(self.speed_high)
 
     def rescale(self, action) -> tuple[np.ndarray, np.ndarray]:
         """Clip to [-1, 1] and rescale linearly to the ranges, as AWS's ScalableBoxActionSpace does."""
@@ -100,6 +117,22 @@ class ModelMetadata:
     @property
     def lidar(self) -> str | None:
         return next((s for s in self.sensor if s in LIDARS), None)
+
+    def differences(self, other: ModelMetadata) -> list[str]:
+        """What weights trained with this metadata cannot carry over to `other` (facts §9): the action space type,
+        the number of discrete actions, the sensors, the network and the algorithm, each as "what: mine → other's".
+        Action values (the speeds and angles), the reward, hyperparameters and track may change."""
+        out = []
+        if self.action_space_type != other.action_space_type:
+            out.append(f"action space type {self.action_space_type} → {other.action_space_type}")
+        elif self.action_space_type == "discrete" and self.actions.n != other.actions.n:
+            out.append(f"number of actions {self.actions.n} → {other.actions.n}")
+        if tuple(self.sensor) != tuple(other.sensor):
+            out.append(f"sensors {list(self.sensor)} → {list(other.sensor)}")
+        for name in ("neural_network", "training_algorithm"):
+            if getattr(self, name) != getattr(other, name):
+                out.append(f"{name} {getattr(self, name)} → {getattr(other, name)}")
+        return out
 
     def to_json(self) -> dict:
         out = {"action_space": self.actions.to_json(), "action_space_type": self.action_space_type,

@@ -21,7 +21,7 @@ from numba import njit
 
 from racerlab.sim.car import advance
 from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES
-from racerlab.track.kernels import nearest_on_polyline_near, nearest_segment, point_in_road
+from racerlab.track.kernels import measure_on_track, point_in_road
 
 # ---- table layouts ----------------------------------------------------------------------------
 # car (float64)
@@ -72,29 +72,9 @@ def measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, cc
     s = math.sin(yaw)
     mx = x + MODEL_POINT_AHEAD_M * c
     my = y + MODEL_POINT_AHEAD_M * s
-    seg, t, d2 = nearest_segment(mx, my, center, seg_len, closed, int(meas[i, MSEG]))
-    ax = center[seg, 0]
-    ay = center[seg, 1]
-    dx = center[seg + 1, 0] - ax
-    dy = center[seg + 1, 1] - ay
-    arc = cum_s[seg] + t * seg_len[seg]
-    ndist = arc / length
-    dist = math.sqrt(d2)
-    cross = dx * (my - ay) - dy * (mx - ax)
-    # is_left_of_center and track_width as simapp builds them: the centre projection point's
-    # nearest points on each border, then which of the two the model point is nearer to.
-    cpx = ax + t * dx
-    cpy = ay + t * dy
-    ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 2)
-    ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 2)
-    nearer_inner = math.hypot(mx - ix, my - iy) < math.hypot(mx - ox, my - oy)
     driving_ccw = ccw_f != rev
-    # closest_waypoints by arc length: next = bisect_right(waypoint positions, ndist)
-    n = wp_ndist.shape[0]
-    nxt = np.searchsorted(wp_ndist, ndist, side="right")
-    prv = max(nxt - 1, 0)
-    if nxt >= n:
-        nxt = 0
+    seg, arc, lat, left, width, prv, nxt, thead = measure_on_track(
+        mx, my, center, seg_len, cum_s, inner, outer, wp_ndist, closed, length, driving_ccw, int(meas[i, MSEG]))
     dprev = math.hypot(mx - center[prv, 0], my - center[prv, 1])
     dnext = math.hypot(mx - center[nxt, 0], my - center[nxt, 1])
     wheels = 0
@@ -108,19 +88,19 @@ def measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, cc
     meas[i, MX] = mx
     meas[i, MY] = my
     meas[i, MS] = arc
-    meas[i, MDIST] = dist
-    meas[i, MLEFT] = 1.0 if (nearer_inner != (not driving_ccw)) else 0.0
-    meas[i, MWIDTH] = math.hypot(ix - ox, iy - oy)
+    meas[i, MDIST] = abs(lat)
+    meas[i, MLEFT] = 1.0 if left else 0.0
+    meas[i, MWIDTH] = width
     meas[i, MWP_PREV] = prv
     meas[i, MWP_NEXT] = nxt
     meas[i, MCLOSEST] = prv if dprev <= dnext else nxt
     meas[i, MWHEELS] = wheels
     meas[i, MPROG_PREV] = prev_prog
-    meas[i, MPROG] = aws_progress(ndist, car[i, CSTART], prev_prog)
+    meas[i, MPROG] = aws_progress(arc / length, car[i, CSTART], prev_prog)
     meas[i, MHEADING] = math.degrees(yaw)
     meas[i, MSEG] = seg
-    meas[i, MLAT] = dist if cross >= 0.0 else -dist
-    meas[i, MTHEAD] = math.atan2(dy, dx)
+    meas[i, MLAT] = lat
+    meas[i, MTHEAD] = thead
 
 
 @njit(cache=True)

@@ -4,7 +4,7 @@ State is struct-of-arrays with the car axis first (tables `car`, `ctr`, `meas` w
 columns are in `racerlab.sim._kernels`); one compiled function steps every car, so no Python
 runs per car in the step path. Outside `racerlab.sim` the state is read by name: `state` (the
 cars now), `judged` (what the last step judged) and `trace_columns` (simtrace rows). The reward
-function is not called here: `racerlab.sim.reward` turns the `params` table into the AWS params
+function is not called here: `racerlab.sim.params` turns the `params` table into the AWS params
 dicts when one is configured.
 """
 

@@ -48,7 +48,7 @@ from racerlab.sim import _kernels as K
 from racerlab.sim.objects import as_race
 from racerlab.sim.pursuit import PurePursuit
 from racerlab.sim.world import World
-from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES
+from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES, STEPS_PER_SECOND
 from racerlab.track import DEFAULT_TRACK
 
 _STATUS_OBJ = np.array(STATUS_NAMES, dtype=object)
@@ -74,7 +74,7 @@ def _camera_frames(env, rows):
 class DeepRacerEnv(gym.Env):
     """One DeepRacer car (see the module docstring)."""
 
-    metadata = {"render_modes": RENDER_MODES, "render_fps": 15}
+    metadata = {"render_modes": RENDER_MODES, "render_fps": STEPS_PER_SECOND}
 
     def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
                  car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None,
@@ -183,7 +183,8 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
     steps); it is off by default because keeping a dict per car per step costs more than the step.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": RENDER_MODES, "render_fps": 15}
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": RENDER_MODES,
+                "render_fps": STEPS_PER_SECOND}
 
     def __init__(self, num_envs: int = 1, track=DEFAULT_TRACK, reward_function=None, model_metadata=None,
                  observation=None, *, car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None,

@@ -19,7 +19,12 @@ import gymnasium as gym
 import numpy as np
 
 from racerlab.errors import ConfigError
-from racerlab.model.metadata import OBSERVATION_NAMES, ModelMetadata, split_observation_name
+from racerlab.model.metadata import (
+    OBSERVATION_NAMES,
+    ModelMetadata,
+    accept_observation_name,
+    split_observation_name,
+)
 
 FEATURE_LIMIT = 10.0
 
@@ -52,9 +57,9 @@ OBSERVATIONS: dict[str, Callable] = {"features": FeaturesObservation}
 
 
 def register_observation(name: str, factory: Callable) -> None:
+    """Add an observation `name` (one training.toml's run.observation then accepts) built by `factory`."""
     OBSERVATIONS[name] = factory
-    if name not in OBSERVATION_NAMES:
-        OBSERVATION_NAMES.append(name)  # so that training.toml's run.observation accepts it
+    accept_observation_name(name)
 
 
 def _sensor_factory(name: str) -> Callable:
@@ -68,8 +73,7 @@ def _sensor_factory(name: str) -> Callable:
 
 
 SENSOR_NAMES = tuple(name for name in OBSERVATION_NAMES if name != "features")
-for _name in SENSOR_NAMES:
-    register_observation(_name, _sensor_factory(_name))
+OBSERVATIONS.update({name: _sensor_factory(name) for name in SENSOR_NAMES})  # names model already accepts
 
 
 def observation_name_for(metadata: ModelMetadata) -> str:

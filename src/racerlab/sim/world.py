@@ -17,11 +17,12 @@ import gymnasium as gym
 import numpy as np
 
 from racerlab.model.metadata import DiscreteActions, as_model_metadata, split_observation_name
+from racerlab.reward import as_reward_caller
 from racerlab.sim import _kernels as K
 from racerlab.sim.core import Simulator, StartRules
 from racerlab.sim.observations import make_observation, observation_name_for
+from racerlab.sim.params import ParamsBuilder
 from racerlab.sim.randomise import Actuation, RandomisedObservation, as_settings, make_rng
-from racerlab.sim.reward import ParamsBuilder, RewardCaller, as_reward_function
 from racerlab.spec import CarParams
 
 
@@ -35,13 +36,6 @@ def _car_params(car):
     if car is None or isinstance(car, CarParams):
         return car
     return CarParams(**car)
-
-
-def as_reward_caller(reward) -> RewardCaller | None:
-    """A `RewardCaller`, a callable, a path to a reward_function.py, or None (no reward, no params)."""
-    if reward is None or isinstance(reward, RewardCaller):
-        return reward
-    return RewardCaller(as_reward_function(reward))
 
 
 class World:
@@ -88,7 +82,7 @@ class World:
             observation = with_option(observation or observation_name_for(self.metadata), "dr")
         self.observation = RandomisedObservation(make_observation(observation, self.sim, self.metadata), self.sim, r,
                                                  rng)
-        self.actuation = Actuation(r, self.sim.num_cars, top_speed(self.metadata.actions), rng)
+        self.actuation = Actuation(r, self.sim.num_cars, self.metadata.actions.top_speed, rng)
 
     @property
     def num_cars(self) -> int:
@@ -165,11 +159,6 @@ class World:
     def done(self, codes) -> tuple[np.ndarray, np.ndarray]:
         """(terminated, truncated) masks after a step that returned `codes`."""
         return self.sim.terminated_mask(codes), self.sim.truncated.copy()
-
-
-def top_speed(actions) -> float:
-    """The action space's top speed, m/s (what the physical car's full throttle stands for)."""
-    return float(max(actions.speed)) if hasattr(actions, "speed") else float(actions.speed_high)
 
 
 def with_option(name: str, option: str) -> str:

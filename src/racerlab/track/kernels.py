@@ -6,6 +6,8 @@ without Python in between. `Track` wraps them with a friendly batched API.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -155,6 +157,41 @@ def nearest_on_polyline_near(px, py, line, seg, closed, reach):
             bx = ax + t * dx
             by = ay + t * dy
     return bx, by
+
+
+@njit(cache=True, inline="always")
+def measure_on_track(mx, my, center, seg_len, cum_s, inner, outer, wp_ndist, closed, length, driving_ccw, hint):
+    """The track-derived reward params of one model point (mx, my), as simapp builds them (facts §1).
+
+    The one measurement both the simulator (`sim._kernels.measure`) and re-scoring from logs
+    (`analysis.rescore`) use. `center`, `seg_len`, `cum_s`, `inner`, `outer` and `wp_ndist` (waypoint arc
+    fractions) are of the direction driven; `hint` is the previous nearest segment (-1: none).
+    Returns (segment, arc length, signed lateral offset (+ left of the centre segment), is_left_of_center,
+    track_width, previous waypoint, next waypoint, centre segment heading in rad).
+    """
+    seg, t, d2 = nearest_segment(mx, my, center, seg_len, closed, hint)
+    ax = center[seg, 0]
+    ay = center[seg, 1]
+    dx = center[seg + 1, 0] - ax
+    dy = center[seg + 1, 1] - ay
+    arc = cum_s[seg] + t * seg_len[seg]
+    dist = math.sqrt(d2)
+    cross = dx * (my - ay) - dy * (mx - ax)
+    # is_left_of_center and track_width: the centre projection point's nearest points on each border,
+    # then which of the two the model point is nearer to
+    cpx = ax + t * dx
+    cpy = ay + t * dy
+    ix, iy = nearest_on_polyline_near(cpx, cpy, inner, seg, closed, 2)
+    ox, oy = nearest_on_polyline_near(cpx, cpy, outer, seg, closed, 2)
+    nearer_inner = math.hypot(mx - ix, my - iy) < math.hypot(mx - ox, my - oy)
+    # closest_waypoints by arc length: next = bisect_right(waypoint positions, arc fraction)
+    nxt = np.searchsorted(wp_ndist, arc / length, side="right")
+    prv = max(nxt - 1, 0)
+    if nxt >= wp_ndist.shape[0]:
+        nxt = 0
+    lateral = dist if cross >= 0.0 else -dist
+    left = nearer_inner != (not driving_ccw)
+    return seg, arc, lateral, left, math.hypot(ix - ox, iy - oy), prv, nxt, math.atan2(dy, dx)
 
 
 def build_road_index(edges: np.ndarray, band_h: float = 0.25):

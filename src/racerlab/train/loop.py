@@ -20,23 +20,21 @@ from pathlib import Path
 
 import numpy as np
 
-from racerlab.errors import ConfigError, RacerlabError, TrackError
-from racerlab.model import ModelFolder, TrainingConfig, check_compatible, nonfinite_tensors
-from racerlab.sim import StartRules, World
-from racerlab.sim.reward import RewardCaller
-from racerlab.track import load as load_track
+from racerlab.errors import ConfigError, RacerlabError
+from racerlab.model import (
+    ModelFolder,
+    TrainingConfig,
+    TrainingState,
+    check_compatible,
+    nonfinite_tensors,
+    parse_model_metadata,
+)
+from racerlab.reward import RewardCaller, RewardWatchdog
 from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episodes
+from racerlab.train.health import Health
 from racerlab.train.progress import Progress
 from racerlab.train.records import TrainingLogs
-from racerlab.train.rollout import Collector
-from racerlab.train.watchdog import RewardWatchdog
-
-MAX_ROLLBACKS = 3
-VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
-MAX_SENSIBLE_REWARD = 1e3
-COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
-KL_LIMIT = 2.0  # nats; PPO at sane learning rates moves the policy ~0.01-0.05 per update
-STATE_FORMAT = "racerlab.checkpoint/1"
+from racerlab.train.worlds import LocalCollection, WorldBuilder
 
 
 @contextmanager
@@ -57,10 +55,6 @@ def _ctrl_c_after():
         raise KeyboardInterrupt
 
 
-class TrainingDiverged(RacerlabError):
-    pass
-
-
 @dataclass
 class TrainResult:
     model_dir: Path
@@ -75,20 +69,6 @@ class TrainResult:
     stopped: str = ""
     history: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
-
-
-@dataclass
-class _State:
-    iteration: int = 0
-    episodes: int = 0
-    env_steps: int = 0
-    train_steps: int = 0  # kept (learned-on) steps: the S in N_Step-S
-    best_name: str | None = None
-    best_metric: float | None = None
-    best_lap_time: float = math.nan
-    rollbacks: int = 0
-    starts: list[int] = field(default_factory=list)  # each world's round-robin counter
-    first_lap: dict | None = None
 
 
 def _check_flags(minutes, episodes, iterations, num_cars) -> None:
@@ -117,9 +97,15 @@ def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterati
 
 
 class Trainer:
-    """Holds the pieces of one training run; `run()` iterates until a stop condition."""
+    """Holds the pieces of one training run; `run()` iterates until a stop condition.
 
-    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, **overrides):
+    `collector` is where the episodes come from (default: a `LocalCollection` of this machine's worlds; the
+    cluster passes its Ray collection) and `logs` what writes the iteration's records (default: `TrainingLogs`;
+    the cluster passes its per-worker logs). The driver builds training worlds only for the local collection.
+    """
+
+    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *, collector=None,
+                 logs=None, **overrides):
         self.t_created = time.perf_counter()  # --minutes counts the set-up (tracks, compiling the simulator) too
         self.stop_at_first_lap = stop_at_first_lap
         self.folder = ModelFolder(model_dir)
@@ -127,28 +113,23 @@ class Trainer:
         self.metadata = self.folder.metadata()
         self.hp = self.folder.hyperparameters()
         self.cfg = apply_overrides(self.folder.config(), **overrides)
-        self._track_flag = bool(overrides.get("tracks"))
         self.notes: list[str] = []
         self.progress = Progress(enabled=progress)
-        self.watchdog = RewardWatchdog(self.folder.reward_function(), self.cfg.run.reward_budget_s, self._note)
+        self.watchdog = RewardWatchdog(self.folder.reward_function(), self.cfg.run.reward_budget_s, self.note)
         self.reward = RewardCaller(self.watchdog)
-        self.draw = 0  # which draw of generated tracks the worlds hold
-        self.worlds = self._make_worlds()
-        self.collector = Collector(self.worlds)
-        r = self.cfg.randomise
-        self.eval_world = self._make_world(self.cfg.track.names[0], self._eval_cars(), seed=10_007,
-                                           randomise=r if r.evaluation else None)
+        self.builder = WorldBuilder(self.cfg, self.metadata, self.reward, track_flag=bool(overrides.get("tracks")))
+        self.collector = collector if collector is not None else LocalCollection(self.builder)
+        self.eval_world = self.builder.evaluation_world()
         from racerlab.agent import make_agent
 
-        self.agent = make_agent(self.worlds[0].observation.space, self.metadata, self.hp, device=self.cfg.run.device,
+        self.agent = make_agent(self.eval_world.observation.space, self.metadata, self.hp, device=self.cfg.run.device,
                                 seed=self.cfg.run.seed)
         self._set_threads()  # after the agent is built: the thread count depends on its networks
-        self.logs = TrainingLogs(self.folder.path, self.cfg)
-        self.state = _State()
+        self.logs = logs if logs is not None else TrainingLogs(self.folder.path, self.cfg)
+        self.health = Health(self.agent, self.hp, self.folder.reward_path, note=self.note, model_path=self.folder.path,
+                             discrete=self.metadata.action_space_type == "discrete")
+        self.state = TrainingState(agent={}, train_steps=0)  # the counters; weights go in at each checkpoint
         self.deadline: float | None = None  # perf_counter time of --minutes' end
-        self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
-        self.last_eval: float | None = None
-        self.last_good = None
 
     # ---- set-up ------------------------------------------------------------------------------
     def _set_threads(self):
@@ -161,116 +142,57 @@ class Trainer:
             self.agent.adapt_threads = False  # a count the user chose is kept
         self.agent.threads = self.cfg.run.threads  # PPO sets it again before each update
 
-    def _load_track(self, name):
-        try:
-            return load_track(name)
-        except TrackError as exc:
-            where = "--track" if self._track_flag else f"{self.cfg.source}: track.names"
-            raise TrackError(f"{where}: {exc}") from None
-
-    def _make_world(self, track, cars, seed, randomise=None):
-        r = self.cfg.track
-        start = StartRules(change_start=r.change_start, advance=r.round_robin_advance, offset=r.start_offset,
-                           reverse=r.reverse, alternate_direction=r.alternate_direction)
-        track = self._load_track(track) if isinstance(track, str) else track
-        return World(track, cars, self.metadata, self.reward, self.cfg.run.observation, start=start,
-                     max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
-                     seed=seed, race=self.cfg.race, randomise=randomise)
-
-    def _eval_cars(self) -> int:
-        """Cars of the greedy evaluation world: one per evaluation episode; a head-to-model race pairs its cars,
-        so an odd count gains one (each car still drives one judged episode)."""
-        n = max(self.cfg.evaluation.episodes, 1)
-        return n + n % 2 if self.cfg.race.head_to_model else n
-
-    def _make_worlds(self):
-        tracks = generated_tracks(self.cfg.track, self.cfg.run.seed, self.draw) or self.cfg.track.names
-        n = self.cfg.run.num_cars
-        counts = [n // len(tracks) + (1 if k < n % len(tracks) else 0) for k in range(len(tracks))]
-        if self.cfg.race.head_to_model:  # the cars race in pairs: every track gets whole pairs
-            if n % 2 or n < 2 * len(tracks):
-                raise ConfigError(f"{self.cfg.source}: run.num_cars (or --cars) {n}: a head_to_model race pairs the "
-                                  f"cars, so it needs an even number, at least 2 per track "
-                                  f"({len(tracks)} track{'s' if len(tracks) != 1 else ''})")
-            pairs = n // 2
-            counts = [2 * (pairs // len(tracks) + (1 if k < pairs % len(tracks) else 0)) for k in range(len(tracks))]
-        pairs = enumerate(zip(tracks, counts, strict=True))
-        seed = self.cfg.run.seed + 1000 * self.draw
-        return [self._make_world(t, c, seed + k, self.cfg.randomise) for k, (t, c) in pairs]
-
-    def _redraw_if_due(self):
-        """New generated tracks every `track.regenerate_every` iterations (the draw follows the iteration
-        number, so a resumed run drives the tracks it would have driven)."""
-        every = self.cfg.track.regenerate_every
-        if not self.cfg.track.generated or not every or self.state.iteration // every == self.draw:
-            return
-        self.draw = self.state.iteration // every
-        next_uid = self.collector.next_uid
-        self.worlds = self._make_worlds()
-        self.collector = Collector(self.worlds)
-        self.collector.next_uid = next_uid
-
     # ---- checkpoints -------------------------------------------------------------------------
-    def _checkpoint_state(self) -> dict:
-        s = self.state
-        return {"format": STATE_FORMAT, "agent": self.agent.state_dict(), "metadata": self.metadata.to_json(),
-                "hyperparameters": self.hp.to_json(), "observation": self.worlds[0].observation.name,
-                "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps,
-                "train_steps": s.train_steps, "best_name": s.best_name, "best_metric": s.best_metric,
-                "best_lap_time": s.best_lap_time, "rollbacks": s.rollbacks,
-                "starts": [w.sim.episodes_started for w in self.worlds], "first_lap": s.first_lap,
-                "saved_at": time.time()}
+    def _checkpoint_state(self) -> TrainingState:
+        return replace(self.state, agent=self.agent.state_dict(), metadata=self.metadata.to_json(),
+                       hyperparameters=self.hp.to_json(), observation=self.eval_world.observation.name,
+                       rollbacks=self.health.rollbacks, collection=self.collector.state(), saved_at=time.time())
 
     def _resume_or_start(self):
         cps = self.folder.checkpoints()
         if not cps:
-            info = self.folder.save_checkpoint(self._checkpoint_state(), 0, 0)
+            info = self.folder.save_state(self._checkpoint_state())
             self.folder.update_index(info, float("nan"), None, None)
-            self.last_good = self.agent.state_dict()
+            self.health.last_good = self.agent.state_dict()
             return False
         info, ck = self._newest_readable(cps)
-        from racerlab.model import parse_model_metadata
-
-        check_compatible(parse_model_metadata(ck["metadata"], f"{info.name} (checkpoint)"), self.metadata,
+        check_compatible(parse_model_metadata(ck.metadata, f"{info.name} (checkpoint)"), self.metadata,
                          str(self.folder.metadata_path))
         self._check_observation(ck, info)
-        self.agent.load_state_dict(ck["agent"])
+        self.agent.load_state_dict(ck.agent)
         self._apply_edits(ck, info)
-        s = self.state
-        s.iteration, s.episodes, s.env_steps = ck["iteration"], ck["episodes"], ck["env_steps"]
-        s.train_steps = ck.get("train_steps", info.steps)
-        s.best_name, s.best_metric = ck.get("best_name"), ck.get("best_metric")
-        s.best_lap_time, s.rollbacks = ck.get("best_lap_time", math.nan), ck.get("rollbacks", 0)
-        s.first_lap = ck.get("first_lap")
-        for w, n in zip(self.worlds, ck.get("starts") or [], strict=False):
-            w.sim.episodes_started = int(n)
-        self.folder.drop_after(s.iteration)
-        self.logs.truncate(s.iteration, s.episodes)
-        self.last_good = self.agent.state_dict()
-        return not ck.get("cloned", False)
+        self.state = replace(ck, agent={}, cloned=False,
+                             train_steps=info.steps if ck.train_steps is None else ck.train_steps)
+        self.health.rollbacks = ck.rollbacks
+        self.collector.restore(ck.collection)
+        self.folder.drop_after(ck.iteration)
+        self.logs.truncate(ck.iteration, ck.episodes)
+        self.health.last_good = self.agent.state_dict()
+        return not ck.cloned
 
-    def _check_observation(self, ck, info):
-        trained, now = ck.get("observation"), self.worlds[0].observation.name
+    def _check_observation(self, ck: TrainingState, info):
+        trained, now = ck.observation, self.eval_world.observation.name
         if trained and trained != now:
             raise ConfigError(f"{self.cfg.source}: run.observation is '{now}' but {info.name} was trained with "
                               f"'{trained}'; the network's inputs cannot change: set it back or clone into a new model")
 
-    def _apply_edits(self, ck, info):
+    def _apply_edits(self, ck: TrainingState, info):
         """Hyperparameters edited since the checkpoint take effect, and the run says which. The agent is built
         from the current hyperparameters.json; only lr is also in the saved agent state, so the edited value is
         put back. A checkpoint that records none (older racerlab, or a clone) takes the file's lr."""
-        saved = ck.get("hyperparameters")
+        saved = ck.hyperparameters
         now = self.hp.to_json()
         if saved is None:
-            saved = {**now, "lr": self.agent.lr} if not ck.get("cloned") and ck.get("rollbacks", 0) == 0 else now
+            saved = {**now, "lr": self.agent.lr} if not ck.cloned and ck.rollbacks == 0 else now
         changed = [k for k in now if k in saved and saved[k] != now[k]]
-        if "lr" in changed or ck.get("cloned"):
+        if "lr" in changed or ck.cloned:
             self.agent.lr = self.hp.lr
         if changed:
             edits = ", ".join(f"{k} {saved[k]!r} → {now[k]!r}" for k in changed)
-            self._note(f"{self.hp.source}: changed since checkpoint {info.name}, now in effect: {edits}")
+            self.note(f"{self.hp.source}: changed since checkpoint {info.name}, now in effect: {edits}")
 
-    def _note(self, text: str) -> None:
+    def note(self, text: str) -> None:
+        """Tell the user (the progress output) and keep it for the result's notes."""
         self.notes.append(text)
         self.progress.note(text)
 
@@ -278,84 +200,19 @@ class Trainer:
         """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
         for info in reversed(cps):
             try:
-                ck = self.folder.load_checkpoint(info)
+                ck = self.folder.load_state(info)
             except RacerlabError as exc:
-                self._note(f"skipping {info.name}: {exc}")
+                self.note(f"skipping {info.name}: {exc}")
                 continue
-            bad = nonfinite_tensors(ck.get("agent", {}))
+            bad = nonfinite_tensors(ck.agent)
             if not bad:
                 return info, ck
-            self._note(f"skipping {self.folder.checkpoint_path(info)}: non-finite weights ({bad[0]}"
+            self.note(f"skipping {self.folder.checkpoint_path(info)}: non-finite weights ({bad[0]}"
                        f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}); resuming from an older checkpoint")
         raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint with finite weights; remove the "
                             "folder's checkpoints/ to start over")
 
     # ---- one iteration -----------------------------------------------------------------------
-    def _guard(self, metrics) -> bool:
-        """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
-        bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
-            isinstance(v, float) and not math.isfinite(v) for k, v in metrics.items() if k.startswith("losses/"))
-        if bad:
-            self._rollback("non-finite loss or weights", "lower lr in hyperparameters.json or check the reward "
-                           "function's scale")
-        return not bad
-
-    def _collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
-        """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
-        the value loss exploded (rewards far too large), one update moved the policy absurdly far (approx KL), or a
-        discrete policy's entropy fell to near zero while its evaluation progress fell (a learning rate far too
-        high)."""
-        v = metrics.get("losses/value")
-        if v is not None and v > VALUE_LOSS_LIMIT:
-            top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
-            if top > MAX_SENSIBLE_REWARD:
-                return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g})",
-                        f"the reward scale: {self.folder.reward_path} returned rewards up to {top:.3g}; keep them "
-                        f"within about 0..{MAX_SENSIBLE_REWARD:g} per step")
-            return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
-                    self._lr_cause())
-        ev = float(np.mean([e.progress for e in evals])) if evals else None
-        prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
-        falling = ev is None or (ev < prev if prev is not None else ev < 10.0)
-        kl = metrics.get("losses/approx_kl")
-        # a far move counts only where the evaluation got worse (or there is none): a converged continuous
-        # policy (std ~0.05) shows rare spikes of the approx KL from a few samples its mean moved away from
-        # (40 nats once in 300 iterations of 6.7-6.9 s laps), and rolling those back undid good training
-        if kl is not None and kl > KL_LIMIT and falling:
-            return (f"the policy moved {kl:.3g} nats in one update (approx KL over {KL_LIMIT:g})",
-                    self._lr_cause())
-        ent = metrics.get("losses/entropy")
-        if self.metadata.action_space_type != "discrete" or ent is None or ev is None:
-            return None
-        if ent < COLLAPSED_ENTROPY and falling:
-            return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %",
-                    self._lr_cause())
-        return None
-
-    def _lr_cause(self) -> str:
-        """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): AWS's
-        default 0.0003 when the file's is higher, else a tenth of the file's."""
-        lr, ours = self.hp.lr, self.agent.lr
-        now = f" (halved to {ours:g} by rollbacks)" if ours < lr else ""
-        hint = 0.0003 if lr > 0.0003 else lr / 10
-        return f"the learning rate: lr {lr:g} in {self.hp.source}{now} is too high; try {hint:g} or lower"
-
-    def _rollback(self, what: str, cause: str) -> None:
-        """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
-        after MAX_ROLLBACKS stop with TrainingDiverged."""
-        s = self.state
-        s.rollbacks += 1
-        lr = self.agent.lr
-        self.agent.load_state_dict(self.last_good)
-        self.agent.lr = lr / 2
-        text = (f"{what} in iteration {s.iteration + 1}: rolled back to the last good weights, learning rate "
-                f"{lr:g} → {lr / 2:g} ({s.rollbacks}/{MAX_ROLLBACKS}); likely cause: {cause}")
-        self._note(text)
-        self.events.append(text)
-        if s.rollbacks >= MAX_ROLLBACKS:
-            raise TrainingDiverged(f"{self.folder.path}: training diverged: {MAX_ROLLBACKS} rollbacks, the last after "
-                                   f"{what}; likely cause: {cause}")
-
     def _evaluate(self):
         if self.cfg.evaluation.episodes == 0:
             return []
@@ -380,26 +237,26 @@ class Trainer:
 
     def iterate(self, t_start: float) -> dict:
         s = self.state
-        self._redraw_if_due()
+        self.collector.before_iteration(s.iteration)
         target = max(self.hp.num_episodes_between_training, self.cfg.run.num_cars)
         ro = self.collector.collect(self.agent, target, self.cfg.run.max_steps_per_iteration,
                                     first_episode_number=s.episodes, deadline=self.deadline, tick=self.progress.tick)
         if ro.cut and not ro.episodes:
             s.env_steps += ro.env_steps
-            self._note("time limit reached while collecting: no episode had ended, so this partial iteration is "
+            self.note("time limit reached while collecting: no episode had ended, so this partial iteration is "
                        "dropped; the last complete iteration is kept")
             return {}
         t_learn = time.perf_counter()
         metrics = self.agent.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
-        if not self._guard(metrics):
+        if not self.health.sound(metrics, s.iteration):
             return {}
         past = self.deadline is not None and time.perf_counter() >= self.deadline
         evals = [] if ro.cut or past else self._evaluate()  # at the time limit: learn and save, no evaluation
-        collapsed = self._collapse(metrics, evals, ro.rewards)
+        collapsed = self.health.collapse(metrics, evals, ro.rewards)
         if collapsed:
-            self._rollback(*collapsed)
+            self.health.rollback(*collapsed, s.iteration)
             return {}
         with _ctrl_c_after():  # the iteration's logs, checkpoint and metrics line are written together
             return self._commit(ro, evals, metrics, learn_s, t_start)
@@ -409,17 +266,14 @@ class Trainer:
         s.iteration += 1
         s.episodes += len(ro.episodes)
         s.train_steps += int(ro.rewards.size)
-        from racerlab.model import CheckpointInfo
-
-        info = CheckpointInfo(f"{s.iteration}_Step-{s.train_steps}.pt", s.iteration, s.train_steps)
-        value = self._record_best(evals, info, t_start)
+        value = self._record_best(evals, s.info, t_start)
         self.logs.write_iteration(s.iteration, ro, evals, s.episodes - len(ro.episodes))
         state = self._checkpoint_state()
-        saved = self.folder.save_checkpoint(state, s.iteration, s.train_steps)
+        saved = self.folder.save_state(state)
         best = next((c for c in self.folder.checkpoints() if c.name == s.best_name), None)
         self.folder.update_index(saved, value, best, s.best_metric)
         self.folder.prune(best)
-        self.last_good = state["agent"]  # the snapshot just saved (a deep copy), not a second one
+        self.health.last_good = state.agent  # the snapshot just saved (a deep copy), not a second one
         entry = self._summary(ro, evals, metrics, learn_s, value)
         self.logs.append_metrics(entry)
         return entry
@@ -440,13 +294,9 @@ class Trainer:
             "eval/best_lap": min((e.lap_time for e in evals if e.status == "lap_complete"), default=None),
             "eval/metric": value, "best/lap_time": None if math.isnan(s.best_lap_time) else s.best_lap_time,
             "best/checkpoint": s.best_name, "lr": self.agent.lr, "logs/disk_bytes": self.logs.disk_bytes(),
-            "rollbacks": s.rollbacks, "events": self._take_events(),
-            **{k: float(v) for k, v in metrics.items()},
+            "rollbacks": self.health.rollbacks, "events": self.health.take_events(),
+            **{k: float(v) for k, v in metrics.items()}, **self.collector.metrics(s.iteration),
         }
-
-    def _take_events(self) -> list[str]:
-        events, self.events = self.events, []
-        return events
 
     # ---- the loop ----------------------------------------------------------------------------
     def _limit_reached(self, t_start: float, start_iteration: int, start_episodes: int) -> str:
@@ -464,8 +314,11 @@ class Trainer:
         return ""
 
     def run(self) -> TrainResult:
-        with self.folder.lock(), self.watchdog:
-            return self._run()
+        try:
+            with self.folder.lock(), self.watchdog:
+                return self._run()
+        finally:
+            self.collector.close()
 
     def _run(self) -> TrainResult:
         t_start = self.t_created
@@ -508,18 +361,6 @@ class Trainer:
         if max_eps and done:
             return elapsed / done * max(max_eps - done, 0)
         return None
-
-
-def generated_tracks(settings, seed: int, draw: int) -> list:
-    """The generated training tracks of draw number `draw` (none unless `track.generated` is set)."""
-    if not settings.generated:
-        return []
-    from racerlab.track.generate import generate_many
-
-    return generate_many(seed * 7919 + draw, settings.generated,
-                         (settings.generated_min_length, settings.generated_max_length),
-                         (settings.generated_min_width, settings.generated_max_width), settings.generated_min_radius,
-                         prefix=f"generated_{draw}")
 
 
 def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, **overrides) -> TrainResult:

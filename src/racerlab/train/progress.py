@@ -54,7 +54,7 @@ class Progress:
         what = f"resuming at iteration {trainer.state.iteration}" if resumed else "starting"
         tracks = ", ".join(cfg.track.names)
         self._print(f"training {trainer.folder.path} ({what}): {meta.training_algorithm} on {tracks}, "
-                    f"{cfg.run.num_cars} cars, observation {trainer.worlds[0].observation.name}, "
+                    f"{cfg.run.num_cars} cars, observation {trainer.eval_world.observation.name}, "
                     f"device {trainer.agent.device}", "bold")
         limits = [f"{cfg.stop.minutes:g} min" if cfg.stop.minutes else "",
                   f"{cfg.stop.episodes} episodes" if cfg.stop.episodes else "",

@@ -20,6 +20,9 @@ METRICS_KEEP = 10_000  # TrainingMetrics.json entries kept in the file (rewritte
 
 
 class TrainingLogs:
+    """The logs writer `Trainer` uses by default; the cluster's per-worker logs offer the same methods:
+    `write_iteration`, `append_metrics`, `truncate`, `disk_bytes` and `close`."""
+
     def __init__(self, model_dir: Path, cfg):
         self.model_dir = Path(model_dir)
         self.cfg = cfg
@@ -32,13 +35,11 @@ class TrainingLogs:
 
     # ---- per iteration ---------------------------------------------------------------------------
     def write_iteration(self, iteration: int, ro, evals, first_episode: int) -> None:
-        entries = [self._train_entry(ep, first_episode + n, n) for n, ep in enumerate(ro.episodes)]
-        entries += [self._eval_entry(e, first_episode + len(ro.episodes), n) for n, e in enumerate(evals)]
-        self.metrics.add(entries)
+        self.metrics.add(metric_entries(ro.episodes, evals, first_episode))
         self.metrics.save()
-        self._simtrace(iteration, ro)  # after the metrics: the simtrace gets what they leave of logs.max_mb
+        self.write_simtrace(iteration, ro)  # after the metrics: the simtrace gets what they leave of logs.max_mb
 
-    def _simtrace(self, iteration: int, ro, base: Path | None = None) -> None:
+    def write_simtrace(self, iteration: int, ro, base: Path | None = None) -> None:
         """One iteration's simtrace under `base` (default the model folder; `<model>/<k>` for worker k)."""
         t = ro.trace
         if not t or t["steps"].size == 0:
@@ -58,24 +59,6 @@ class TrainingLogs:
         writer.write(cols)
         self.retention.added(iteration - 1, writer.close())
         self.retention.enforce(reserve=self._metrics_bytes())
-
-    @staticmethod
-    def _train_entry(ep, number: int, trial: int) -> dict:
-        return {"reward_score": int(round(ep.reward)), "metric_time": int(round(ep.end_time * 1000)),
-                "start_time": int(round(ep.start_time * 1000)),
-                "elapsed_time_in_milliseconds": int(round((ep.end_time - ep.start_time) * 1000)),
-                "episode": number + 1, "trial": trial + 1, "phase": "training",
-                "completion_percentage": int(min(ep.progress, 100.0)),
-                "episode_status": STATUS_LABELS.get(ep.status, ep.status)}
-
-    @staticmethod
-    def _eval_entry(e, number: int, trial: int) -> dict:
-        return {"reward_score": int(round(e.reward)), "metric_time": int(round(e.end_time * 1000)),
-                "start_time": int(round(e.start_time * 1000)),
-                "elapsed_time_in_milliseconds": int(round((e.end_time - e.start_time) * 1000)),
-                "episode": number, "trial": trial + 1, "phase": "evaluation",
-                "completion_percentage": int(min(e.progress, 100.0)),
-                "episode_status": STATUS_LABELS.get(e.status, e.status)}
 
     def append_metrics(self, entry: dict) -> None:
         self.jsonl.append(entry)
@@ -100,6 +83,23 @@ class TrainingLogs:
 
     def close(self) -> None:
         self.jsonl.close()
+
+
+def metric_entries(episodes, evals, first_episode: int) -> list[dict]:
+    """TrainingMetrics.json entries of an iteration's training episodes (numbered on from `first_episode`) and
+    of its evaluation episodes after them (each numbered `first_episode + len(episodes)`)."""
+    out = [metric_entry(ep, first_episode + n + 1, n, "training") for n, ep in enumerate(episodes)]
+    return out + [metric_entry(e, first_episode + len(episodes), n, "evaluation") for n, e in enumerate(evals)]
+
+
+def metric_entry(ep, episode: int, trial: int, phase: str) -> dict:
+    """One TrainingMetrics.json entry for an episode (`Episode` or an evaluation episode)."""
+    return {"reward_score": int(round(ep.reward)), "metric_time": int(round(ep.end_time * 1000)),
+            "start_time": int(round(ep.start_time * 1000)),
+            "elapsed_time_in_milliseconds": int(round((ep.end_time - ep.start_time) * 1000)),
+            "episode": episode, "trial": trial + 1, "phase": phase,
+            "completion_percentage": int(min(ep.progress, 100.0)),
+            "episode_status": STATUS_LABELS.get(ep.status, ep.status)}
 
 
 def _episode_ends(episode: np.ndarray) -> np.ndarray:

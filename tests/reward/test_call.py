@@ -9,7 +9,7 @@ import pytest
 
 import racerlab  # noqa: F401 - registers the environment
 from racerlab.errors import RewardFunctionError
-from racerlab.model import load_reward_function
+from racerlab.reward import load_reward_function
 
 
 def write(tmp_path, body, name="reward_function.py"):

@@ -1,7 +1,4 @@
-"""`reward_function.py`: loading a racer's reward function, with one-line errors that name the file and line.
-
-Building the params and calling the function on them is the simulator's part (`racerlab.sim.reward`).
-"""
+"""`reward_function.py`: loading a racer's reward function, with one-line errors that name the file and line."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ import pytest
 from racerlab.cli import main
 from racerlab.errors import ConfigError
 from racerlab.line import racing_line
-from racerlab.rewards import TEMPLATES, reward_source
+from racerlab.reward import TEMPLATES, reward_source
 from tests.conftest import aws_track_path
 from tests.sim.test_params import params_at, seg_point
 
@@ -28,12 +28,17 @@ def reinvent():
     return track.load(str(aws_track_path("reInvent2019_track")))
 
 
-def test_every_template_returns_a_positive_float_on_real_params(reinvent):
+@pytest.fixture(scope="module")
+def reinvent_line(reinvent):
+    return racing_line(reinvent)
+
+
+def test_every_template_returns_a_positive_float_on_real_params(reinvent, reinvent_line):
     c = reinvent.center
     p, head = seg_point(c, 30, 0.5, 0.2)
     params = params_at(reinvent, p, head)
     for name in TEMPLATES:
-        fn = _load(reward_source(name, reinvent, 4.0))
+        fn = _load(reward_source(name, reinvent_line, 4.0))
         r = fn(params)
         assert type(r) is float and 0 < r < 1e5 and math.isfinite(r), name
 
@@ -57,12 +62,12 @@ def test_progress_pays_pace():
     assert fn({**base, "is_offtrack": True}) == 1e-3
 
 
-def test_racing_line_reward_holds_the_line_and_its_speeds(reinvent):
-    text = reward_source("racing_line", reinvent, max_speed=2.5)
+def test_racing_line_reward_holds_the_line_and_its_speeds(reinvent_line):
+    text = reward_source("racing_line", reinvent_line, max_speed=2.5)
     space: dict = {}
     exec(compile(text, "reward_function.py", "exec"), space)  # noqa: S102
     pts = np.array(space["RACING_LINE"])
-    line = racing_line(reinvent)
+    line = reinvent_line
     assert len(pts) < len(line.xy) and pts[:, 2].max() == pytest.approx(min(line.speed.max(), 2.5), abs=1e-3)
     # every embedded point lies on the solver's line
     d = np.min(np.hypot(*(pts[:, None, :2] - line.xy[None]).transpose(2, 0, 1)), axis=1)
@@ -93,11 +98,11 @@ def _lap_return(fn, pts, fraction: float, width: float = 1.0668, dt: float = 1 /
     return total, steps
 
 
-def test_racing_line_reward_pays_more_for_a_faster_lap(reinvent):
+def test_racing_line_reward_pays_more_for_a_faster_lap(reinvent_line):
     # issue 17: with pace linear in speed (plus a term growing with progress) a lap at 60 % of the line's
     # speeds earned as much as one at 100 %, so training stopped getting faster after its first laps.
     space: dict = {}
-    exec(compile(reward_source("racing_line", reinvent, max_speed=4.0), "reward_function.py", "exec"), space)  # noqa: S102
+    exec(compile(reward_source("racing_line", reinvent_line, max_speed=4.0), "reward_function.py", "exec"), space)  # noqa: S102
     pts, fn = np.array(space["RACING_LINE"]), space["reward_function"]
     full, full_steps = _lap_return(fn, pts, 1.0)
     assert full == pytest.approx(full_steps, rel=0.01)  # every step on the line at its speed earns ~1

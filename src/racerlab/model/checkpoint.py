@@ -1,0 +1,93 @@
+"""A training checkpoint, `checkpoints/<N>_Step-<S>.pt`: the one place that knows its file name and its keys.
+
+`CheckpointInfo` is a file's name, iteration N and training steps S (AWS's scheme, facts §9; N = 0 before any
+training). `TrainingState` is what the file holds: the agent's weights, the model_metadata.json and
+hyperparameters they were trained with, the observation, the run's counters, the collection's resume state
+and the best checkpoint so far. Every writer (training, clone, import) builds one and every reader gets one
+from `ModelFolder.load_state`; nothing else reads the dict's keys.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass, field, fields, replace
+
+from racerlab.errors import RacerlabError
+
+CHECKPOINT_FORMAT = "racerlab.checkpoint/1"
+CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
+# what a collection keeps to resume: a local run's per-world round-robin counters, a cluster's per-worker
+# episode counts and counters (kept flat in the file, as racerlab has always written them)
+COLLECTION_KEYS = ("starts", "worker_episodes", "worker_starts")
+
+
+@dataclass(frozen=True)
+class CheckpointInfo:
+    name: str
+    iteration: int
+    steps: int
+
+    @classmethod
+    def parse(cls, name: str) -> CheckpointInfo | None:
+        m = CHECKPOINT_RE.match(name)
+        return cls(name, int(m.group(1)), int(m.group(2))) if m else None
+
+    @classmethod
+    def of(cls, iteration: int, steps: int) -> CheckpointInfo:
+        """The checkpoint of iteration `iteration` after `steps` training steps."""
+        return cls(f"{iteration}_Step-{steps}.pt", iteration, steps)
+
+
+@dataclass
+class TrainingState:
+    """The contents of one training checkpoint."""
+
+    agent: dict  # the agent's `state_dict()` (PPO or SAC: it carries its own format)
+    metadata: dict | None = None  # model_metadata.json the weights were trained with (as JSON)
+    hyperparameters: dict | None = None  # hyperparameters.json at the time (None: older racerlab, or a clone)
+    observation: str | None = None  # run.observation the network's inputs were built for
+    iteration: int = 0
+    episodes: int = 0
+    env_steps: int = 0
+    train_steps: int | None = None  # learned-on steps, the S of N_Step-S (None: take the file name's)
+    best_name: str | None = None
+    best_metric: float | None = None
+    best_lap_time: float = math.nan
+    rollbacks: int = 0
+    first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    collection: dict = field(default_factory=dict)  # COLLECTION_KEYS
+    cloned: bool = False  # cloned or imported: training goes on from these weights with fresh counters
+    saved_at: float = 0.0
+
+    def to_dict(self) -> dict:
+        """The dict the file holds."""
+        out = {"format": CHECKPOINT_FORMAT, **{f.name: getattr(self, f.name) for f in fields(self)}}
+        del out["collection"]
+        out.update({k: self.collection.get(k) for k in COLLECTION_KEYS if k in self.collection})
+        out["saved_at"] = self.saved_at or time.time()
+        if not self.cloned:
+            del out["cloned"]
+        return out
+
+    @classmethod
+    def from_dict(cls, data, where) -> TrainingState:
+        """A checkpoint's state; `where` (its path) names it in the error for a file without agent weights."""
+        if not isinstance(data, dict) or not isinstance(data.get("agent"), dict):
+            raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+        known = {f.name for f in fields(cls)} - {"collection"}
+        state = cls(**{k: v for k, v in data.items() if k in known and v is not None})
+        state.collection = {k: data[k] for k in COLLECTION_KEYS if data.get(k) is not None}
+        return state
+
+    @property
+    def info(self) -> CheckpointInfo:
+        """The file this state is saved as."""
+        return CheckpointInfo.of(self.iteration, self.train_steps or 0)
+
+    def cloned_as(self, metadata: dict) -> TrainingState:
+        """This state as the first checkpoint of a clone with `metadata`: the weights and counters stay, the best
+        checkpoint, rollbacks and round-robin state start afresh."""
+        return replace(self, cloned=True, best_name=None, best_metric=None, rollbacks=0, collection={},
+                       metadata=metadata, saved_at=0.0)

@@ -1,0 +1,46 @@
+"""Reward function files racerlab writes: the example a new model starts from (one per race type) and the
+templates of `racerlab init --reward NAME`.
+
+Each template is an ordinary AWS reward function file in `racerlab/data/rewards/` (the default, "example", is
+`data/examples/reward_function.py`). "racing_line" is filled in with a racing line (`racerlab.line.racing_line`
+of the model's track, computed by the caller): its points are written into the file with the speeds capped at
+the model's top action speed, so the file stays self-contained as AWS needs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from racerlab.errors import ConfigError
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+EXAMPLE_REWARD = DATA / "examples" / "reward_function.py"
+OBJECT_AVOIDANCE_REWARD = DATA / "examples" / "reward_function_object_avoidance.py"
+EXAMPLE_REWARDS = {"time_trial": EXAMPLE_REWARD, "object_avoidance": OBJECT_AVOIDANCE_REWARD,
+                   "head_to_bot": OBJECT_AVOIDANCE_REWARD, "head_to_model": OBJECT_AVOIDANCE_REWARD}
+TEMPLATES = {
+    "example": EXAMPLE_REWARD,
+    "centre_line": DATA / "rewards" / "centre_line.py",
+    "progress": DATA / "rewards" / "progress.py",
+    "racing_line": DATA / "rewards" / "racing_line.py",
+}
+NEEDS_LINE = ("racing_line",)
+LINE_POINT_SPACING_M = 0.2  # every other point of the solver's ~0.1 m line: half the search per step
+
+
+def reward_source(name: str, line=None, max_speed: float | None = None) -> str:
+    """The text of template `name`; "racing_line" needs `line` (a `racerlab.line.RacingLine`)."""
+    if name not in TEMPLATES:
+        raise ConfigError(f"reward template {name!r} does not exist; choose one of {', '.join(TEMPLATES)}")
+    text = TEMPLATES[name].read_text()
+    if name not in NEEDS_LINE:
+        return text
+    if line is None:
+        raise ConfigError(f"reward template {name!r} needs the model's track; give --track")
+    step = max(1, int(round(LINE_POINT_SPACING_M / max(line.length / len(line.xy), 1e-9))))
+    speeds = line.speed if max_speed is None else [min(v, max_speed) for v in line.speed]
+    rows = ",\n".join(f"    [{x:.4f}, {y:.4f}, {v:.3f}]"
+                      for (x, y), v in list(zip(line.xy, speeds, strict=True))[::step])
+    return (text.replace("__TRACK__", line.track_name)
+            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method}, theoretical lap {line.lap_time:.3f} s\n"
+                                         f"{rows},\n]", 1))

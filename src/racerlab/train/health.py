@@ -1,0 +1,108 @@
+"""The health of a training run, judged after every update: the NaN guard, the collapse checks, the rollback to
+the last good weights with a halved learning rate, and the learning-rate advice the run prints.
+
+A rollback is counted and said (with its likely cause and fix) and recorded for the next metrics.jsonl line;
+after MAX_ROLLBACKS the run stops with `TrainingDiverged`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from racerlab.errors import RacerlabError
+
+MAX_ROLLBACKS = 3
+VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
+MAX_SENSIBLE_REWARD = 1e3
+COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
+KL_LIMIT = 2.0  # nats; PPO at sane learning rates moves the policy ~0.01-0.05 per update
+AWS_DEFAULT_LR = 0.0003
+
+
+class TrainingDiverged(RacerlabError):
+    pass
+
+
+class Health:
+    """Watches `agent`'s updates. `hp` is the model's hyperparameters (the file's lr), `reward_path` names the
+    reward in the advice, `discrete` says whether the entropy check applies, `note(text)` tells the user."""
+
+    def __init__(self, agent, hp, reward_path, *, discrete: bool, note, model_path):
+        self.agent = agent
+        self.hp = hp
+        self.reward_path = reward_path
+        self.discrete = discrete
+        self.note = note
+        self.model_path = model_path
+        self.rollbacks = 0
+        self.last_good = None  # the agent's state after the last committed iteration
+        self.last_eval: float | None = None
+        self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
+
+    def sound(self, metrics, iteration: int) -> bool:
+        """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
+        bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
+            isinstance(v, float) and not math.isfinite(v) for k, v in metrics.items() if k.startswith("losses/"))
+        if bad:
+            self.rollback("non-finite loss or weights", "lower lr in hyperparameters.json or check the reward "
+                          "function's scale", iteration)
+        return not bad
+
+    def collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
+        """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
+        the value loss exploded (rewards far too large), one update moved the policy absurdly far (approx KL), or a
+        discrete policy's entropy fell to near zero while its evaluation progress fell (a learning rate far too
+        high)."""
+        v = metrics.get("losses/value")
+        if v is not None and v > VALUE_LOSS_LIMIT:
+            top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
+            if top > MAX_SENSIBLE_REWARD:
+                return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g})",
+                        f"the reward scale: {self.reward_path} returned rewards up to {top:.3g}; keep them "
+                        f"within about 0..{MAX_SENSIBLE_REWARD:g} per step")
+            return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
+                    self.lr_advice())
+        ev = float(np.mean([e.progress for e in evals])) if evals else None
+        prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
+        falling = ev is None or (ev < prev if prev is not None else ev < 10.0)
+        kl = metrics.get("losses/approx_kl")
+        # a far move counts only where the evaluation got worse (or there is none): a converged continuous
+        # policy (std ~0.05) shows rare spikes of the approx KL from a few samples its mean moved away from
+        # (40 nats once in 300 iterations of 6.7-6.9 s laps), and rolling those back undid good training
+        if kl is not None and kl > KL_LIMIT and falling:
+            return (f"the policy moved {kl:.3g} nats in one update (approx KL over {KL_LIMIT:g})", self.lr_advice())
+        ent = metrics.get("losses/entropy")
+        if not self.discrete or ent is None or ev is None:
+            return None
+        if ent < COLLAPSED_ENTROPY and falling:
+            return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %", self.lr_advice())
+        return None
+
+    def lr_advice(self) -> str:
+        """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): AWS's
+        default 0.0003 when the file's is higher, else a tenth of the file's."""
+        lr, ours = self.hp.lr, self.agent.lr
+        now = f" (halved to {ours:g} by rollbacks)" if ours < lr else ""
+        hint = AWS_DEFAULT_LR if lr > AWS_DEFAULT_LR else lr / 10
+        return f"the learning rate: lr {lr:g} in {self.hp.source}{now} is too high; try {hint:g} or lower"
+
+    def rollback(self, what: str, cause: str, iteration: int) -> None:
+        """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
+        after MAX_ROLLBACKS stop with TrainingDiverged."""
+        self.rollbacks += 1
+        lr = self.agent.lr
+        self.agent.load_state_dict(self.last_good)
+        self.agent.lr = lr / 2
+        text = (f"{what} in iteration {iteration + 1}: rolled back to the last good weights, learning rate "
+                f"{lr:g} → {lr / 2:g} ({self.rollbacks}/{MAX_ROLLBACKS}); likely cause: {cause}")
+        self.note(text)
+        self.events.append(text)
+        if self.rollbacks >= MAX_ROLLBACKS:
+            raise TrainingDiverged(f"{self.model_path}: training diverged: {MAX_ROLLBACKS} rollbacks, the last after "
+                                   f"{what}; likely cause: {cause}")
+
+    def take_events(self) -> list[str]:
+        events, self.events = self.events, []
+        return events
