@@ -66,14 +66,14 @@ def _instrument(trainer: Trainer, clock: _Clock) -> None:
     trainer.collector.collect = clock.wrap("collect", trainer.collector.collect)
     trainer.agent.learn = clock.wrap("update", trainer.agent.learn)
     trainer._evaluate = clock.wrap("evaluate", trainer._evaluate)
-    for world in trainer.worlds:
+    for world in trainer.collector.worlds:
         world.reward = _TimedReward(world.reward, clock, "reward_collect")
     trainer.eval_world.reward = _TimedReward(trainer.eval_world.reward, clock, "reward_evaluate")
 
 
 def _example_minibatch(trainer: Trainer, size: int) -> dict[str, torch.Tensor]:
     """Random observations shaped as the training's, `size` of them (uint8 images, float vectors)."""
-    shapes = observation_shapes(trainer.worlds[0].observation.space, trainer.metadata)
+    shapes = observation_shapes(trainer.eval_world.observation.space, trainer.metadata)
     return {k: torch.randint(0, 256, (size, *s), dtype=torch.uint8) if len(s) == 3 else torch.randn(size, *s)
             for k, s in shapes.items()}
 
