@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from racerlab.analysis.rescore import RewardProblem, params_columns, score, wrap_degrees
+from racerlab.reward import as_reward_function
 from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, STEP_S
 from racerlab.track import Track
 
@@ -169,8 +170,6 @@ def check_reward(reward, track: Track, *, per_segment: int = 100, seed: int = 0)
     Never raises for the reward's own failures: exceptions (with the params that caused them), values that
     are not numbers, not finite or beyond ±1e5 are collected in `problems`.
     """
-    from racerlab.reward import as_reward_function
-
     fn = as_reward_function(reward)
     st = sample_states(track, per_segment, seed)
     res = score(fn, st.params)
@@ -311,8 +310,6 @@ def reward_map(reward, track: Track, *, speed: float = 2.0, heading: str = "alon
     the borders, plus `margin` (fraction of the width) beyond each border, with the given speed, heading rule
     (`parse_heading`) and steering. Progress is measured from the start line; steps are those of driving
     there at `speed`."""
-    from racerlab.reward import as_reward_function
-
     fn = as_reward_function(reward)
     kind, value = parse_heading(heading)
     n_s = max(int(math.ceil(track.length / ds)), 4)

@@ -69,9 +69,7 @@ def _read(path: Path):
 
 
 def _set_track(folder: ModelFolder, track: str) -> None:
-    from racerlab.model.config import TrainingConfig
-
-    cfg: TrainingConfig = folder.config()
+    cfg = folder.config()
     cfg = replace(cfg, track=replace(cfg.track, names=(track,)))
     folder.write_config(cfg)
 
