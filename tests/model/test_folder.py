@@ -66,8 +66,13 @@ def test_model_files_and_checkpoint_paths(tmp_path):
     assert back.collection == {"starts": [4, 5]} and not back.cloned
     raw = folder.load_checkpoint(info)  # the file's keys, as racerlab has always written them
     assert raw["format"] == "racerlab.checkpoint/1" and raw["starts"] == [4, 5] and "cloned" not in raw
-    folder.reward_path.write_text("def reward_function(params):\n    return 2.0 * params['speed']\n")
+    folder.write_reward("def reward_function(params):\n    return 2.0 * params['speed']\n")
     assert folder.reward_function()({"speed": 1.5}) == 3.0
+    assert folder.write_file("imported/a.txt", b"x").read_bytes() == b"x"
+    for outside in ("../a.txt", "/tmp/a.txt"):
+        with pytest.raises(ValueError, match="not a path inside"):
+            folder.write_file(outside, b"x")
+    assert not list(folder.path.rglob("*.tmp-*"))  # the atomic writes left no temporary file behind
 
 
 def test_a_registered_observation_is_accepted_by_training_toml(tmp_path):

@@ -123,8 +123,7 @@ def write_imported_model(dst, metadata: ModelMetadata, networks: dict, hyperpara
     agent.value_net.load_state_dict(networks["value"].state_dict())
     folder.path.mkdir(parents=True)
     for name, data in originals.items():
-        (folder.path / IMPORTED_DIR).mkdir(exist_ok=True)
-        (folder.path / IMPORTED_DIR / _kept_name(name)).write_bytes(data)
+        folder.write_file(f"{IMPORTED_DIR}/{_kept_name(name)}", data)
     header = ("# racerlab import: this is racerlab's example reward. The imported model's own reward function is\n"
               f"# kept as text, never run, in {IMPORTED_DIR}/reward_function.py.txt: read it, then copy it here\n"
               "# to train with it.\n\n") if "reward_function.py" in originals else ""

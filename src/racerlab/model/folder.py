@@ -129,9 +129,18 @@ class ModelFolder:
             if p.is_file():
                 self._write(self.path / p.name, p.read_bytes())
 
-    def _write(self, path: Path, data: str | bytes) -> None:
-        self.path.mkdir(parents=True, exist_ok=True)
+    def write_file(self, relative: str | Path, data: str | bytes) -> Path:
+        """Any other file of the folder (such as an import's originals kept under `imported/`), atomically;
+        `relative` must stay inside the folder."""
+        path = self.path / relative
+        if Path(relative).is_absolute() or ".." in Path(relative).parts:
+            raise ValueError(f"{relative}: not a path inside {self.path}")
+        path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(path, data.encode("utf-8") if isinstance(data, str) else data)
+        return path
+
+    def _write(self, path: Path, data: str | bytes) -> None:
+        self.write_file(path.relative_to(self.path), data)
 
     # ---- the training lock ---------------------------------------------------------------------
     def lock(self) -> TrainingLock:
