@@ -470,8 +470,10 @@ def _evaluations(doc: _Doc, evaluations: list[tuple[Path, dict]], out: Path) -> 
         rules = s.get("rules", {})
         r = s.get("result", {})
         mode = "continuous" if rules.get("continuous", True) else "separate"
+        trials = rules.get("trials", "?")
         doc.parts.append(f"<h3>{html.escape(folder.name)}: checkpoint {html.escape(str(s.get('checkpoint')))} on "
-                         f"{html.escape(str(s.get('track')))}, {rules.get('trials', '?')} trials ({mode} laps), "
+                         f"{html.escape(str(s.get('track')))}, {trials} trial{'' if trials == 1 else 's'} "
+                         f"({mode} laps), "
                          f"off-track penalty {rules.get('off_track_penalty', '?')} s</h3>")
         laps = pd.DataFrame([{"lap": lap["trial"], "time (s)": lap["elapsed"], "status": lap["status"],
                               "progress %": lap["progress"], "off-track": lap["off_track"], "resets": lap["resets"]}

@@ -100,6 +100,9 @@ def run_train(args) -> int:
                  "num_cars": args.cars, "device": args.device, "seed": args.seed, "tracks": args.track}
     if args.workers is None and args.ray_address:
         raise RacerlabError(f"--ray-address {args.ray_address}: give --workers N as well to train on the cluster")
+    from racerlab.cli import require_models
+
+    require_models(args.model)
     if args.workers is not None:
         from racerlab.cli.cluster import require_ray
         from racerlab.cluster import train_on_cluster
@@ -111,9 +114,13 @@ def run_train(args) -> int:
 
         result = train(args.model, **overrides)
     where = shlex.quote(str(result.model_dir))
-    print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/); next: "
-          f"`racerlab evaluate {where}` or `racerlab report {where}`")
-    return 0
+    print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/)\n"
+          f"next: `racerlab evaluate {where}` or `racerlab report {where}`")
+    # Ctrl-C exits 130 wherever it lands (set-up or a later iteration), so `train && evaluate` stops
+    return INTERRUPTED if getattr(result, "interrupted", False) else 0
+
+
+INTERRUPTED = 130  # the shell's code for a command ended by SIGINT
 
 
 def run_clone(args) -> int:

@@ -23,6 +23,9 @@ def register(sub) -> None:
 
 
 def run_report(args) -> int:
+    from racerlab.cli import require_path
+
+    require_path(args.path)
     from racerlab.analysis.report import write_report
 
     out = write_report(args.path, args.out, args.track, kind=args.kind)

@@ -21,7 +21,15 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
+from racerlab.evaluate.results import (
+    DEFAULT_RANKING_LAPS,
+    Lap,
+    RaceResult,
+    counted,
+    lap_table,
+    race_result,
+    result_lines,
+)
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation
 from racerlab.model import ModelFolder, nonfinite_tensors, parse_model_metadata, resolve_track
@@ -61,8 +69,8 @@ class EvaluationResult:
         direction = ", reversed" if r.reverse else ""
         if self.randomise:
             direction += ", randomised (" + ", ".join(f"{k} {v:g}" for k, v in self.randomise.items()) + ")"
-        return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {r.trials} trials, {mode} laps, "
-                f"off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
+        return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {counted(r.trials, 'trial')}, "
+                f"{mode} laps, off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
 
     def table(self) -> str:
         return lap_table(self.laps)

@@ -31,6 +31,38 @@ EVAL_METRICS_KEYS = ("completion_percentage", "metric_time", "start_time", "elap
                      "episode_status", "crash_count", "immobilized_count", "off_track_count",
                      "reversed_count", "reset_count", "trial")
 BEST_MODEL_METRICS = ("progress", "reward", "laptime")
+# what "best lap" means on every surface of a training (progress lines, metrics.jsonl, report, console, quickstart):
+BEST_LAP_NAME = "best eval lap"
+BEST_LAP_MEANING = ("the fastest lap completed in the in-training evaluation episodes (greedy actions, as a race "
+                    "drives them), over the whole training")
+# what picks the best checkpoint, per `[evaluation] best_model_metric`, in the words the surfaces print
+BEST_CHECKPOINT_RULES = {
+    "progress": "the highest mean evaluation progress, the newest checkpoint on ties (AWS's rule)",
+    "reward": "the highest mean evaluation reward, the newest checkpoint on ties",
+    "laptime": "the fastest mean evaluation lap (an unfinished lap counts as 999.999 s), the newest on ties",
+}
+
+
+def best_eval_lap(entries: list[dict]) -> tuple[float, int | None] | None:
+    """(seconds, iteration) of the best eval lap (`BEST_LAP_MEANING`) in metrics.jsonl `entries`, the earliest
+    iteration on ties; None before the first completed evaluation lap. A training's running record (`best/lap_time`
+    and `best/lap_iteration`, in every entry) is read from the newest entry when it is there, so the tail of the
+    file is enough; otherwise the per-iteration `eval/best_lap` values are searched."""
+    last = entries[-1] if entries else {}
+    if _finite(last.get("best/lap_time")) and _finite(last.get("best/lap_iteration")):
+        return float(last["best/lap_time"]), int(last["best/lap_iteration"])
+    best = None
+    for e in entries:
+        lap = e.get("eval/best_lap")
+        if _finite(lap) and (best is None or lap < best[0]):
+            best = (float(lap), e.get("iteration"))
+    if best is None and _finite(last.get("best/lap_time")):
+        return float(last["best/lap_time"]), None  # a tail without the per-iteration values
+    return best
+
+
+def _finite(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
 class LogFileError(RacerlabError, ValueError):

@@ -70,9 +70,12 @@ class TrainResult:
     wall_seconds: float = 0.0
     best_checkpoint: str | None = None
     best_metric: float | None = None
-    best_lap_time: float = math.nan
+    best_lap_time: float = math.nan  # the best eval lap (racerlab.logs.BEST_LAP_MEANING)
+    best_lap_iteration: int | None = None
     first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    best_rule: str = "progress"  # [evaluation] best_model_metric: what picked best_checkpoint
     stopped: str = ""
+    interrupted: bool = False  # Ctrl-C (SIGINT) ended it: the command exits 130, so `train && evaluate` stops
     history: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
@@ -86,6 +89,7 @@ class _State:
     best_name: str | None = None
     best_metric: float | None = None
     best_lap_time: float = math.nan
+    best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
     starts: list[int] = field(default_factory=list)  # each world's round-robin counter
     first_lap: dict | None = None
@@ -217,7 +221,7 @@ class Trainer:
                 "hyperparameters": self.hp.to_json(), "observation": self.worlds[0].observation.name,
                 "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps,
                 "train_steps": s.train_steps, "best_name": s.best_name, "best_metric": s.best_metric,
-                "best_lap_time": s.best_lap_time, "rollbacks": s.rollbacks,
+                "best_lap_time": s.best_lap_time, "best_lap_iteration": s.best_lap_iteration, "rollbacks": s.rollbacks,
                 "starts": [w.sim.episodes_started for w in self.worlds], "first_lap": s.first_lap,
                 "saved_at": time.time()}
 
@@ -241,7 +245,7 @@ class Trainer:
         s.train_steps = ck.get("train_steps", info.steps)
         s.best_name, s.best_metric = ck.get("best_name"), ck.get("best_metric")
         s.best_lap_time, s.rollbacks = ck.get("best_lap_time", math.nan), ck.get("rollbacks", 0)
-        s.first_lap = ck.get("first_lap")
+        s.first_lap, s.best_lap_iteration = ck.get("first_lap"), ck.get("best_lap_iteration")
         for w, n in zip(self.worlds, ck.get("starts") or [], strict=False):
             w.sim.episodes_started = int(n)
         self.folder.drop_after(s.iteration)
@@ -372,7 +376,8 @@ class Trainer:
             s.best_name, s.best_metric = info.name, value
         laps = [e.lap_time for e in evals if e.status == "lap_complete"]
         if laps:
-            s.best_lap_time = min(laps) if math.isnan(s.best_lap_time) else min(s.best_lap_time, min(laps))
+            if math.isnan(s.best_lap_time) or min(laps) < s.best_lap_time:
+                s.best_lap_time, s.best_lap_iteration = min(laps), s.iteration
             if s.first_lap is None:
                 s.first_lap = {"iteration": s.iteration, "wall_seconds": time.perf_counter() - t_start,
                                "env_steps": s.env_steps}
@@ -390,13 +395,15 @@ class Trainer:
                        "dropped; the last complete iteration is kept")
             return {}
         t_learn = time.perf_counter()
-        metrics = self.agent.learn(ro)
+        with self.progress.heartbeat("updating the policy"):  # a camera update can take a minute on 2 cores
+            metrics = self.agent.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
         if not self._guard(metrics):
             return {}
         past = self.deadline is not None and time.perf_counter() >= self.deadline
-        evals = [] if ro.cut or past else self._evaluate()  # at the time limit: learn and save, no evaluation
+        with self.progress.heartbeat("evaluation episodes"):  # at the time limit: learn and save, no evaluation
+            evals = [] if ro.cut or past else self._evaluate()
         collapsed = self._collapse(metrics, evals, ro.rewards)
         if collapsed:
             self._rollback(*collapsed)
@@ -439,6 +446,7 @@ class Trainer:
             "eval/laps": sum(e.status == "lap_complete" for e in evals),
             "eval/best_lap": min((e.lap_time for e in evals if e.status == "lap_complete"), default=None),
             "eval/metric": value, "best/lap_time": None if math.isnan(s.best_lap_time) else s.best_lap_time,
+            "best/lap_iteration": s.best_lap_iteration,
             "best/checkpoint": s.best_name, "lr": self.agent.lr, "logs/disk_bytes": self.logs.disk_bytes(),
             "rollbacks": s.rollbacks, "events": self._take_events(),
             **{k: float(v) for k, v in metrics.items()},
@@ -485,12 +493,15 @@ class Trainer:
             result.stopped = reason
         except KeyboardInterrupt:
             result.stopped = "interrupted (Ctrl-C); the last complete iteration is saved"
+            result.interrupted = True
         finally:
             self.logs.close()
         result.iterations, result.episodes, result.env_steps = s.iteration, s.episodes, s.env_steps
         result.wall_seconds = time.perf_counter() - t_start
         result.best_checkpoint, result.best_metric = s.best_name, s.best_metric
         result.best_lap_time, result.first_lap = s.best_lap_time, s.first_lap
+        result.best_lap_iteration = s.best_lap_iteration
+        result.best_rule = self.cfg.evaluation.best_model_metric
         result.notes = self.notes
         self.progress.finish(result)
         return result

@@ -512,7 +512,7 @@ async function viewRaces() {
     const d = await guarded(() => api("GET", "/api/races"));
     if (!d) return;
     boards.replaceChildren(...d.races.map(r => el("div", { class: "card" },
-      el("h3", { text: `${r.name} · ${r.track} · ${r.rules.trials} ${r.rules.continuous ? "continuous laps" : "trials"}` }),
+      el("h3", { text: `${r.name} · ${r.track} · ${r.rules.trials} ${r.rules.continuous ? "continuous lap" : "trial"}${r.rules.trials === 1 ? "" : "s"}` }),
       el("table", {}, el("tr", {}, ...["rank", "model", "best lap", `avg ${r.ranking_laps}`, "laps", "off-track", "result"].map(h => el("th", { text: h }))),
         ...r.leaderboard.map(row => el("tr", {}, el("td", { text: String(row.rank) }), el("td", { text: row.model }),
           el("td", { text: fmt(row.best_lap, 3) }), el("td", { text: fmt(row.ranking_average, 3) }),

@@ -1,0 +1,127 @@
+"""What a new user meets in the first hour (issue 27): a training that reports every long phase and fits 80
+columns, Ctrl-C's exit status, fast one-line errors, files written where the user looks for them."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from racerlab.cli import main
+
+
+def _small_model(tmp_path, name="m", *extra):
+    model = tmp_path / name
+    assert main(["init", str(model), "--track", "lab_oval", "--cars", "4", *extra]) == 0
+    hp = json.loads((model / "hyperparameters.json").read_text())
+    (model / "hyperparameters.json").write_text(json.dumps({**hp, "num_episodes_between_training": 4}))
+    return model
+
+
+def test_a_slow_update_has_a_heartbeat_and_every_training_line_fits_80_columns(tmp_path, capsys, monkeypatch):
+    from racerlab.agent.ppo import PPO
+    from racerlab.train import progress
+
+    model = _small_model(tmp_path)
+    capsys.readouterr()
+    learn = PPO.learn
+
+    def slow_learn(self, rollout):  # a camera network's update on 2 cores: a minute with nothing to show
+        time.sleep(0.5)
+        return learn(self, rollout)
+
+    monkeypatch.setattr(PPO, "learn", slow_learn)
+    monkeypatch.setattr(progress, "HEARTBEAT_S", 0.2)
+    assert main(["train", str(model), "--iterations", "2"]) == 0
+    out = capsys.readouterr().out
+    beats = [line for line in out.splitlines() if "updating the policy:" in line]
+    assert len(beats) >= 2 and all(line.endswith("s so far") for line in beats)
+    training = out[:out.index("model: ")].splitlines()
+    assert max(map(len, training)) <= 80, max(training, key=len)
+    header = next(line for line in training if "best eval lap" in line and "iter" in line)
+    rows = [line for line in training if line[:5].strip().isdigit()]
+    assert len(rows) == 2 and all(len(r.split()) == len(header.split()) - 4 for r in rows)  # 3 titles of 2+ words
+
+
+def test_the_summary_names_the_best_eval_lap_its_iteration_and_the_checkpoint_rule(tmp_path, capsys):
+    from racerlab.logs import best_eval_lap, read_metrics_jsonl
+
+    model = _small_model(tmp_path, "m", "--max-speed", "2")
+    capsys.readouterr()
+    assert main(["train", str(model), "--iterations", "3"]) == 0
+    out = capsys.readouterr().out
+    rows = read_metrics_jsonl(model / "metrics" / "metrics.jsonl")
+    laps = [(r["eval/best_lap"], r["iteration"]) for r in rows if r["eval/best_lap"] is not None]
+    if laps:  # the earliest of the fastest, worked out from each iteration's own evaluation laps
+        lap, it = min(laps, key=lambda p: (p[0], p[1]))
+        assert best_eval_lap(rows) == (lap, it) == best_eval_lap(rows[-1:])
+        assert f"best eval lap {lap:.2f}s (iteration {it})" in out
+    else:
+        assert best_eval_lap(rows) is None and "best eval lap --" in out
+    assert "picked by the highest mean evaluation progress, the newest checkpoint on ties" in " ".join(out.split())
+
+
+def test_ctrl_c_in_the_middle_of_a_training_exits_130(tmp_path, monkeypatch, capsys):
+    from racerlab.train.loop import Trainer
+
+    model = _small_model(tmp_path)
+    calls = []
+    iterate = Trainer.iterate
+
+    def interrupted_second_time(self, t_start):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return iterate(self, t_start)
+
+    monkeypatch.setattr(Trainer, "iterate", interrupted_second_time)
+    assert main(["train", str(model), "--iterations", "5"]) == 130
+    assert "interrupted (Ctrl-C)" in capsys.readouterr().out
+    assert max(int(p.name.split("_")[0]) for p in (model / "checkpoints").glob("*.pt")) == 1  # iteration 1 kept
+
+
+def test_a_missing_model_is_refused_before_torch_and_the_simulator_load(tmp_path):
+    """`racerlab evaluate nosuchmodel` used to import torch and compile nothing but load the simulator first
+    (6-8 s on a busy machine); now the folder is checked before any heavy import."""
+    probe = ("import sys, racerlab.cli as c\n"
+             "for argv in (['evaluate', 'nosuchmodel'], ['race', 'nosuch1', 'nosuch2'], ['train', 'nosuchmodel'],\n"
+             "             ['report', 'nosuchfolder'], ['export', 'nosuchmodel', '--car'],\n"
+             "             ['reward', 'rescore', 'nosuchfolder', '--reward', 'r.py']):\n"
+             "    assert c.main(argv) == 2, argv\n"
+             "    heavy = [m for m in ('torch', 'numba', 'pandas', 'racerlab.sim', 'scipy') if m in sys.modules]\n"
+             "    assert not heavy, (argv, heavy)\n"
+             "print('ok')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    p = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=tmp_path,
+                       timeout=120)
+    assert p.returncode == 0 and p.stdout.strip() == "ok", p.stderr
+    assert "nosuchmodel: no such model folder" in p.stderr and "nosuchfolder: no such log folder or file" in p.stderr
+
+
+def test_pictures_go_into_the_model_or_output_folder_not_the_current_one(tmp_path, monkeypatch, capsys):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    model = _small_model(tmp_path)
+    assert main(["tracks", "show", "lab_oval"]) == 0
+    assert (work / "racerlab-out" / "tracks" / "lab_oval.png").is_file()
+    assert main(["reward", "map", str(model / "reward_function.py"), "--cell", "0.2", "--across", "5"]) == 0
+    assert (model / "reward_function-map.png").is_file()
+    assert main(["train", str(model), "--iterations", "1"]) == 0
+    assert main(["reward", "rescore", str(model), "--reward", str(model / "reward_function.py")]) in (0, 1)
+    assert (model / "rescore-reward_function.png").is_file()
+    assert sorted(p.name for p in work.iterdir()) == ["racerlab-out"]
+
+
+@pytest.mark.parametrize("trials, words", [(1, "1 continuous lap,"), (2, "2 continuous laps,")])
+def test_a_race_counts_its_laps_in_words(tmp_path, capsys, trials, words):
+    model = _small_model(tmp_path)
+    assert main(["train", str(model), "--iterations", "1"]) == 0
+    capsys.readouterr()
+    assert main(["race", str(model), "--trials", str(trials), "--max-resets", "0"]) == 0
+    out = capsys.readouterr().out
+    assert f"race on lab_oval: {words}" in out
