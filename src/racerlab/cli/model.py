@@ -7,6 +7,8 @@ from pathlib import Path
 
 from racerlab.errors import RacerlabError
 
+DEFAULT_MAX_SPEED = 1.0  # the AWS console's default action space tops out at 1 m/s
+
 
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
@@ -21,7 +23,9 @@ def register(sub) -> None:
     p.add_argument("--sensor", choices=["features", "camera", "stereo", "lidar"], default="features")
     p.add_argument("--action-space", choices=["discrete", "continuous"], default="discrete")
     p.add_argument("--algorithm", choices=["clipped_ppo", "sac"], default="clipped_ppo")
-    p.add_argument("--max-speed", type=float, default=1.0, help="top action speed in m/s (console default 1)")
+    p.add_argument("--max-speed", type=float, default=DEFAULT_MAX_SPEED,
+                   help=f"top action speed in m/s (default {DEFAULT_MAX_SPEED:g}, the AWS console's; the quickstart "
+                        f"uses {QUICKSTART_MAX_SPEED:g})")
     p.add_argument("--cars", type=int, help="cars simulated in parallel")
     p.add_argument("--best-model-metric", choices=BEST_MODEL_METRICS,
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
@@ -77,15 +81,29 @@ def run_init(args) -> int:
         write_reward(folder.reward_path, args.reward, folder.config().track.names[0], top_speed(metadata.actions))
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
+    print(speed_note(args.max_speed))
     if args.sensor == "features":
         print(FEATURES_NOTE)
     print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes 5`")
     return 0
 
 
+QUICKSTART_MAX_SPEED = 2.0  # `racerlab quickstart --max-speed`'s default
+
+
+def speed_note(max_speed: float) -> str:
+    """What the action speeds are and why they differ from the quickstart's (17.7 s laps against 8.1 s)."""
+    if max_speed == DEFAULT_MAX_SPEED:
+        return (f"actions: top speed {max_speed:g} m/s, the AWS console's default; the quickstart's model has "
+                f"--max-speed {QUICKSTART_MAX_SPEED:g} and laps about twice as fast (init with --max-speed "
+                f"{QUICKSTART_MAX_SPEED:g} for that)")
+    return f"actions: top speed {max_speed:g} m/s (--max-speed; the AWS console's default is {DEFAULT_MAX_SPEED:g})"
+
+
 FEATURES_NOTE = ("note: sensor FEATURES (speed, steering, offsets and the centre line ahead, the fastest to train) "
                  "is racerlab's own: the AWS console and DRfC accept only cameras and LIDAR, so this model trains, "
-                 "races and is analysed here only; `racerlab init --sensor camera` makes one you can upload")
+                 "races and is analysed here only; `racerlab init --sensor camera` makes one you can upload or put on "
+                 "the car (`racerlab export --car`)")
 
 
 def run_train(args) -> int:

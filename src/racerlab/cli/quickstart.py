@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-DEFAULT_MODEL = Path("racerlab-out") / "quickstart-model"
+DEFAULT_MODEL = Path("racerlab-out") / "quickstart-model"  # racerlab.cli.OUT_DIR; the console lists it
 
 
 def register(sub) -> None:
@@ -20,7 +20,11 @@ def register(sub) -> None:
     p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help=f"model folder (default {DEFAULT_MODEL})")
     p.add_argument("--track", default=None, help="track name or path (default: the bundled default track)")
     p.add_argument("--minutes", type=float, default=3.0, help="training time in minutes (default 3)")
-    p.add_argument("--max-speed", type=float, default=2.0, help="top speed of a new model's actions (default 2)")
+    from racerlab.cli.model import QUICKSTART_MAX_SPEED
+
+    p.add_argument("--max-speed", type=float, default=QUICKSTART_MAX_SPEED,
+                   help=f"top speed of a new model's actions (default {QUICKSTART_MAX_SPEED:g}; `racerlab init` makes "
+                        "1 m/s, the AWS console's default)")
     p.set_defaults(func=run)
 
 
