@@ -125,3 +125,44 @@ def test_a_race_counts_its_laps_in_words(tmp_path, capsys, trials, words):
     assert main(["race", str(model), "--trials", str(trials), "--max-resets", "0"]) == 0
     out = capsys.readouterr().out
     assert f"race on lab_oval: {words}" in out
+
+
+def _logged_training(folder, eval_laps, train_laps):
+    """metrics.jsonl with each iteration's evaluation lap (None: none completed) and TrainingMetrics.json with
+    `train_laps` completed training laps as (seconds, episode reward)."""
+    from racerlab.logs import TrainingMetrics
+
+    (folder / "metrics").mkdir(parents=True)
+    rows = [{"iteration": i, "eval/mean_progress": 100.0 if lap else 60.0, "eval/best_lap": lap}
+            for i, lap in enumerate(eval_laps, 1)]
+    (folder / "metrics" / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    m = TrainingMetrics(folder / "metrics" / "TrainingMetrics.json")
+    m.add([{"reward_score": reward, "metric_time": 0, "start_time": 0, "elapsed_time_in_milliseconds": int(t * 1000),
+            "episode": k + 1, "trial": k % 4 + 1, "phase": "training", "completion_percentage": 100,
+            "episode_status": "Lap complete"} for k, (t, reward) in enumerate(train_laps)])
+    m.save()
+
+
+def test_the_quickstart_says_what_training_changed_and_why_an_early_best_stayed(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = tmp_path / "qs"
+    # the issue's run: 8.33 s at iteration 4, then 9.3 s laps to the end; slower laps earned more (a per-step reward)
+    laps = [None, None, 8.6, 8.333, 8.9] + [9.3] * 35
+    _logged_training(model, laps, [(8.0 + 0.1 * k, 100 + 10 * k) for k in range(20)])
+    lines = training_story(model)
+    assert lines[0] == ("training: iteration 5 (lap 8.90 s, evaluation progress 100 %); iteration 40 (the last) "
+                        "(lap 9.30 s, evaluation progress 100 %): 0.40 s slower")
+    assert lines[1].startswith("the best eval lap, 8.33 s, came at iteration 4 of 40; later laps were slower. "
+                               "Why: slower laps earned more reward (rank correlation +1.00 between lap time and "
+                               "episode reward over 20 training laps)")
+    assert f"racerlab reward rescore {model} --reward my_reward.py" in lines[2]
+
+
+def test_a_quickstart_that_kept_getting_faster_says_only_that(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = tmp_path / "qs"
+    _logged_training(model, [None, None, None, None, 9.0, 8.8, 8.5, 8.1], [(8.0 + 0.1 * k, 300 - k) for k in range(20)])
+    assert training_story(model) == ["training: iteration 5 (lap 9.00 s, evaluation progress 100 %); iteration 8 "
+                                     "(the last) (lap 8.10 s, evaluation progress 100 %): 0.90 s faster"]
