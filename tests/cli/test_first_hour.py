@@ -166,3 +166,27 @@ def test_a_quickstart_that_kept_getting_faster_says_only_that(tmp_path):
     _logged_training(model, [None, None, None, None, 9.0, 8.8, 8.5, 8.1], [(8.0 + 0.1 * k, 300 - k) for k in range(20)])
     assert training_story(model) == ["training: iteration 5 (lap 9.00 s, evaluation progress 100 %); iteration 8 "
                                      "(the last) (lap 8.10 s, evaluation progress 100 %): 0.90 s faster"]
+
+
+def test_init_says_why_its_speeds_are_not_the_quickstart_s(tmp_path, capsys):
+    assert main(["init", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "top speed 1 m/s, the AWS console's default; the quickstart's model has --max-speed 2" in out
+    assert max(json.loads((tmp_path / "a" / "model_metadata.json").read_text())["action_space"],
+               key=lambda a: a["speed"])["speed"] == 1.0
+    assert main(["init", str(tmp_path / "b"), "--max-speed", "2"]) == 0
+    assert "top speed 2 m/s (--max-speed; the AWS console's default is 1)" in capsys.readouterr().out
+
+
+def test_importing_a_car_archive_does_not_promise_a_reward_file_it_lacks(tmp_path, capsys):
+    pytest.importorskip("google.protobuf", reason="the car export needs racerlab[export]")
+    from tests.exchange.conftest import make_model
+
+    make_model(tmp_path / "cam", "camera")
+    archive = tmp_path / "cam-car.tar.gz"
+    assert main(["export", str(tmp_path / "cam"), "--car", "-o", str(archive)]) == 0
+    capsys.readouterr()
+    assert main(["import", str(archive), str(tmp_path / "back")]) == 0
+    out = capsys.readouterr().out
+    assert not (tmp_path / "back" / "imported" / "reward_function.py.txt").exists()
+    assert "the archive held no reward function (a car archive has none)" in out and "as text" not in out
