@@ -101,8 +101,8 @@ class Progress:
                   f"{cfg.stop.iterations} iterations" if cfg.stop.iterations else ""]
         limits = [x for x in limits if x] or [f"{trainer.hp.term_cond_max_episodes} episodes (term_cond_max_episodes)"]
         self._print(f"stops after {' / '.join(limits)} or Ctrl-C (the last complete iteration is kept)")
-        self._print(f"{BEST_LAP_NAME}: the fastest lap of the greedy evaluation episodes so far; train %: mean "
-                    "progress of the training episodes")
+        self._print(f"{BEST_LAP_NAME}: the fastest lap of the greedy evaluation episodes so far\n"
+                    "train %, eval %: mean progress of the training and of the evaluation episodes")
 
     def iteration(self, e: dict, eta: float | None) -> None:
         if self.rows % HEADER_EVERY == 0:
