@@ -159,6 +159,18 @@ def test_the_quickstart_says_what_training_changed_and_why_an_early_best_stayed(
     assert f"racerlab reward rescore {model} --reward my_reward.py" in lines[2]
 
 
+def test_a_weak_pay_for_speed_is_named_as_the_cause(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = tmp_path / "qs"  # as the quickstart's own run: faster laps earned a little more (Spearman -0.17)
+    rewards = [295, 306, 240, 276, 293, 297, 286, 298, 280, 283, 277, 258, 261, 279, 264, 291, 291, 298, 270, 291]
+    _logged_training(model, [None, None, 8.6, 8.333, 8.4] + [9.33] * 93,
+                     [(8.0 + 0.1 * k, r) for k, r in enumerate(rewards)])
+    why = training_story(model)[1]
+    assert "Why: faster laps earned only a little more reward (rank correlation -0.17 between" in why
+    assert "the reward pays mostly for something else" in why
+
+
 def test_a_quickstart_that_kept_getting_faster_says_only_that(tmp_path):
     from racerlab.cli.quickstart import training_story
 

@@ -145,8 +145,11 @@ def _why(model: Path) -> str:
     if rho > -0.1:
         return (f"Why: faster laps earned no more reward than slower ones ({how}), so training had no reason to "
                 "keep them.")
-    return (f"Faster laps did earn more reward ({how}): the reward asks for speed, and an iteration's few greedy "
-            "evaluation laps vary; the best checkpoint is kept by its evaluation laps all the same.")
+    if rho > -0.5:
+        return (f"Why: faster laps earned only a little more reward ({how}): the reward pays mostly for something "
+                "else (the centre line, the heading), and training followed what it pays for.")
+    return (f"Faster laps earned clearly more reward ({how}), yet the greedy laps slowed: compare what the reward "
+            "pays per lap below.")
 
 
 def next_steps(model: Path) -> str:
