@@ -46,18 +46,21 @@ BEST_CHECKPOINT_RULES = {
 def best_eval_lap(entries: list[dict]) -> tuple[float, int | None] | None:
     """(seconds, iteration) of the best eval lap (`BEST_LAP_MEANING`) in metrics.jsonl `entries`, the earliest
     iteration on ties; None before the first completed evaluation lap. A training's running record (`best/lap_time`
-    and `best/lap_iteration`, in every entry) is read from the newest entry when it is there, so the tail of the
-    file is enough; otherwise the per-iteration `eval/best_lap` values are searched."""
+    and `best/lap_iteration`, in every entry) is read from the newest entry, so the tail of the file is enough; a
+    record without its iteration (a training resumed from an older racerlab's checkpoint) gets the earliest entry
+    whose own `eval/best_lap` equals it, or None; entries without a record are searched."""
     last = entries[-1] if entries else {}
-    if _finite(last.get("best/lap_time")) and _finite(last.get("best/lap_iteration")):
-        return float(last["best/lap_time"]), int(last["best/lap_iteration"])
+    record = last.get("best/lap_time")
+    if _finite(record):
+        it = last.get("best/lap_iteration")
+        if not _finite(it):
+            it = next((e.get("iteration") for e in entries if e.get("eval/best_lap") == record), None)
+        return float(record), (int(it) if _finite(it) else None)
     best = None
     for e in entries:
         lap = e.get("eval/best_lap")
         if _finite(lap) and (best is None or lap < best[0]):
             best = (float(lap), e.get("iteration"))
-    if best is None and _finite(last.get("best/lap_time")):
-        return float(last["best/lap_time"]), None  # a tail without the per-iteration values
     return best
 
 
