@@ -28,3 +28,15 @@ def aws_track_path(name: str) -> Path:
 def aws_track():
     """Load a real AWS track by file stem, e.g. aws_track('reInvent2019_track')."""
     return lambda name: load_file(aws_track_path(name))
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Each skipped test by name with its reason (pytest's own summary groups skips by the line that skipped, so
+    three browser tests skipped for want of Chromium read as one line without their names)."""
+    skipped = terminalreporter.stats.get("skipped", [])
+    if not skipped:
+        return
+    terminalreporter.section(f"{len(skipped)} skipped, and why")
+    for rep in skipped:
+        reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
+        terminalreporter.write_line(f"{rep.nodeid}: {reason.removeprefix('Skipped: ')}")

@@ -91,7 +91,8 @@ def test_report_has_every_evaluation_and_one_iteration_numbering(model, tmp_path
     text = write_report(model.path, out).read_text(encoding="utf-8")
     section = text[text.index('id="evaluations"'):text.index('id="laps"')]
     for res in (first, second):
-        head = f"{res.out_dir.name}: checkpoint {res.checkpoint} on {res.track}, {res.rules.trials} trials"
+        trials = "1 trial" if res.rules.trials == 1 else f"{res.rules.trials} trials"
+        head = f"{res.out_dir.name}: checkpoint {res.checkpoint} on {res.track}, {trials} ("
         assert head in section
     assert section.index(first.out_dir.name) < section.index(second.out_dir.name)  # oldest first
     # each lap with its time, and the best lap, as the evaluation's summary has them

@@ -132,9 +132,22 @@ def test_metrics_stream_sends_history_then_new_lines(trained):
 
 
 def test_live_view_replays_the_logged_poses_within_the_bandwidth(trained):
-    root = trained.app.state.workspace.root / "m1"
+    import shutil
+
+    root = trained.app.state.workspace.root / "cam1"  # m1's logs as a camera + lidar model's: the heaviest view
+    shutil.copytree(trained.app.state.workspace.root / "m1", root,
+                    ignore=shutil.ignore_patterns("evaluation-*", "report.html"))
+    meta = json.loads((root / "model_metadata.json").read_text())
+    (root / "model_metadata.json").write_text(json.dumps({**meta, "sensor": ["FRONT_FACING_CAMERA", "LIDAR"]}))
+    try:
+        _live_view_within_the_bandwidth(trained, root)
+    finally:
+        shutil.rmtree(root)
+
+
+def _live_view_within_the_bandwidth(trained, root):
     t0 = time.monotonic()
-    events = sse_events(trained.client, "/api/models/m1/live?car=2",
+    events = sse_events(trained.client, "/api/models/cam1/live?car=2",
                         lambda ev: sum("camera" in d for _, d in ev) >= 3 and time.monotonic() - t0 > 3, 120)
     view = [d for _, d in events if d.get("camera")][-1]
     assert view["iteration"] == 2  # the newest of the two iterations, logged as 1-iteration.csv
@@ -149,7 +162,7 @@ def test_live_view_replays_the_logged_poses_within_the_bandwidth(trained):
     assert yaw == pytest.approx(float(row["yaw"]), abs=0.06)
     assert len(view["lidar"]) == 64 and view["camera"].startswith("data:image/png;base64,")
     # bandwidth: measured over 3 s of a steady stream
-    with trained.client.stream("GET", "/api/models/m1/live?car=0") as resp:
+    with trained.client.stream("GET", "/api/models/cam1/live?car=0") as resp:
         size, start = 0, None
         for chunk in resp.iter_bytes():
             start = start or time.monotonic()

@@ -56,7 +56,12 @@ def test_create_train_stop_evaluate_play(browser, tmp_path):
         page.get_by_text("No models in this workspace yet").wait_for()
         page.click("text=New model >> nth=0")
         page.fill("#new-name", "e2e")
+        page.fill("#track-search", "oval")  # ~130 tracks: the search keeps the ones whose name has it
+        shown = page.evaluate("[...document.querySelectorAll('.trackpick')].filter(p => p.offsetParent)"
+                              ".map(p => p.dataset.track)")
+        assert "lab_oval" in shown and all("oval" in t.lower() for t in shown)
         page.click('.trackpick[data-track="lab_oval"]')
+        assert _overlapping_labels(page) == 0
         page.fill("#new-cars", "4")
         page.fill('input[data-hp="num_episodes_between_training"]', "4")
         page.evaluate("window.scrollTo(0, 0)")
@@ -70,14 +75,23 @@ def test_create_train_stop_evaluate_play(browser, tmp_path):
         page.fill("#train-iterations", "300")  # stopped below, long before it ends
         page.click("#train-start")
         page.locator("#model-state", has_text="training").wait_for()
-        # a chart point appears when the first iteration is logged
+        assert page.locator("#train-start").text_content() == "Training…"
+        # a chart point appears when the first iteration is logged, and the header follows it
         page.wait_for_function("document.querySelector('#chart-reward')?.dataset.points >= 1", timeout=300_000)
         lag = page.evaluate("window.__chartPoints[0].shown - window.__chartPoints[0].time")
         assert lag < 1.0, f"chart point shown {lag:.2f} s after the iteration was logged"
-        page.locator("#live-camera[src^='data:image/png']").wait_for(timeout=120_000)
+        page.wait_for_function("/iteration [1-9]/.test(document.querySelector('#model-header').textContent)",
+                               timeout=30_000)
+        # a features model sees a vector: the live view says so and shows no camera or lidar
+        page.locator("#live-sees", has_text="features vector").wait_for(timeout=120_000)
+        assert not page.locator("#live-camera").is_visible()
         shot(page, "training")
         page.click("#train-stop")
         page.locator("#model-state", has_text="idle").wait_for(timeout=120_000)
+        page.locator("#train-start", has_text="Resume training").wait_for(timeout=30_000)
+        logged = console.client.get("/api/models/e2e").json()["iteration"]
+        page.wait_for_function(f"document.querySelector('#model-header').textContent.includes('iteration {logged} ')",
+                               timeout=30_000)
         page.goto(console.url + "/#/model/e2e/evaluation")
         page.fill("#eval-trials", "1")
         page.locator(".form input[type=number]").nth(3).fill("1")  # resets allowed
@@ -94,9 +108,31 @@ def test_create_train_stop_evaluate_play(browser, tmp_path):
         page.goto(console.url + "/#/models")
         page.locator('tr[data-model="e2e"] .badge', has_text="idle").wait_for()
         shot(page, "models")
+        # a model whose training.toml is broken shows its (long) error inside the card
+        bad = console.app.state.workspace.root / "broken"
+        shutil.copytree(console.app.state.workspace.root / "e2e", bad, ignore=shutil.ignore_patterns("evaluation-*"))
+        (bad / "training.toml").write_text("[track]\nnames = [\"" + "a_track_that_is_not_there_" * 6 + "\"]\n")
+        page.reload()
+        page.locator('tr[data-model="broken"]').wait_for()
+        widths = page.evaluate("[document.querySelector('#models-table').scrollWidth, "
+                               "document.querySelector('#models-card').clientWidth]")
+        assert widths[0] <= widths[1], widths
     finally:
         page.close()
         console.stop()
+
+
+def _overlapping_labels(page) -> int:
+    """Pairs of action-fan labels whose boxes overlap (the default 5 actions, two at each side's angle)."""
+    return page.evaluate("""() => {
+      const boxes = [...document.querySelectorAll('.actions-fan .fan-label')].map(t => t.getBBox());
+      let n = 0;
+      for (let i = 0; i < boxes.length; i++) for (let j = 0; j < i; j++) {
+        const a = boxes[i], b = boxes[j];
+        if (a.x < b.x + b.width && b.x < a.x + a.width && a.y < b.y + b.height && b.y < a.y + a.height) n++;
+      }
+      return boxes.length ? n : -1;
+    }""")
 
 
 def test_text_from_files_is_not_run_as_html(browser, tmp_path):

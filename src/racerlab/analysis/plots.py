@@ -309,7 +309,12 @@ def _color_scale(values: np.ndarray, discrete: bool):
         return BoundaryNorm(np.arange(-0.5, max(n, 2) + 0.5), cmap.N), cmap
     # 1st-99th percentile: a standing start or one glitch must not wash out the colours of a whole lap
     lo, hi = np.nanpercentile(values, [1, 99]) if np.isfinite(values).any() else (0.0, 1.0)
-    return Normalize(lo, hi if hi > lo else lo + 1e-9), colormaps["plasma"]
+    if hi - lo < 1e-6 * max(abs(lo), 1.0):
+        # one value throughout (a constant commanded speed): a scale around it, so the paths take the middle
+        # colour and the colour bar reads that value, not 0 on an axis labelled "1e-9+1"
+        pad = max(0.1 * abs(lo), 0.1)
+        lo, hi = lo - pad, hi + pad
+    return Normalize(lo, hi), colormaps["plasma"]
 
 
 def _mark_ends(ax, sel: pd.DataFrame) -> list:

@@ -28,7 +28,7 @@ import pandas as pd
 from racerlab.analysis import plots as P
 from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics, step_kinematics
 from racerlab.errors import RacerlabError
-from racerlab.logs import eval_layouts_path
+from racerlab.logs import BEST_LAP_MEANING, BEST_LAP_NAME, best_eval_lap, eval_layouts_path
 from racerlab.logs.atomic import atomic_write_text
 from racerlab.model import ModelFolder, resolve_track
 from racerlab.spec import RaceConfig
@@ -142,6 +142,11 @@ def png_data_uri(fig) -> str:
 class _Doc:
     title: str
     parts: list[str] = field(default_factory=list)
+    say: object = None  # progress(text) while the report is made, or None
+
+    def step(self, text: str) -> None:
+        if self.say is not None:
+            self.say(text)
 
     def h2(self, text: str, anchor: str) -> None:
         self.parts.append(f'<h2 id="{anchor}">{html.escape(text)}</h2>')
@@ -190,18 +195,27 @@ _HEADERS = {"unique_episode": "episode", "start_waypoint": "start wp", "lap_time
 # the report
 
 
-def write_report(path, out=None, track=None, *, kind: str = "auto") -> Path:
+def write_report(path, out=None, track=None, *, kind: str = "auto", progress=None) -> Path:
     """Analyse the log(s) at `path` (anything `racerlab.analysis.load` reads) into one HTML file `out`
-    (default: `<folder>/report.html`, or `<file>-report.html` beside a file); returns its path."""
+    (default: `<folder>/report.html`, or `<file>-report.html` beside a file); returns its path. `progress(text)`,
+    when given, hears what is being done (loading, each section), with the seconds so far."""
     from racerlab.analysis.load import load
 
+    t0 = time.perf_counter()
+
+    def say(text):
+        if progress is not None:
+            progress(f"{text} ({time.perf_counter() - t0:.0f} s)")
+
     path = Path(path)
+    say(f"reading the logs in {path}")
     df = load(path, kind)
     if len(df) == 0:
         raise RacerlabError(f"{path}: the logs hold no steps to analyse")
+    say(f"{len(df):,} steps read")
     out = Path(out) if out else _default_out(path)
     trk, track_note = log_track(path, df, track)
-    doc = _Doc(f"racerlab report: {path.name or path}")
+    doc = _Doc(f"racerlab report: {path.name or path}", say=say)
     toc = _build(doc, path, df, trk, track_note, out)
     return atomic_write_text(out, doc.render(toc))
 
@@ -229,6 +243,7 @@ def _default_out(path: Path) -> Path:
 
 def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_note: str,
            out: Path) -> list[tuple[str, str]]:
+    doc.step("episodes and iterations")
     kin = step_kinematics(df)
     eps = episode_summary(df, kin)
     training = df.attrs.get("kind", "training") == "training"
@@ -236,21 +251,25 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
     its = iteration_summary(eps, tm, jsonl)
     count_iterations_from_one(eps, its)
     toc = [("summary", "Summary")]
-    _summary(doc, path, df, eps, trk, track_note)
+    _summary(doc, path, df, eps, trk, track_note, jsonl)
     if training:
+        doc.step("training progress")
         toc.append(("progress", "Training progress"))
         doc.h2("Training progress", "progress")
         doc.figure(P.training_progress(its), "Per iteration (numbered as the console and the checkpoint names: "
                                              "iteration 1 is 0-iteration.csv): simtrace episodes, TrainingMetrics.json "
                                              "(training and in-training evaluation) and metrics.jsonl (entropy, KL)")
-        doc.table(_iteration_table(its), "Per iteration")
+        doc.table(_iteration_table(its), "Per iteration" if len(its) <= 40 else
+                  f"Per iteration: the first 10 and the last 30 of {len(its)}")
     evaluations = _evaluation_summaries(path)
     if evaluations:
         toc.append(("evaluations", "Evaluations and races"))
         _evaluations(doc, evaluations, out)
     toc.append(("laps", "Lap times and episodes"))
+    doc.step("lap times")
     _laps(doc, eps)
     if trk is not None:
+        doc.step("heatmaps and paths on the track")
         toc += [("track", "On the track"), ("paths", "Episode paths")]
         _track_views(doc, rows_on_track(df, trk).assign(true_speed=kin["true_speed"], slide=kin["slide"]),
                      trk, eps)
@@ -260,6 +279,7 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
         toc.append(("objects", "Objects and crashes"))
         _objects(doc, rows_on_track(df, trk), trk, race, race_note, log_layouts(path))
     toc += [("actions", "Actions"), ("waypoints", "Per waypoint")]
+    doc.step("actions and the per-waypoint profile")
     doc.h2("Action space usage", "actions")
     doc.figure(P.action_usage(df.assign(iteration=df["iteration"] + 1)),
                "Steps per action (continuous spaces: binned steering x speed)")
@@ -269,11 +289,27 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
     return toc
 
 
-def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Track | None, note: str) -> None:
+def _lap_items(df: pd.DataFrame, eps: pd.DataFrame, jsonl: list[dict]) -> dict[str, str]:
+    """The summary's laps, each named for the episodes it counts: a training log's fastest training episode
+    (exploring actions) apart from its best eval lap (greedy, `racerlab.logs.BEST_LAP_MEANING`, the lap the
+    console and the training's own lines show); an evaluation's best lap is its fastest lap."""
+    laps = eps["lap_time"].dropna()
+    fastest = f"{laps.min():.3f} s (episode {int(laps.idxmin())})" if len(laps) else "none yet"
+    if df.attrs.get("kind", "training") != "training":
+        return {"best lap": fastest}
+    best = best_eval_lap(jsonl)
+    if best is not None:
+        shown = f"{best[0]:.3f} s" + (f" (iteration {best[1]})" if best[1] is not None else "")
+    else:
+        shown = "none yet" if jsonl else "not in these logs (racerlab's metrics.jsonl holds it)"
+    return {BEST_LAP_NAME: shown, "fastest training-episode lap": fastest}
+
+
+def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Track | None, note: str,
+             jsonl: list[dict] | None = None) -> None:
     from racerlab import __version__
 
     doc.h2("Summary", "summary")
-    laps = eps["lap_time"].dropna()
     items = {
         "source": str(path.resolve()),
         "kind": df.attrs.get("kind", ""),
@@ -281,7 +317,7 @@ def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Tr
         "episodes": f"{len(eps):,}",
         "iterations": f"{df['iteration'].nunique():,}",
         "complete laps": f"{int(eps['complete'].sum()):,} ({100 * eps['complete'].mean():.1f} %)",
-        "best lap": f"{laps.min():.3f} s (episode {int(laps.idxmin())})" if len(laps) else "none yet",
+        **_lap_items(df, eps, jsonl or []),
         "mean progress": f"{eps['progress'].mean():.1f} %",
         "outcomes": ", ".join(f"{k} {v}" for k, v in eps["outcome"].value_counts().items()),
         "crashes": f"{int((df['episode_status'].astype(str) == 'crashed').sum()):,} steps judged crashed"
@@ -291,6 +327,8 @@ def _summary(doc: _Doc, path: Path, df: pd.DataFrame, eps: pd.DataFrame, trk: Tr
     }
     rows = "".join(f"<tr><td><b>{html.escape(k)}</b></td><td>{html.escape(v)}</td></tr>" for k, v in items.items())
     doc.parts.append(f'<table class="kv">{rows}</table>')
+    if BEST_LAP_NAME in items:
+        doc.p(f"{BEST_LAP_NAME}: {BEST_LAP_MEANING}; a training episode's lap is driven with exploring actions.")
     if df.attrs.get("converted_to_degrees"):
         doc.p(f"Logs in radians were converted to degrees: {', '.join(df.attrs['converted_to_degrees'])}", "note")
     if trk is None:
@@ -387,7 +425,12 @@ def _iteration_table(its: pd.DataFrame) -> pd.DataFrame:
                         "lap_time_min", "lap_time_mean", "train_completion", "eval_completion", "eval_lap_time_min",
                         "entropy", "approx_kl") if c in its and its[c].notna().any()]
     t = its[cols]
-    return t if len(t) <= 40 else pd.concat([t.head(10), t.tail(30)])
+    if len(t) <= 40:
+        return t
+    head, tail = t.head(10), t.tail(30)
+    gap = pd.DataFrame([[None] * len(cols)], columns=cols,
+                       index=[f"{head.index[-1] + 1}–{tail.index[0] - 1}: not shown"])
+    return pd.concat([head, gap, tail])
 
 
 _EPISODE_COLUMNS = ["iteration", "outcome", "start_waypoint", "steps", "time", "progress", "reward", "lap_time",
@@ -470,8 +513,10 @@ def _evaluations(doc: _Doc, evaluations: list[tuple[Path, dict]], out: Path) -> 
         rules = s.get("rules", {})
         r = s.get("result", {})
         mode = "continuous" if rules.get("continuous", True) else "separate"
+        trials = rules.get("trials", "?")
         doc.parts.append(f"<h3>{html.escape(folder.name)}: checkpoint {html.escape(str(s.get('checkpoint')))} on "
-                         f"{html.escape(str(s.get('track')))}, {rules.get('trials', '?')} trials ({mode} laps), "
+                         f"{html.escape(str(s.get('track')))}, {trials} trial{'' if trials == 1 else 's'} "
+                         f"({mode} laps), "
                          f"off-track penalty {rules.get('off_track_penalty', '?')} s</h3>")
         laps = pd.DataFrame([{"lap": lap["trial"], "time (s)": lap["elapsed"], "status": lap["status"],
                               "progress %": lap["progress"], "off-track": lap["off_track"], "resets": lap["resets"]}

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from pathlib import Path
 
 from racerlab import __version__
 from racerlab.errors import RacerlabError
@@ -17,6 +18,24 @@ from racerlab.errors import RacerlabError
 # module names under racerlab.cli, in the order `racerlab --help` lists them
 COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "report", "reward", "sim", "exchange",
                    "console", "cluster"]
+
+
+OUT_DIR = Path("racerlab-out")  # where commands with no model folder to write into put their files
+
+
+def require_models(*paths) -> None:
+    """Model folders a command needs, checked before its heavy imports (torch, the simulator): a typo in a
+    name is answered at once, not after seconds of loading."""
+    from racerlab.model.folder import ModelFolder
+
+    for p in paths:
+        ModelFolder(p).require()
+
+
+def require_path(path: Path, what: str = "log folder or file") -> None:
+    """A path a command reads, checked before its heavy imports."""
+    if not Path(path).exists():
+        raise RacerlabError(f"{path}: no such {what}")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -181,6 +181,9 @@ def run_generalisation(args) -> int:
 
 
 def run_evaluate(args) -> int:
+    from racerlab.cli import require_models
+
+    require_models(args.model)  # before the simulator and torch load: a typo is answered at once
     from racerlab.evaluate import evaluate
 
     if args.tracks_from:
@@ -196,7 +199,10 @@ def run_evaluate(args) -> int:
 
 
 def run_race(args) -> int:
+    from racerlab.cli import require_models
     from racerlab.errors import RacerlabError
+
+    require_models(*args.models)
     from racerlab.evaluate import head_to_model, race
 
     def done(res):
@@ -214,7 +220,9 @@ def run_race(args) -> int:
         board = race(args.models, race=race_overrides(args) or None, **common)
     r = board.rules
     how = "head to model, " if args.head_to_model else ""
-    print(f"race on {board.track}: {how}{r.trials} {'continuous laps' if r.continuous else 'trials'}, off-track "
+    from racerlab.evaluate.results import trials_text
+
+    print(f"race on {board.track}: {how}{trials_text(r.trials, r.continuous)}, off-track "
           f"penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
     print(board.table())
     print(f"leaderboard written to {board.path}")

@@ -47,6 +47,9 @@ def register(sub) -> None:
 
 
 def run_export(args) -> int:
+    from racerlab.cli import require_path
+
+    require_path(args.model, "model folder")
     from racerlab.exchange import export_car, export_drfc, export_droa
 
     if args.car:
@@ -62,11 +65,18 @@ def run_export(args) -> int:
 
 
 def run_import(args) -> int:
+    from racerlab.cli import require_path
+
+    require_path(args.path, "model folder or archive")
     from racerlab.exchange import import_model
 
     out = import_model(args.path, args.name)
+    kept = out / "imported" / "reward_function.py.txt"
+    reward = (f"its own reward function is in {kept} as text" if kept.is_file() else
+              "the archive held no reward function (a car archive has none): it trains with racerlab's example "
+              "reward until you write one")
     print(f"imported {args.path} into {out}; race it with `racerlab evaluate {out}`, train on with "
-          f"`racerlab train {out}` (its own reward function is in {out / 'imported'} as text)")
+          f"`racerlab train {out}` ({reward})")
     return 0
 
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from racerlab.errors import RacerlabError
 
+DEFAULT_MAX_SPEED = 1.0  # the AWS console's default action space tops out at 1 m/s
+
 
 def register(sub) -> None:
     from racerlab.logs.metrics import BEST_MODEL_METRICS
@@ -21,7 +23,9 @@ def register(sub) -> None:
     p.add_argument("--sensor", choices=["features", "camera", "stereo", "lidar"], default="features")
     p.add_argument("--action-space", choices=["discrete", "continuous"], default="discrete")
     p.add_argument("--algorithm", choices=["clipped_ppo", "sac"], default="clipped_ppo")
-    p.add_argument("--max-speed", type=float, default=1.0, help="top action speed in m/s (console default 1)")
+    p.add_argument("--max-speed", type=float, default=DEFAULT_MAX_SPEED,
+                   help=f"top action speed in m/s (default {DEFAULT_MAX_SPEED:g}, the AWS console's; the quickstart "
+                        f"uses {QUICKSTART_MAX_SPEED:g})")
     p.add_argument("--cars", type=int, help="cars simulated in parallel")
     p.add_argument("--best-model-metric", choices=BEST_MODEL_METRICS,
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
@@ -82,15 +86,29 @@ def run_init(args) -> int:
         folder.write_reward(reward_source(args.reward, line, folder.metadata().actions.top_speed))
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
+    print(speed_note(args.max_speed))
     if args.sensor == "features":
         print(FEATURES_NOTE)
     print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes 5`")
     return 0
 
 
+QUICKSTART_MAX_SPEED = 2.0  # `racerlab quickstart --max-speed`'s default
+
+
+def speed_note(max_speed: float) -> str:
+    """What the action speeds are and why they differ from the quickstart's (17.7 s laps against 8.1 s)."""
+    if max_speed == DEFAULT_MAX_SPEED:
+        return (f"actions: top speed {max_speed:g} m/s, the AWS console's default; the quickstart's model has "
+                f"--max-speed {QUICKSTART_MAX_SPEED:g} and laps about twice as fast (init with --max-speed "
+                f"{QUICKSTART_MAX_SPEED:g} for that)")
+    return f"actions: top speed {max_speed:g} m/s (--max-speed; the AWS console's default is {DEFAULT_MAX_SPEED:g})"
+
+
 FEATURES_NOTE = ("note: sensor FEATURES (speed, steering, offsets and the centre line ahead, the fastest to train) "
                  "is racerlab's own: the AWS console and DRfC accept only cameras and LIDAR, so this model trains, "
-                 "races and is analysed here only; `racerlab init --sensor camera` makes one you can upload")
+                 "races and is analysed here only; `racerlab init --sensor camera` makes one you can upload or put on "
+                 "the car (`racerlab export --car`)")
 
 
 def run_train(args) -> int:
@@ -105,6 +123,9 @@ def run_train(args) -> int:
                  "num_cars": args.cars, "device": args.device, "seed": args.seed, "tracks": args.track}
     if args.workers is None and args.ray_address:
         raise RacerlabError(f"--ray-address {args.ray_address}: give --workers N as well to train on the cluster")
+    from racerlab.cli import require_models
+
+    require_models(args.model)
     if args.workers is not None:
         from racerlab.cli.cluster import require_ray
         from racerlab.cluster import train_on_cluster
@@ -116,9 +137,13 @@ def run_train(args) -> int:
 
         result = train(args.model, **overrides)
     where = shlex.quote(str(result.model_dir))
-    print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/); next: "
-          f"`racerlab evaluate {where}` or `racerlab report {where}`")
-    return 0
+    print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/)\n"
+          f"next: `racerlab evaluate {where}` or `racerlab report {where}`")
+    # Ctrl-C exits 130 wherever it lands (set-up or a later iteration), so `train && evaluate` stops
+    return INTERRUPTED if getattr(result, "interrupted", False) else 0
+
+
+INTERRUPTED = 130  # the shell's code for a command ended by SIGINT
 
 
 def run_clone(args) -> int:

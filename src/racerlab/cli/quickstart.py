@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-DEFAULT_MODEL = Path("racerlab-out") / "quickstart-model"
+DEFAULT_MODEL = Path("racerlab-out") / "quickstart-model"  # racerlab.cli.OUT_DIR; the console lists it
 
 
 def register(sub) -> None:
@@ -20,7 +20,11 @@ def register(sub) -> None:
     p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help=f"model folder (default {DEFAULT_MODEL})")
     p.add_argument("--track", default=None, help="track name or path (default: the bundled default track)")
     p.add_argument("--minutes", type=float, default=3.0, help="training time in minutes (default 3)")
-    p.add_argument("--max-speed", type=float, default=2.0, help="top speed of a new model's actions (default 2)")
+    from racerlab.cli.model import QUICKSTART_MAX_SPEED
+
+    p.add_argument("--max-speed", type=float, default=QUICKSTART_MAX_SPEED,
+                   help=f"top speed of a new model's actions (default {QUICKSTART_MAX_SPEED:g}; `racerlab init` makes "
+                        "1 m/s, the AWS console's default)")
     p.set_defaults(func=run)
 
 
@@ -48,6 +52,8 @@ def run(args) -> int:
     draw_lap(res, args.track or folder.config().track.names[0], lap_png)
     draw_curve(folder.path, curve_png)
     print(checkpoint_line(folder, res))
+    for line in training_story(folder.path):
+        print(line)
     print(f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}")
     print(next_steps(folder.path))
     return 0
@@ -64,6 +70,86 @@ def checkpoint_line(folder, res) -> str:
     where = f"iteration {it} of {last}" if it is not None else "a checkpoint"
     return (f"{laps} above: driven by checkpoint {res.checkpoint} ({where}, the best checkpoint: {metric} "
             f"during training)")
+
+
+EARLY_ITERATION = 5  # the quickstart's model is compared with its own iteration 5
+
+
+def training_story(model: Path) -> list[str]:
+    """What training changed: the in-training evaluation of iteration 5 beside the last iteration's, and, when
+    the best eval lap came early and later laps were slower, why (do the logged laps pay for speed?) and where
+    to look next."""
+    from racerlab.logs import BEST_LAP_NAME, best_eval_lap, metrics_jsonl_path, read_metrics_jsonl
+
+    rows = [r for r in read_metrics_jsonl(metrics_jsonl_path(model)) if r.get("eval/mean_progress") is not None]
+    if not rows:
+        return []
+    early = next((r for r in rows if r["iteration"] >= EARLY_ITERATION), rows[0])
+    last = rows[-1]
+    if last is early:
+        return [f"iteration {last['iteration']}: {_eval_text(last)} (one evaluated iteration: nothing to compare)"]
+    lines = [f"training: iteration {early['iteration']} {_eval_text(early)}; iteration {last['iteration']} (the "
+             f"last) {_eval_text(last)}: {_change(early, last)}"]
+    best = best_eval_lap(rows)
+    late_lap = last.get("eval/best_lap")
+    if best and best[1] is not None and late_lap is not None and late_lap > 1.02 * best[0] \
+            and best[1] <= max(EARLY_ITERATION, last["iteration"] // 4):
+        lines.append(f"the {BEST_LAP_NAME}, {best[0]:.2f} s, came at iteration {best[1]} of {last['iteration']}; "
+                     f"later laps were slower. {_why(model)}")
+        lines.append(f"see what a reward pays for on the laps already driven: `racerlab reward rescore {model} "
+                     "--reward my_reward.py` (its table ranks the laps by lap time and by reward)")
+    return lines
+
+
+def _eval_text(row: dict) -> str:
+    lap = row.get("eval/best_lap")
+    progress = f"evaluation progress {row['eval/mean_progress']:.0f} %"
+    return f"(lap {lap:.2f} s, {progress})" if lap is not None else f"(no lap, {progress})"
+
+
+def _change(early: dict, last: dict) -> str:
+    a, b = early.get("eval/best_lap"), last.get("eval/best_lap")
+    if a is not None and b is not None:
+        if abs(b - a) < 0.005:
+            return "as fast"
+        return f"{abs(b - a):.2f} s {'faster' if b < a else 'slower'}"
+    if b is not None:
+        return "it completes a lap, iteration {} did not".format(early["iteration"])
+    if a is not None:
+        return "it no longer completes a lap"
+    pa, pb = early["eval/mean_progress"], last["eval/mean_progress"]
+    return f"{abs(pb - pa):.0f} points of progress {'more' if pb >= pa else 'fewer'}"
+
+
+def _why(model: Path) -> str:
+    """Whether the training laps that took longer earned more reward (the rank correlation of lap time and
+    episode reward over the completed training laps): a reward paid per step does, and then training has no
+    reason to drive faster."""
+    from racerlab.analysis.load import load_metrics
+    from racerlab.errors import RacerlabError
+
+    try:
+        tm = load_metrics(model, "training")
+    except (RacerlabError, ValueError):
+        return ""
+    laps = tm[(tm["phase"] == "training") & (tm["episode_status"] == "Lap complete")]
+    if len(laps) < 10 or laps["elapsed_time_in_milliseconds"].nunique() < 2:
+        return ""
+    rho = laps["elapsed_time_in_milliseconds"].corr(laps["reward_score"], method="spearman")
+    if rho != rho:  # NaN: every lap earned the same
+        return ""
+    how = f"rank correlation {rho:+.2f} between lap time and episode reward over {len(laps)} training laps"
+    if rho > 0.1:
+        return (f"Why: slower laps earned more reward ({how}): a reward paid at every step pays for more steps, "
+                "so training learns to take longer; pay for progress per step or for the lap time instead.")
+    if rho > -0.1:
+        return (f"Why: faster laps earned no more reward than slower ones ({how}), so training had no reason to "
+                "keep them.")
+    if rho > -0.5:
+        return (f"Why: faster laps earned only a little more reward ({how}): the reward pays mostly for something "
+                "else (the centre line, the heading), and training followed what it pays for.")
+    return (f"Faster laps earned clearly more reward ({how}), yet the greedy laps slowed: compare what the reward "
+            "pays per lap below.")
 
 
 def next_steps(model: Path) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 
@@ -23,8 +24,14 @@ def register(sub) -> None:
 
 
 def run_report(args) -> int:
+    from racerlab.cli import require_path
+
+    require_path(args.path)
     from racerlab.analysis.report import write_report
 
-    out = write_report(args.path, args.out, args.track, kind=args.kind)
+    def say(text):  # a 1 M-step log takes a while: say what is being done (stderr; stdout is the file's path)
+        print(f"report: {text}", file=sys.stderr, flush=True)
+
+    out = write_report(args.path, args.out, args.track, kind=args.kind, progress=say)
     print(out)
     return 0

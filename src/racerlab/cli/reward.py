@@ -44,7 +44,8 @@ def register(sub) -> None:
     m.add_argument("--steering", type=float, default=0.0, metavar="DEG", help="steering_angle param (default 0)")
     m.add_argument("--cell", type=float, default=0.05, metavar="M", help="grid step along the track (default 0.05 m)")
     m.add_argument("--across", type=int, default=21, metavar="N", help="grid cells between the borders (default 21)")
-    m.add_argument("--out", type=Path, metavar="FILE.png", help="default: <reward file stem>-map.png here")
+    m.add_argument("--out", type=Path, metavar="FILE.png",
+                   help="default: <reward file stem>-map.png beside the reward file (in its model folder)")
     m.set_defaults(func=run_map)
 
     r = rsub.add_parser("rescore", help="evaluate a new reward on logged steps and compare it with the old",
@@ -59,7 +60,8 @@ def register(sub) -> None:
     r.add_argument("--direction", choices=["auto", "forward", "reverse"], default="auto",
                    help="driving direction for is_reversed and the waypoints (default: per episode, from headings)")
     r.add_argument("--out", type=Path, metavar="FILE.png",
-                   help="scatter plot (default: rescore-<reward stem>.png here)")
+                   help="scatter plot (default: rescore-<reward stem>.png in the model or log folder, or beside "
+                        "the log file)")
     r.add_argument("--csv", type=Path, metavar="FILE.csv", help="also write the per-episode comparison")
     r.set_defaults(func=run_rescore)
 
@@ -105,7 +107,7 @@ def run_map(args) -> int:
     track = _track_for_reward(args.reward, args.track)
     rm = reward_map(args.reward, track, speed=args.speed, heading=args.heading, steering=args.steering,
                     ds=args.cell, across=args.across)
-    out = save_png(reward_map_figure(rm), args.out or Path(f"{args.reward.stem}-map.png"))
+    out = save_png(reward_map_figure(rm), args.out or args.reward.with_name(f"{args.reward.stem}-map.png"))
     for p in rm.problems:
         print("warning: " + p.describe(), file=sys.stderr)
     print(f"picture: {out.resolve()}")
@@ -113,6 +115,10 @@ def run_map(args) -> int:
 
 
 def run_rescore(args) -> int:
+    from racerlab.cli import require_path
+
+    require_path(args.log)
+    require_path(args.reward, "reward file")
     from racerlab.analysis.load import load
     from racerlab.analysis.plots import reward_vs_lap_time, save_png
     from racerlab.analysis.report import log_track
@@ -136,7 +142,8 @@ def run_rescore(args) -> int:
             print("  - " + p.describe().replace("\n", "\n    "))
     cmp = compare(df, res.new_reward)
     _print_comparison(cmp, correlations(cmp))
-    out = save_png(reward_vs_lap_time(cmp), args.out or Path(f"rescore-{args.reward.stem}.png"))
+    folder = args.log if args.log.is_dir() else args.log.parent
+    out = save_png(reward_vs_lap_time(cmp), args.out or folder / f"rescore-{args.reward.stem}.png")
     if args.csv:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
         cmp.to_csv(args.csv)

@@ -21,7 +21,8 @@ def register(sub) -> None:
                                        "waypoint numbers) and print its length, width, turns and direction.")
     show.add_argument("track", metavar="NAME|PATH", nargs="?", default=None,
                       help="a track name (see `racerlab tracks list`) or a .npy file (default: the default track)")
-    show.add_argument("--out", type=Path, default=None, help="PNG file to write (default ./<name>.png)")
+    show.add_argument("--out", type=Path, default=None,
+                      help="PNG file to write (default racerlab-out/tracks/<name>.png)")
     show.add_argument("--reverse", action="store_true", help="the track driven the other way")
     show.set_defaults(func=run_show)
 
@@ -90,11 +91,12 @@ def _print_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
 
 
 def run_show(args) -> int:
+    from racerlab.cli import OUT_DIR
     from racerlab.track import DEFAULT_TRACK, load
     from racerlab.track.plot import save_track_png
 
     t = load(args.track or DEFAULT_TRACK, reverse=args.reverse)
-    out = args.out or Path(f"{t.name}{'_reversed' if args.reverse else ''}.png")
+    out = args.out or OUT_DIR / "tracks" / f"{t.name}{'_reversed' if args.reverse else ''}.png"
     if out.suffix.lower() != ".png":
         from racerlab.errors import RacerlabError
 

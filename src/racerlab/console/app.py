@@ -107,6 +107,12 @@ def _pages(app: FastAPI) -> None:
         csrf = request.app.state.guard.csrf
         return HTMLResponse(page.replace("{{csrf}}", csrf), headers=NO_STORE)
 
+    icon = (STATIC / "favicon.svg").read_bytes()
+
+    @app.get("/favicon.ico")  # browsers ask for it whatever the page's <link rel="icon"> says
+    def favicon():
+        return Response(icon, media_type="image/svg+xml", headers={"Cache-Control": "max-age=86400"})
+
 
 # ---- models ------------------------------------------------------------------------------------------
 

@@ -4,8 +4,9 @@
   trainer right after the iteration's checkpoint): all lines on connect, then each new line as soon as
   it lands (the file's size is looked at every `POLL_S`), plus the model's state when it changes.
 - `live_view`: the cars of the newest complete training iteration, replayed from its simtrace at the
-  simulator's 15 steps per second, and for one car the 160×120 camera frame and the 64 lidar ranges
-  rendered at its logged pose. Positions go out 10 times a second, the camera 3 times: about 40 kB/s.
+  simulator's 15 steps per second, and for one car what its model sees (`model_sees`): the 160×120 camera
+  frame and/or the 64 lidar ranges rendered at its logged pose; nothing for a features model. Positions go out
+  10 times a second, the camera 3 times: about 40 kB/s.
 
 Nothing runs for a browser that is not connected: the work is done inside the generators.
 """
@@ -29,7 +30,8 @@ VIEW_HZ = 10
 CAMERA_EVERY = 3  # one camera frame per this many position frames
 MAX_VIEW_CARS = 32
 CHART_KEYS = ("iteration", "episodes", "time", "charts/mean_reward", "charts/completion", "losses/entropy",
-              "eval/mean_progress", "eval/best_lap", "best/lap_time", "charts/env_steps_per_s")
+              "eval/mean_progress", "eval/best_lap", "best/lap_time", "best/lap_iteration", "charts/env_steps_per_s")
+TEXT_KEYS = ("best/checkpoint",)  # for the model's header line
 
 
 def sse(event: str, data) -> str:
@@ -41,6 +43,8 @@ def _chart_point(entry: dict) -> dict:
     for k in CHART_KEYS:
         v = entry.get(k)
         out[k] = v if isinstance(v, int | float) and math.isfinite(v) else None
+    for k in TEXT_KEYS:
+        out[k] = entry.get(k) if isinstance(entry.get(k), str) else None
     return out
 
 
@@ -147,8 +151,22 @@ class Sensors:
         return "data:image/png;base64," + base64.b64encode(png).decode(), [round(float(r), 3) for r in ranges]
 
 
+def model_sees(folder) -> list[str]:
+    """Which of the live view's panels show what the model sees: "camera" and/or "lidar"; [] for a features model
+    (a vector, nothing to draw) or a folder whose model_metadata.json cannot be read."""
+    from racerlab.errors import RacerlabError
+    from racerlab.model.metadata import CAMERAS, LIDARS
+
+    try:
+        sensor = folder.metadata().sensor
+    except RacerlabError:
+        return []
+    return [kind for kind, names in (("camera", CAMERAS), ("lidar", LIDARS)) if any(s in names for s in sensor)]
+
+
 async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = VIEW_HZ):
     folder = workspace.folder(name)
+    sees = await asyncio.to_thread(model_sees, folder)
     replay, sensors = None, None
     t0 = time.monotonic()
     frame = 0
@@ -160,15 +178,19 @@ async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = V
             continue
         step = int((time.monotonic() - t0) * 15)
         poses = replay.poses(step)
-        msg = {"iteration": replay.iteration, "step": step,
+        msg = {"iteration": replay.iteration, "step": step, "sees": sees,
                "cars": [[round(float(p[0]), 3), round(float(p[1]), 3), round(float(p[2]), 1)] for p in poses]}
         if frame % CAMERA_EVERY == 0 and poses:
-            if sensors is None:
-                sensors = await asyncio.to_thread(Sensors, _model_track(folder))
             k = min(max(car, 0), len(poses) - 1)
             msg["car"] = k
-            msg["camera"], msg["lidar"] = await asyncio.to_thread(sensors.at, *poses[k])
-            msg["angles"] = sensors.angles
+            if sees:  # a features model sees a vector: no frame or scan to draw
+                if sensors is None:
+                    sensors = await asyncio.to_thread(Sensors, _model_track(folder))
+                camera, lidar = await asyncio.to_thread(sensors.at, *poses[k])
+                if "camera" in sees:
+                    msg["camera"] = camera
+                if "lidar" in sees:
+                    msg["lidar"], msg["angles"] = lidar, sensors.angles
         yield sse("view", msg)
         frame += 1
         await asyncio.sleep(1.0 / hz)

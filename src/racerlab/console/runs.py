@@ -172,7 +172,7 @@ def _analysis_routes(app: FastAPI) -> None:
         folder = w.folder(name)
         return w.run_task("report", f"report:{name}", lambda: {"report": write_report(folder.path).name}).to_json()
 
-    @app.get("/api/models/{name}/report")
+    @app.api_route("/api/models/{name}/report", methods=["GET", "HEAD"])  # the page asks with HEAD if there is one
     def report(request: Request, name: str):
         path = ws(request).folder(name).path / "report.html"
         if not path.is_file():

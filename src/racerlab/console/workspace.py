@@ -10,7 +10,6 @@ as Ctrl-C: the last complete iteration is saved.
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import signal
@@ -28,6 +27,14 @@ from racerlab.errors import RacerlabError
 
 STATE_DIR = ".console"
 TAIL_BYTES = 64 * 1024
+OUTPUT_DIR = "racerlab-out"  # where `racerlab quickstart` puts its model: the models in it are listed too
+MODEL_ONLY = ("reward_function.py", "training.toml", "hyperparameters.json", "checkpoints")
+
+
+def is_model_folder(path: Path) -> bool:
+    """model_metadata.json and something only a model folder has: a `racerlab line` output folder holds a
+    model_metadata.json (the fitted action space) and nothing else of a model, and is not one."""
+    return (path / "model_metadata.json").is_file() and any((path / name).exists() for name in MODEL_ONLY)
 
 
 def _pid_alive(pid: int, folder: Path) -> bool:
@@ -75,35 +82,52 @@ class Workspace:
         self._lock = threading.Lock()
 
     # ---- models ------------------------------------------------------------------------------
-    def folder(self, name: str, must_exist: bool = True) -> ModelFolder:
+    def model_path(self, name: str) -> Path:
+        """The folder of model `name`: `<workspace>/<name>`, or `<workspace>/racerlab-out/<name>` (the quickstart's
+        model) when only that one is a model folder."""
         path = inside(self.root, name)
-        if must_exist and not (path / "model_metadata.json").is_file():
+        if not is_model_folder(path):
+            nested = inside(self.root, OUTPUT_DIR, name)
+            if is_model_folder(nested):
+                return nested
+        return path
+
+    def folder(self, name: str, must_exist: bool = True) -> ModelFolder:
+        path = self.model_path(name)
+        if must_exist and not is_model_folder(path):
             raise ConsoleError(f"{name}: no such model in {self.root}", 404)
         return ModelFolder(path)
 
     def model_names(self) -> list[str]:
-        out = []
-        for p in sorted(self.root.iterdir()):
-            if p.is_dir() and not p.name.startswith(".") and (p / "model_metadata.json").is_file():
-                out.append(p.name)
-        return out
+        """Model folders in the workspace and in its racerlab-out/ (a name in both is the workspace's)."""
+        names = set()
+        for parent in (self.root, self.root / OUTPUT_DIR):
+            if parent.is_dir():
+                names.update(p.name for p in parent.iterdir()
+                             if p.is_dir() and not p.name.startswith(".") and is_model_folder(p))
+        return sorted(names)
 
     def summary(self, name: str) -> dict:
         folder = self.folder(name)
         out = {"name": name, "state": self.state(name), "track": None, "sensor": None, "algorithm": None,
-               "action_space": None, "best_lap": None, "iteration": 0, "episodes": 0, "error": None}
+               "action_space": None, "best_lap": None, "best_lap_iteration": None, "best_checkpoint": None,
+               "best_rule": None, "iteration": 0, "episodes": 0, "error": None,
+               "folder": str(folder.path.relative_to(self.root))}
         try:
             meta = folder.metadata()
             out.update(sensor=list(meta.sensor), algorithm=meta.training_algorithm,
                        action_space=meta.action_space_type)
-            out["track"] = list(folder.config().track.names)
+            cfg = folder.config()
+            out["track"], out["best_rule"] = list(cfg.track.names), logs.BEST_CHECKPOINT_RULES.get(
+                cfg.evaluation.best_model_metric)
         except RacerlabError as exc:
             out["error"] = str(exc)
         last = logs.last_metrics_entry(logs.metrics_jsonl_path(folder.path))
         if last:
-            lap = last.get("best/lap_time")
+            best = logs.best_eval_lap([last])  # "best lap" as everywhere: racerlab.logs.BEST_LAP_MEANING
             out.update(iteration=last.get("iteration", 0), episodes=last.get("episodes", 0),
-                       best_lap=lap if isinstance(lap, int | float) and math.isfinite(lap) else None)
+                       best_lap=best[0] if best else None, best_lap_iteration=best[1] if best else None,
+                       best_checkpoint=last.get("best/checkpoint"))
         out["evaluations"] = [p.name for p in logs.evaluation_dirs(folder.path)]
         return out
 
@@ -138,7 +162,7 @@ class Workspace:
         except (OSError, json.JSONDecodeError):
             return None
         pid = int(info.get("pid", 0))
-        return pid if pid > 0 and _pid_alive(pid, self.root / name) else None
+        return pid if pid > 0 and _pid_alive(pid, self.model_path(name)) else None
 
     # ---- training ----------------------------------------------------------------------------
     def start_training(self, name: str, minutes=None, episodes=None, iterations=None) -> int:

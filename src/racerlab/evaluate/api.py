@@ -21,7 +21,15 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, Lap, RaceResult, lap_table, race_result, result_lines
+from racerlab.evaluate.results import (
+    DEFAULT_RANKING_LAPS,
+    Lap,
+    RaceResult,
+    counted,
+    lap_table,
+    race_result,
+    result_lines,
+)
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation, run_head_to_model
 from racerlab.model import ModelFolder, TrainingState, nonfinite_tensors, parse_model_metadata, resolve_track
@@ -64,8 +72,8 @@ class EvaluationResult:
         direction = ", reversed" if r.reverse else ""
         if self.randomise:
             direction += ", randomised (" + ", ".join(f"{k} {v:g}" for k, v in self.randomise.items()) + ")"
-        return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {r.trials} trials, {mode} laps, "
-                f"off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
+        return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {counted(r.trials, 'trial')}, "
+                f"{mode} laps, off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
 
     def table(self) -> str:
         return lap_table(self.laps)
@@ -128,6 +136,7 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
     """Greedy actions of the checkpoint's agent (argmax for discrete, the mean for continuous, as AWS)."""
     from racerlab.agent import make_agent
 
+    _check_features_width(model, world)
     agent = make_agent(world.observation.space, model.metadata, model.folder.hyperparameters(), device=device,
                        seed=RACE_SEED)  # greedy: the seed draws nothing, but every agent is built the same way
     obs_name = getattr(world.observation, "name", None) or model.observation or "default"
@@ -140,6 +149,40 @@ def make_policy(model: LoadedModel, world, device: str = "cpu"):
                             f"({first}); evaluate with the settings it was trained with or train again") from None
 
     return agent.policy
+
+
+def _input_width(policy_state: dict) -> int | None:
+    """Columns of the first weight matrix of a features policy (its MLP's input width); None for other networks."""
+    for value in policy_state.values():
+        shape = tuple(getattr(value, "shape", ()))
+        if len(shape) == 2:
+            return int(shape[1])
+        if len(shape) > 2:  # a convolution first: an image model
+            return None
+    return None
+
+
+def _check_features_width(model: LoadedModel, world) -> None:
+    """A features model reads a vector whose length depends on the race it was trained in: boxes and bot cars add
+    the nearest objects ahead (`FEATURE_OBJECTS` (x, y) pairs), a time trial and a head-to-model race do not.
+    Racing it in the other kind is refused with that cause and the race that fits, before the network is built."""
+    from racerlab.sim.objects import FEATURE_OBJECTS
+
+    if getattr(world.observation, "name", None) != "features":
+        return
+    policy = (model.state.agent or {}).get("policy")
+    saved = _input_width(policy) if isinstance(policy, dict) else None
+    now = int(world.observation.space.shape[0])
+    if saved is None or saved == now or abs(saved - now) != 2 * FEATURE_OBJECTS:
+        return  # the same width, or another mismatch the loader names
+    trained = model.folder.config().race.type
+    had, has = ("had", "has none (a time trial or a head-to-model race)") if saved > now else ("had no", "has some")
+    raise RacerlabError(
+        f"{model.folder.checkpoints_dir / model.checkpoint}: this features model reads {saved} numbers and this race "
+        f"gives it {now}: the features vector ends with the nearest {FEATURE_OBJECTS} boxes or bot cars ahead when a "
+        f"race has them; its training race ({trained}, {model.folder.config_path}) {had} boxes or bot cars and this "
+        f"race {has}; race it in the kind of race it trained in (`--race-type {trained}`) or train a model for "
+        "this kind of race")
 
 
 def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate"):

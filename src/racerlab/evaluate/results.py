@@ -93,6 +93,16 @@ def completed_streak(laps: list[Lap]) -> int:
     return best
 
 
+def counted(n: int, noun: str) -> str:
+    """"1 trial", "3 trials", "1 continuous lap": the count and the noun in the number it needs."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def trials_text(trials: int, continuous: bool) -> str:
+    """How many laps a race drives and how: "1 continuous lap", "3 continuous laps", "3 trials"."""
+    return counted(trials, "continuous lap" if continuous else "trial")
+
+
 def result_text(laps: list[Lap]) -> str:
     """The result in the league's words: "no lap completed", "one lap: T s", "N laps, average T s"."""
     done = [lap for lap in laps if lap.completed]

@@ -52,12 +52,16 @@ from racerlab.logs.layout import (
     training_simtrace_path,
 )
 from racerlab.logs.metrics import (
+    BEST_CHECKPOINT_RULES,
+    BEST_LAP_MEANING,
+    BEST_LAP_NAME,
     EVAL_METRICS_KEYS,
     TRAINING_METRICS_KEYS,
     EvalMetrics,
     LogFileError,
     MetricsLog,
     TrainingMetrics,
+    best_eval_lap,
     finite_json,
     follow_metrics_jsonl,
     last_metrics_entry,
@@ -67,6 +71,7 @@ from racerlab.logs.retention import SimtraceRetention, thin_simtrace
 from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
 
 __all__ = [
+    "BEST_CHECKPOINT_RULES", "BEST_LAP_MEANING", "BEST_LAP_NAME", "best_eval_lap",
     "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
     "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceRetention", "SimtraceWriter", "TrainingMetrics",
     "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_layouts_path",

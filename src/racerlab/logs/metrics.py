@@ -31,6 +31,41 @@ EVAL_METRICS_KEYS = ("completion_percentage", "metric_time", "start_time", "elap
                      "episode_status", "crash_count", "immobilized_count", "off_track_count",
                      "reversed_count", "reset_count", "trial")
 BEST_MODEL_METRICS = ("progress", "reward", "laptime")
+# what "best lap" means on every surface of a training (progress lines, metrics.jsonl, report, console, quickstart):
+BEST_LAP_NAME = "best eval lap"
+BEST_LAP_MEANING = ("the fastest lap completed in the in-training evaluation episodes (greedy actions, as a race "
+                    "drives them), over the whole training")
+# what picks the best checkpoint, per `[evaluation] best_model_metric`, in the words the surfaces print
+BEST_CHECKPOINT_RULES = {
+    "progress": "the highest mean evaluation progress, the newest checkpoint on ties (AWS's rule)",
+    "reward": "the highest mean evaluation reward, the newest checkpoint on ties",
+    "laptime": "the fastest mean evaluation lap (an unfinished lap counts as 999.999 s), the newest on ties",
+}
+
+
+def best_eval_lap(entries: list[dict]) -> tuple[float, int | None] | None:
+    """(seconds, iteration) of the best eval lap (`BEST_LAP_MEANING`) in metrics.jsonl `entries`, the earliest
+    iteration on ties; None before the first completed evaluation lap. A training's running record (`best/lap_time`
+    and `best/lap_iteration`, in every entry) is read from the newest entry, so the tail of the file is enough; a
+    record without its iteration (a training resumed from an older racerlab's checkpoint) gets the earliest entry
+    whose own `eval/best_lap` equals it, or None; entries without a record are searched."""
+    last = entries[-1] if entries else {}
+    record = last.get("best/lap_time")
+    if _finite(record):
+        it = last.get("best/lap_iteration")
+        if not _finite(it):
+            it = next((e.get("iteration") for e in entries if e.get("eval/best_lap") == record), None)
+        return float(record), (int(it) if _finite(it) else None)
+    best = None
+    for e in entries:
+        lap = e.get("eval/best_lap")
+        if _finite(lap) and (best is None or lap < best[0]):
+            best = (float(lap), e.get("iteration"))
+    return best
+
+
+def _finite(x) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
 class LogFileError(RacerlabError, ValueError):

@@ -55,6 +55,7 @@ class TrainingState:
     best_name: str | None = None
     best_metric: float | None = None
     best_lap_time: float = math.nan
+    best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
     first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
     collection: dict = field(default_factory=dict)  # COLLECTION_KEYS

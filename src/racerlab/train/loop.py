@@ -64,9 +64,12 @@ class TrainResult:
     wall_seconds: float = 0.0
     best_checkpoint: str | None = None
     best_metric: float | None = None
-    best_lap_time: float = math.nan
+    best_lap_time: float = math.nan  # the best eval lap (racerlab.logs.BEST_LAP_MEANING)
+    best_lap_iteration: int | None = None
     first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    best_rule: str = "progress"  # [evaluation] best_model_metric: what picked best_checkpoint
     stopped: str = ""
+    interrupted: bool = False  # Ctrl-C (SIGINT) ended it: the command exits 130, so `train && evaluate` stops
     history: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
@@ -229,7 +232,8 @@ class Trainer:
             s.best_name, s.best_metric = info.name, value
         laps = [e.lap_time for e in evals if e.status == "lap_complete"]
         if laps:
-            s.best_lap_time = min(laps) if math.isnan(s.best_lap_time) else min(s.best_lap_time, min(laps))
+            if math.isnan(s.best_lap_time) or min(laps) < s.best_lap_time:
+                s.best_lap_time, s.best_lap_iteration = min(laps), s.iteration
             if s.first_lap is None:
                 s.first_lap = {"iteration": s.iteration, "wall_seconds": time.perf_counter() - t_start,
                                "env_steps": s.env_steps}
@@ -247,13 +251,15 @@ class Trainer:
                        "dropped; the last complete iteration is kept")
             return {}
         t_learn = time.perf_counter()
-        metrics = self.agent.learn(ro)
+        with self.progress.heartbeat("updating the policy"):  # a camera update can take a minute on 2 cores
+            metrics = self.agent.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
         if not self.health.sound(metrics, s.iteration):
             return {}
         past = self.deadline is not None and time.perf_counter() >= self.deadline
-        evals = [] if ro.cut or past else self._evaluate()  # at the time limit: learn and save, no evaluation
+        with self.progress.heartbeat("evaluation episodes"):  # at the time limit: learn and save, no evaluation
+            evals = [] if ro.cut or past else self._evaluate()
         collapsed = self.health.collapse(metrics, evals, ro.rewards)
         if collapsed:
             self.health.rollback(*collapsed, s.iteration)
@@ -293,6 +299,7 @@ class Trainer:
             "eval/laps": sum(e.status == "lap_complete" for e in evals),
             "eval/best_lap": min((e.lap_time for e in evals if e.status == "lap_complete"), default=None),
             "eval/metric": value, "best/lap_time": None if math.isnan(s.best_lap_time) else s.best_lap_time,
+            "best/lap_iteration": s.best_lap_iteration,
             "best/checkpoint": s.best_name, "lr": self.agent.lr, "logs/disk_bytes": self.logs.disk_bytes(),
             "rollbacks": self.health.rollbacks, "events": self.health.take_events(),
             **{k: float(v) for k, v in metrics.items()}, **self.collector.metrics(s.iteration),
@@ -338,12 +345,15 @@ class Trainer:
             result.stopped = reason
         except KeyboardInterrupt:
             result.stopped = "interrupted (Ctrl-C); the last complete iteration is saved"
+            result.interrupted = True
         finally:
             self.logs.close()
         result.iterations, result.episodes, result.env_steps = s.iteration, s.episodes, s.env_steps
         result.wall_seconds = time.perf_counter() - t_start
         result.best_checkpoint, result.best_metric = s.best_name, s.best_metric
         result.best_lap_time, result.first_lap = s.best_lap_time, s.first_lap
+        result.best_lap_iteration = s.best_lap_iteration
+        result.best_rule = self.cfg.evaluation.best_model_metric
         result.notes = self.notes
         self.progress.finish(result)
         return result

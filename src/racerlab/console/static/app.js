@@ -85,20 +85,23 @@ async function viewModels() {
     el("td", { text: (m.track || []).join(", ") }),
     el("td", { text: (m.sensor || []).join(" + ") }),
     el("td", { text: m.algorithm || "" }),
-    el("td", { text: m.best_lap === null ? "–" : fmt(m.best_lap, 3) + " s" }),
+    el("td", { text: bestLap(m) }),
     el("td", { text: String(m.iteration) }),
-    el("td", { class: "muted", text: m.error || "" })));
+    el("td", { class: "muted error", text: m.error || (m.folder !== m.name ? "in " + m.folder : "") })));
   main.append(el("h1", { text: "Models" }),
-    el("div", { class: "card" }, rows.length ? el("table", {},
-      el("tr", {}, ...["model", "state", "track", "sensor", "algorithm", "best lap", "iteration", ""].map(h => el("th", { text: h }))),
+    el("div", { class: "card tablecard", id: "models-card" }, rows.length ? el("table", { id: "models-table" },
+      el("tr", {}, ...["model", "state", "track", "sensor", "algorithm", BEST_LAP, "iteration", ""].map(h => el("th", { text: h }))),
       ...rows) : el("p", { class: "muted", text: "No models in this workspace yet: create one under New model." })),
     el("p", {}, el("button", { onclick: () => { location.hash = "#/new"; }, text: "New model" })));
   const timer = setInterval(async () => {
     const fresh = await api("GET", "/api/models").catch(() => null);
     if (!fresh) return;
     for (const m of fresh.models) {
-      const badge = main.querySelector(`tr[data-model="${CSS.escape(m.name)}"] .badge`);
-      if (badge && badge.textContent !== m.state) { badge.textContent = m.state; badge.className = "badge " + m.state; }
+      const row = main.querySelector(`tr[data-model="${CSS.escape(m.name)}"]`);
+      if (!row) continue;
+      const badge = row.querySelector(".badge");
+      if (badge.textContent !== m.state) { badge.textContent = m.state; badge.className = "badge " + m.state; }
+      row.children[5].textContent = bestLap(m); row.children[6].textContent = String(m.iteration);
     }
   }, 3000);
   cleanups.push(() => clearInterval(timer));
@@ -115,6 +118,9 @@ async function viewNew() {
   const algo = el("select", { id: "new-algo" }, el("option", { text: "clipped_ppo" }), el("option", { text: "sac" }));
   const speed = el("input", { id: "new-speed", type: "number", step: "0.1", min: "0.1", max: "4", value: "1" });
   const cars = el("input", { id: "new-cars", type: "number", min: "1", value: "" , placeholder: "32" });
+  const search = el("input", { id: "track-search", class: "tracksearch", type: "search", placeholder: `search ${tracks.tracks.length} tracks`,
+    oninput: () => { const q = search.value.trim().toLowerCase();
+      picker.querySelectorAll(".trackpick").forEach(p => { p.style.display = !q || p.dataset.track.toLowerCase().includes(q) ? "" : "none"; }); } });
   const picker = el("div", { class: "tracks" }, ...tracks.tracks.map(t => el("div", {
     class: "trackpick" + (t === state.track ? " selected" : ""), "data-track": t,
     onclick: (ev) => { state.track = t; picker.querySelectorAll(".trackpick").forEach(p => p.classList.toggle("selected", p.dataset.track === t)); } },
@@ -153,17 +159,28 @@ async function viewNew() {
   }
   function drawFan() {
     // each action as a ray from the car: the angle is the steering (left is left), the length the speed
-    const s = svg("svg", { viewBox: "-130 -140 260 150" });
+    const s = svg("svg", { viewBox: "-150 -160 300 170" });
     s.append(svg("circle", { cx: 0, cy: 0, r: 4, fill: "#1d232b" }));
     const pairs = Array.isArray(state.actions) ? state.actions.map(a => [a.steering_angle, a.speed])
       : [[state.actions.steering_angle.low, state.actions.speed.high], [state.actions.steering_angle.high, state.actions.speed.high],
          [state.actions.steering_angle.low, state.actions.speed.low], [state.actions.steering_angle.high, state.actions.speed.low]];
     const top = Math.max(...pairs.map(p => p[1]), 0.1);
+    const placed = [];  // label boxes already drawn: a label that would overlap one moves out along its ray, or is left out
     for (const [deg, v] of pairs) {
-      const r = 125 * v / top, a = (deg * Math.PI) / 180;
+      const r = 110 * v / top, a = (deg * Math.PI) / 180;
       const x = -r * Math.sin(a), y = -r * Math.cos(a);
-      s.append(svg("line", { x1: 0, y1: 0, x2: x, y2: y, stroke: "#e4572e", "stroke-width": 2 }),
-               svg("text", { x: x, y: y - 3, "font-size": 9, "text-anchor": "middle", text: `${deg}°/${v}` }));
+      const line = svg("line", { x1: 0, y1: 0, x2: x, y2: y, stroke: "#e4572e", "stroke-width": 2 });
+      line.append(svg("title", { text: `steering ${deg}°, speed ${v} m/s` }));
+      s.append(line);
+      const text = `${deg}°/${v}`, w = 5.2 * text.length, h = 10;
+      for (let k = 0; k < 4; k++) {
+        const rr = r + 8 + 11 * k, lx = -rr * Math.sin(a), ly = -rr * Math.cos(a);
+        const box = [lx - w / 2, ly - h / 2, lx + w / 2, ly + h / 2];
+        if (placed.some(b => box[0] < b[2] && b[0] < box[2] && box[1] < b[3] && b[1] < box[3])) continue;
+        placed.push(box);
+        s.append(svg("text", { x: lx, y: ly + 3, "font-size": 9, "text-anchor": "middle", class: "fan-label", text }));
+        break;
+      }
     }
     fan.replaceChildren(s);
   }
@@ -191,7 +208,7 @@ async function viewNew() {
       el("label", { text: "Name" }), name, el("label", { text: "Sensor" }), sensor,
       el("label", { text: "Action space" }), space, el("label", { text: "Algorithm" }), algo,
       el("label", { text: "Top speed (m/s)" }), speed, el("label", { text: "Cars in parallel" }), cars)),
-    el("div", { class: "card" }, el("h2", { text: "Track" }), picker),
+    el("div", { class: "card" }, el("h2", { text: "Track" }), search, picker),
     el("div", { class: "card row" }, el("div", {}, el("h2", { text: "Action space" }), actionsBox), el("div", {}, el("h3", { text: "speed / steering pairs" }), fan)),
     el("div", { class: "card" }, el("h2", { text: "Reward function" }), reward, el("p", {}, check), checkOut),
     el("div", { class: "card" }, el("h2", { text: "Hyperparameters" }), el("table", {}, ...hpRows)),
@@ -250,11 +267,22 @@ async function viewModel(name, tab) {
     const r = await guarded(() => api("DELETE", `/api/models/${encodeURIComponent(name)}?confirm=${encodeURIComponent(typed)}`));
     if (r) { toast("deleted " + name); location.hash = "#/models"; }
   } });
-  main.append(el("h1", {}, name + " ", badge),
-    el("p", { class: "muted", text: `${(m.sensor || []).join(" + ")} · ${m.algorithm} · ${m.action_space} · track ${(m.track || []).join(", ")} · iteration ${m.iteration} · best lap ${m.best_lap === null ? "–" : fmt(m.best_lap, 3) + " s"}` }),
-    el("p", {}, clone, " ", del), tabs);
+  const header = el("p", { class: "muted", id: "model-header", text: headerText(m) });
+  main.append(el("h1", {}, name + " ", badge), header, el("p", {}, clone, " ", del), tabs);
   const body = el("div"); main.append(body);
-  ({ training: tabTraining, evaluation: tabEvaluation, analysis: tabAnalysis, files: tabFiles, exchange: tabExchange }[tab] || tabTraining)(body, m, badge);
+  ({ training: tabTraining, evaluation: tabEvaluation, analysis: tabAnalysis, files: tabFiles, exchange: tabExchange }[tab] || tabTraining)(body, m, badge, header);
+}
+
+// "best lap" means one thing on every surface: the best eval lap (racerlab.logs.BEST_LAP_MEANING)
+const BEST_LAP = "best eval lap";
+function bestLap(m) {
+  if (m.best_lap === null || m.best_lap === undefined) return "–";
+  return fmt(m.best_lap, 3) + " s" + (m.best_lap_iteration ? ` (it. ${m.best_lap_iteration})` : "");
+}
+function headerText(m) {
+  const best = m.best_checkpoint ? ` · best checkpoint ${m.best_checkpoint}` + (m.best_rule ? ` (${m.best_rule})` : "") : "";
+  return `${(m.sensor || []).join(" + ")} · ${m.algorithm} · ${m.action_space} · track ${(m.track || []).join(", ")} · ` +
+    `iteration ${m.iteration} · ${BEST_LAP} ${bestLap(m)}${best}`;
 }
 
 function setState(badge, state, controls) {
@@ -262,7 +290,7 @@ function setState(badge, state, controls) {
   if (controls) controls(state);
 }
 
-function tabTraining(body, m, badge) {
+function tabTraining(body, m, badge, header) {
   const name = m.name;
   const minutes = el("input", { id: "train-minutes", type: "number", step: "0.5", min: "0", placeholder: "min" });
   const episodes = el("input", { id: "train-episodes", type: "number", min: "1", placeholder: "episodes" });
@@ -276,8 +304,16 @@ function tabTraining(body, m, badge) {
     const r = await guarded(() => api("POST", `/api/models/${encodeURIComponent(name)}/stop`));
     if (r) toast("stopping: the last complete iteration is kept");
   } });
-  const controls = (state) => { start.disabled = state !== "idle"; stop.disabled = state !== "training";
-    if (state === "idle") refreshLog(); };
+  let state = m.state;
+  const label = () => { start.textContent = state === "training" ? "Training…" : m.iteration > 0 ? "Resume training" : "Start training"; };
+  const controls = (now) => {
+    state = now; start.disabled = now !== "idle"; stop.disabled = now !== "training"; label();
+    if (now === "idle") { refreshLog(); refreshHeader(); }
+  };
+  async function refreshHeader() {  // after a stop: the iteration and best lap the training ended with
+    const fresh = await api("GET", `/api/models/${encodeURIComponent(name)}`).catch(() => null);
+    if (fresh) { Object.assign(m, fresh); header.textContent = headerText(m); label(); }
+  }
   controls(m.state);
   const charts = el("div", { class: "charts" }); const boxes = {};
   for (const c of CHARTS) { boxes[c.id] = el("div", { class: "chart" }); charts.append(boxes[c.id]); }
@@ -294,6 +330,10 @@ function tabTraining(body, m, badge) {
   es.addEventListener("history", (e) => { const d = JSON.parse(e.data); points = d.points; setState(badge, d.state, controls); redraw(); });
   es.addEventListener("point", (e) => {
     const p = JSON.parse(e.data); points.push(p); redraw();
+    m.iteration = p.iteration;
+    if (p["best/lap_time"] !== null && p["best/lap_time"] !== undefined) { m.best_lap = p["best/lap_time"]; m.best_lap_iteration = p["best/lap_iteration"]; }
+    if (p["best/checkpoint"]) m.best_checkpoint = p["best/checkpoint"];
+    header.textContent = headerText(m);
     window.__chartPoints.push({ iteration: p.iteration, time: p.time, shown: Date.now() / 1000 });
     refreshLog();
   });
@@ -309,8 +349,15 @@ function liveView(name) {
   const canvas = el("canvas");
   const cam = el("img", { id: "live-camera", alt: "camera", width: 320, height: 240, style: "image-rendering:pixelated;background:#222" });
   const lidar = el("canvas", { width: 160, height: 160, style: "background:#fafbfc;border:1px solid #d9dde3" });
+  const sensesText = el("div", { id: "live-sees" });
   wrap.append(el("div", { class: "map" }, img, canvas),
-    el("div", {}, el("div", {}, "car ", carSel, " camera (160×120, as the model sees it) and lidar"), cam, lidar, info));
+    el("div", { class: "sees" }, el("div", {}, "car ", carSel, " ", sensesText), cam, lidar, info));
+  function showPanels(sees) {  // only what the model sees: a features model sees a vector, not a picture
+    cam.style.display = sees.includes("camera") ? "" : "none";
+    lidar.style.display = sees.includes("lidar") ? "" : "none";
+    sensesText.textContent = sees.length ? sees.map(s => s === "camera" ? "camera (160×120, as the model sees it)" : "lidar").join(" and ")
+      : "this model sees a features vector (speed, steering, offsets, the centre line ahead): no camera or lidar to show";
+  }
   let frame = null, es = null, running = true, shown = 0;
   const track = fetch(`/api/models/${encodeURIComponent(name)}`).then(r => r.json()).then(async m => {
     const t = (m.track || [])[0];
@@ -335,7 +382,9 @@ function liveView(name) {
           g.fillRect(-5, -3, 10, 6); g.restore();
         });
       }
-      if (d.camera) { cam.src = d.camera; drawLidar(lidar, d.lidar, d.angles); }
+      if (d.sees) showPanels(d.sees);
+      if (d.camera) cam.src = d.camera;
+      if (d.lidar) drawLidar(lidar, d.lidar, d.angles);
     });
     es.addEventListener("waiting", (e) => { info.textContent = JSON.parse(e.data).message; });
   }
@@ -512,7 +561,7 @@ async function viewRaces() {
     const d = await guarded(() => api("GET", "/api/races"));
     if (!d) return;
     boards.replaceChildren(...d.races.map(r => el("div", { class: "card" },
-      el("h3", { text: `${r.name} · ${r.track} · ${r.rules.trials} ${r.rules.continuous ? "continuous laps" : "trials"}` }),
+      el("h3", { text: `${r.name} · ${r.track} · ${r.rules.trials} ${r.rules.continuous ? "continuous lap" : "trial"}${r.rules.trials === 1 ? "" : "s"}` }),
       el("table", {}, el("tr", {}, ...["rank", "model", "best lap", `avg ${r.ranking_laps}`, "laps", "off-track", "result"].map(h => el("th", { text: h }))),
         ...r.leaderboard.map(row => el("tr", {}, el("td", { text: String(row.rank) }), el("td", { text: row.model }),
           el("td", { text: fmt(row.best_lap, 3) }), el("td", { text: fmt(row.ranking_average, 3) }),

@@ -1,0 +1,204 @@
+"""What a new user meets in the first hour (issue 27): a training that reports every long phase and fits 80
+columns, Ctrl-C's exit status, fast one-line errors, files written where the user looks for them."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from racerlab.cli import main
+
+
+def _small_model(tmp_path, name="m", *extra):
+    model = tmp_path / name
+    assert main(["init", str(model), "--track", "lab_oval", "--cars", "4", *extra]) == 0
+    hp = json.loads((model / "hyperparameters.json").read_text())
+    (model / "hyperparameters.json").write_text(json.dumps({**hp, "num_episodes_between_training": 4}))
+    return model
+
+
+def test_a_slow_update_has_a_heartbeat_and_every_training_line_fits_80_columns(tmp_path, capsys, monkeypatch):
+    from racerlab.agent.ppo import PPO
+    from racerlab.train import progress
+
+    model = _small_model(tmp_path)
+    capsys.readouterr()
+    learn = PPO.learn
+
+    def slow_learn(self, rollout):  # a camera network's update on 2 cores: a minute with nothing to show
+        time.sleep(0.5)
+        return learn(self, rollout)
+
+    monkeypatch.setattr(PPO, "learn", slow_learn)
+    monkeypatch.setattr(progress, "HEARTBEAT_S", 0.2)
+    assert main(["train", str(model), "--iterations", "2"]) == 0
+    out = capsys.readouterr().out
+    beats = [line for line in out.splitlines() if "updating the policy:" in line]
+    assert len(beats) >= 2 and all(line.endswith("s so far") for line in beats)
+    training = out[:out.index("model: ")].splitlines()
+    assert max(map(len, training)) <= 80, max(training, key=len)
+    header = next(line for line in training if "best eval lap" in line and "iter" in line)
+    rows = [line for line in training if line[:5].strip().isdigit()]
+    assert len(rows) == 2 and all(len(r.split()) == len(header.split()) - 4 for r in rows)  # 3 titles of 2+ words
+
+
+def test_the_summary_names_the_best_eval_lap_its_iteration_and_the_checkpoint_rule(tmp_path, capsys):
+    from racerlab.logs import best_eval_lap, read_metrics_jsonl
+
+    model = _small_model(tmp_path, "m", "--max-speed", "2")
+    capsys.readouterr()
+    assert main(["train", str(model), "--iterations", "3"]) == 0
+    out = capsys.readouterr().out
+    rows = read_metrics_jsonl(model / "metrics" / "metrics.jsonl")
+    laps = [(r["eval/best_lap"], r["iteration"]) for r in rows if r["eval/best_lap"] is not None]
+    if laps:  # the earliest of the fastest, worked out from each iteration's own evaluation laps
+        lap, it = min(laps, key=lambda p: (p[0], p[1]))
+        assert best_eval_lap(rows) == (lap, it) == best_eval_lap(rows[-1:])
+        assert f"best eval lap {lap:.2f}s (iteration {it})" in out
+    else:
+        assert best_eval_lap(rows) is None and "best eval lap --" in out
+    assert "picked by the highest mean evaluation progress, the newest checkpoint on ties" in " ".join(out.split())
+
+
+def test_ctrl_c_in_the_middle_of_a_training_exits_130(tmp_path, monkeypatch, capsys):
+    from racerlab.train.loop import Trainer
+
+    model = _small_model(tmp_path)
+    calls = []
+    iterate = Trainer.iterate
+
+    def interrupted_second_time(self, t_start):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return iterate(self, t_start)
+
+    monkeypatch.setattr(Trainer, "iterate", interrupted_second_time)
+    assert main(["train", str(model), "--iterations", "5"]) == 130
+    assert "interrupted (Ctrl-C)" in capsys.readouterr().out
+    assert max(int(p.name.split("_")[0]) for p in (model / "checkpoints").glob("*.pt")) == 1  # iteration 1 kept
+
+
+def test_a_missing_model_is_refused_before_torch_and_the_simulator_load(tmp_path):
+    """`racerlab evaluate nosuchmodel` used to import torch and compile nothing but load the simulator first
+    (6-8 s on a busy machine); now the folder is checked before any heavy import."""
+    probe = ("import sys, racerlab.cli as c\n"
+             "for argv in (['evaluate', 'nosuchmodel'], ['race', 'nosuch1', 'nosuch2'], ['train', 'nosuchmodel'],\n"
+             "             ['report', 'nosuchfolder'], ['export', 'nosuchmodel', '--car'],\n"
+             "             ['reward', 'rescore', 'nosuchfolder', '--reward', 'r.py']):\n"
+             "    assert c.main(argv) == 2, argv\n"
+             "    heavy = [m for m in ('torch', 'numba', 'pandas', 'racerlab.sim', 'scipy') if m in sys.modules]\n"
+             "    assert not heavy, (argv, heavy)\n"
+             "print('ok')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    p = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=tmp_path,
+                       timeout=120)
+    assert p.returncode == 0 and p.stdout.strip() == "ok", p.stderr
+    assert "nosuchmodel: no such model folder" in p.stderr and "nosuchfolder: no such log folder or file" in p.stderr
+
+
+def test_pictures_go_into_the_model_or_output_folder_not_the_current_one(tmp_path, monkeypatch, capsys):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    model = _small_model(tmp_path)
+    assert main(["tracks", "show", "lab_oval"]) == 0
+    assert (work / "racerlab-out" / "tracks" / "lab_oval.png").is_file()
+    assert main(["reward", "map", str(model / "reward_function.py"), "--cell", "0.2", "--across", "5"]) == 0
+    assert (model / "reward_function-map.png").is_file()
+    assert main(["train", str(model), "--iterations", "1"]) == 0
+    assert main(["reward", "rescore", str(model), "--reward", str(model / "reward_function.py")]) in (0, 1)
+    assert (model / "rescore-reward_function.png").is_file()
+    assert sorted(p.name for p in work.iterdir()) == ["racerlab-out"]
+
+
+@pytest.mark.parametrize("trials, words", [(1, "1 continuous lap,"), (2, "2 continuous laps,")])
+def test_a_race_counts_its_laps_in_words(tmp_path, capsys, trials, words):
+    model = _small_model(tmp_path)
+    assert main(["train", str(model), "--iterations", "1"]) == 0
+    capsys.readouterr()
+    assert main(["race", str(model), "--trials", str(trials), "--max-resets", "0"]) == 0
+    out = capsys.readouterr().out
+    assert f"race on lab_oval: {words}" in out
+
+
+def _logged_training(folder, eval_laps, train_laps):
+    """metrics.jsonl with each iteration's evaluation lap (None: none completed) and TrainingMetrics.json with
+    `train_laps` completed training laps as (seconds, episode reward)."""
+    from racerlab.logs import TrainingMetrics
+
+    (folder / "metrics").mkdir(parents=True)
+    rows = [{"iteration": i, "eval/mean_progress": 100.0 if lap else 60.0, "eval/best_lap": lap}
+            for i, lap in enumerate(eval_laps, 1)]
+    (folder / "metrics" / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    m = TrainingMetrics(folder / "metrics" / "TrainingMetrics.json")
+    m.add([{"reward_score": reward, "metric_time": 0, "start_time": 0, "elapsed_time_in_milliseconds": int(t * 1000),
+            "episode": k + 1, "trial": k % 4 + 1, "phase": "training", "completion_percentage": 100,
+            "episode_status": "Lap complete"} for k, (t, reward) in enumerate(train_laps)])
+    m.save()
+
+
+def test_the_quickstart_says_what_training_changed_and_why_an_early_best_stayed(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = tmp_path / "qs"
+    # the issue's run: 8.33 s at iteration 4, then 9.3 s laps to the end; slower laps earned more (a per-step reward)
+    laps = [None, None, 8.6, 8.333, 8.9] + [9.3] * 35
+    _logged_training(model, laps, [(8.0 + 0.1 * k, 100 + 10 * k) for k in range(20)])
+    lines = training_story(model)
+    assert lines[0] == ("training: iteration 5 (lap 8.90 s, evaluation progress 100 %); iteration 40 (the last) "
+                        "(lap 9.30 s, evaluation progress 100 %): 0.40 s slower")
+    assert lines[1].startswith("the best eval lap, 8.33 s, came at iteration 4 of 40; later laps were slower. "
+                               "Why: slower laps earned more reward (rank correlation +1.00 between lap time and "
+                               "episode reward over 20 training laps)")
+    assert f"racerlab reward rescore {model} --reward my_reward.py" in lines[2]
+
+
+def test_a_weak_pay_for_speed_is_named_as_the_cause(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = tmp_path / "qs"  # as the quickstart's own run: faster laps earned a little more (Spearman -0.17)
+    rewards = [295, 306, 240, 276, 293, 297, 286, 298, 280, 283, 277, 258, 261, 279, 264, 291, 291, 298, 270, 291]
+    _logged_training(model, [None, None, 8.6, 8.333, 8.4] + [9.33] * 93,
+                     [(8.0 + 0.1 * k, r) for k, r in enumerate(rewards)])
+    why = training_story(model)[1]
+    assert "Why: faster laps earned only a little more reward (rank correlation -0.17 between" in why
+    assert "the reward pays mostly for something else" in why
+
+
+def test_a_quickstart_that_kept_getting_faster_says_only_that(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = tmp_path / "qs"
+    _logged_training(model, [None, None, None, None, 9.0, 8.8, 8.5, 8.1], [(8.0 + 0.1 * k, 300 - k) for k in range(20)])
+    assert training_story(model) == ["training: iteration 5 (lap 9.00 s, evaluation progress 100 %); iteration 8 "
+                                     "(the last) (lap 8.10 s, evaluation progress 100 %): 0.90 s faster"]
+
+
+def test_init_says_why_its_speeds_are_not_the_quickstart_s(tmp_path, capsys):
+    assert main(["init", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "top speed 1 m/s, the AWS console's default; the quickstart's model has --max-speed 2" in out
+    assert max(json.loads((tmp_path / "a" / "model_metadata.json").read_text())["action_space"],
+               key=lambda a: a["speed"])["speed"] == 1.0
+    assert main(["init", str(tmp_path / "b"), "--max-speed", "2"]) == 0
+    assert "top speed 2 m/s (--max-speed; the AWS console's default is 1)" in capsys.readouterr().out
+
+
+def test_importing_a_car_archive_does_not_promise_a_reward_file_it_lacks(tmp_path, capsys):
+    pytest.importorskip("google.protobuf", reason="the car export needs racerlab[export]")
+    from tests.exchange.conftest import make_model
+
+    make_model(tmp_path / "cam", "camera")
+    archive = tmp_path / "cam-car.tar.gz"
+    assert main(["export", str(tmp_path / "cam"), "--car", "-o", str(archive)]) == 0
+    capsys.readouterr()
+    assert main(["import", str(archive), str(tmp_path / "back")]) == 0
+    out = capsys.readouterr().out
+    assert not (tmp_path / "back" / "imported" / "reward_function.py.txt").exists()
+    assert "the archive held no reward function (a car archive has none)" in out and "as text" not in out
