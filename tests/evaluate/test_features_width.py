@@ -14,6 +14,7 @@ from tests.evaluate.models import write_model
 def _objects_model(tmp_path, name: str, race: str):
     """A features model trained for `race` (boxes or bots): its checkpoint's policy reads the longer vector."""
     from racerlab.agent import make_agent
+    from racerlab.model.checkpoint import TrainingState
     from racerlab.sim.core import Simulator
     from racerlab.track import load
 
@@ -24,7 +25,7 @@ def _objects_model(tmp_path, name: str, race: str):
     wide = gym.spaces.Box(-10.0, 10.0, shape=(plain + 2 * FEATURE_OBJECTS,))
     meta = folder.metadata()
     agent = make_agent(wide, meta, folder.hyperparameters(), device="cpu", seed=0)
-    info = folder.save_checkpoint({"agent": agent.state_dict(), "metadata": meta.to_json()}, 1, 100)
+    info = folder.save_state(TrainingState(agent.state_dict(), meta.to_json(), iteration=1, train_steps=100))
     folder.update_index(info, 0.0, info, 0.0)
     return folder, plain
 
