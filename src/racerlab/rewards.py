@@ -22,8 +22,9 @@ TEMPLATES = {
 LINE_POINT_SPACING_M = 0.2  # every other point of the solver's ~0.1 m line: half the search per step
 
 
-def reward_source(name: str, track=None, max_speed: float | None = None) -> str:
-    """The text of template `name`; "racing_line" needs the track (name, path or Track)."""
+def reward_source(name: str, track=None, max_speed: float | None = None, car=None) -> str:
+    """The text of template `name`; "racing_line" needs the track (name, path or Track) and takes the car whose
+    speeds it writes (a simulator's name or a `CarParams`; default the droa car)."""
     if name not in TEMPLATES:
         raise ConfigError(f"reward template {name!r} does not exist; choose one of {', '.join(TEMPLATES)}")
     text = TEMPLATES[name].read_text()
@@ -33,13 +34,14 @@ def reward_source(name: str, track=None, max_speed: float | None = None) -> str:
         raise ConfigError("reward template 'racing_line' needs the model's track; give --track")
     from racerlab.line import racing_line
 
-    line = racing_line(track)
+    line = racing_line(track, car=car)
     step = max(1, int(round(LINE_POINT_SPACING_M / max(line.length / len(line.xy), 1e-9))))
     speeds = line.speed if max_speed is None else [min(v, max_speed) for v in line.speed]
     rows = ",\n".join(f"    [{x:.4f}, {y:.4f}, {v:.3f}]"
                       for (x, y), v in list(zip(line.xy, speeds, strict=True))[::step])
     return (text.replace("__TRACK__", line.track_name)
-            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method}, theoretical lap {line.lap_time:.3f} s\n"
+            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method}, theoretical lap {line.lap_time:.3f} s "
+                                         f"({line.car.simulator} car)\n"
                                          f"{rows},\n]", 1))
 
 
@@ -49,7 +51,7 @@ def top_speed(actions) -> float:
     return float(max(speeds)) if speeds is not None else float(actions.speed_high)
 
 
-def write_reward(folder_reward_path, name: str, track=None, max_speed: float | None = None) -> Path:
+def write_reward(folder_reward_path, name: str, track=None, max_speed: float | None = None, car=None) -> Path:
     path = Path(folder_reward_path)
-    path.write_text(reward_source(name, track, max_speed))
+    path.write_text(reward_source(name, track, max_speed, car))
     return path

@@ -74,7 +74,8 @@ def run_init(args) -> int:
         from racerlab.rewards import top_speed, write_reward
 
         metadata = folder.metadata()
-        write_reward(folder.reward_path, args.reward, folder.config().track.names[0], top_speed(metadata.actions))
+        car = folder.config().car.params(f"{float(metadata.version):g}", training=False)  # the [car] the model trains
+        write_reward(folder.reward_path, args.reward, folder.config().track.names[0], top_speed(metadata.actions), car)
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     if args.sensor == "features":

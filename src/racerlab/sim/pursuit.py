@@ -64,14 +64,18 @@ class PurePursuit:
         TK.project_many(np.ascontiguousarray(rear), self.path, self.seg_len, self.cum_s, self.closed, self._hint,
                         seg, t, s, lat)
         self._hint = seg
-        ld = self.lookahead_m + self.gain * np.maximum(v, 0.0)
+        cp = sim.car_params
+        # aim where the car will be when the command has taken hold (its delay and lags), and steer through its
+        # weak yaw gain (tan δ scaled by the gain at this speed)
+        latency = cp.delay_steps * STEP_S + cp.steer_tau_s + cp.yaw_tau_s
+        ld = self.lookahead_m + (self.gain + latency) * np.maximum(v, 0.0)
         target_s = s + ld
         target_s = np.mod(target_s, self.length) if self.closed else np.minimum(target_s, self.length)
         tx = np.interp(target_s, self.cum_s, self.path[:, 0])
         ty = np.interp(target_s, self.cum_s, self.path[:, 1])
         alpha = np.arctan2(ty - rear[:, 1], tx - rear[:, 0]) - yaw
         dist = np.maximum(np.hypot(tx - rear[:, 0], ty - rear[:, 1]), 1e-6)
-        steer = np.degrees(np.arctan2(2.0 * self.wheelbase * np.sin(alpha), dist))
+        steer = np.degrees(np.arctan(2.0 * self.wheelbase * np.sin(alpha) / dist / cp.yaw_gain_at(v)))
         if self.car is None:
             return steer, np.interp(self._wrap(s), self.cum_s, self.speed)
         return steer, self._speed_command(s + 0.5 * self.wheelbase, v)

@@ -175,7 +175,8 @@ class Trainer:
         track = self._load_track(track) if isinstance(track, str) else track
         return World(track, cars, self.metadata, self.reward, self.cfg.run.observation, start=start,
                      max_episode_steps=self.cfg.run.max_episode_steps, reward_order=self.cfg.run.reward_order,
-                     seed=seed, race=self.cfg.race, randomise=randomise)
+                     seed=seed, race=self.cfg.race, randomise=randomise,
+                     car=self.cfg.car)  # issue 24: the [car] table's simulator car (steps jitter in training)
 
     def _eval_cars(self) -> int:
         """Cars of the greedy evaluation world: one per evaluation episode; a head-to-model race pairs its cars,
