@@ -19,10 +19,8 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from racerlab.calibrate import HORIZONS, constant_velocity_errors, errors, fit_with_spread, load_stretches, medians
-from racerlab.calibrate.data import Stretches, split
+from racerlab.calibrate.data import concat, split
 from racerlab.spec import CarParams, car_params, control_of
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "reference"
@@ -72,10 +70,8 @@ def main() -> None:
         for (sim, control), names in groups.items():
             if names == ["droa2026-eval-only-tar"] or "droa2026-eval-only-tar" in names and len(names) > 1:
                 names = [n for n in names if n != "droa2026-eval-only-tar"]  # the same runs as droa2026-evaluation
-            fit = Stretches(*(np.concatenate([getattr(loaded[n][0], f) for n in names])
-                              for f in Stretches.__dataclass_fields__))
-            held = Stretches(*(np.concatenate([getattr(loaded[n][1], f) for n in names])
-                               for f in Stretches.__dataclass_fields__))
+            fit = concat([loaded[n][0] for n in names])
+            held = concat([loaded[n][1] for n in names])
             f = fit_with_spread(fit, held, sim, "5" if control == "velocity" else "4", resamples=2)
             print(json.dumps({"simulator": sim, "control": control, "sets": names, "fit_stretches": f.fit_stretches,
                               "constants": {k: round(getattr(f.car, k), 4) for k in f.spread},

@@ -22,12 +22,14 @@ from pathlib import Path
 from racerlab.line import racing_line
 from racerlab.model import init_model
 from racerlab.rewards import TEMPLATES, top_speed, write_reward
+from racerlab.spec import car_params
 from racerlab.train import train
 
 REPO = Path(__file__).resolve().parents[1]
 # the real AWS tracks beside the checkout, or where RACERLAB_TEST_AWS_TRACKS points (as the tests look)
 AWS_TRACKS = Path(os.environ.get("RACERLAB_TEST_AWS_TRACKS", REPO.parent / "shared" / "tracks"))
 REINVENT = AWS_TRACKS / "reInvent2019_track.npy"
+CAR = car_params("droa", "5")  # the default [car] of a new model (continuous actions: version 5)
 AWS_RECORD_S = 7.198  # all-time best lap on reInvent2019_track in the AWS simulator (track_records.md)
 TARGET_RATIO = {"features": 1.05, "camera": 1.25}
 
@@ -45,7 +47,7 @@ def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float
             "reward": reward, "iterations": r.iterations, "env_steps": r.env_steps,
             "best_eval_lap_s": round(best[0], 3), "best_at_iteration": best[1], "best_at_env_steps": best[2],
             "theoretical_limit_s": round(limit_s, 3), "ratio_to_limit": round(best[0] / limit_s, 3),
-            "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S,
+            "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S, "car": CAR.name,
             "first_lap": r.first_lap, "loadavg_1min_before_after": [round(load_before, 2),
                                                                     round(os.getloadavg()[0], 2)]}
 
@@ -57,7 +59,7 @@ def main():
     ap.add_argument("--reward", choices=list(TEMPLATES), default="racing_line")
     ap.add_argument("--track", type=Path, default=REINVENT)
     args = ap.parse_args()
-    limit = racing_line(str(args.track)).lap_time
+    limit = racing_line(str(args.track), car=CAR).lap_time  # the car `racerlab train` drives by default
     for kind in args.kinds:
         print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit)), flush=True)
 

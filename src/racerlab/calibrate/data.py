@@ -106,6 +106,11 @@ def stretches(df: pd.DataFrame, horizon: int = HORIZON, every: int = 1, source: 
     return Stretches(*cols, np.concatenate(eps))
 
 
+def concat(parts: list[Stretches]) -> Stretches:
+    """The stretches of several sets as one (their episode numbers as they are)."""
+    return Stretches(*(np.concatenate([getattr(s, f) for s in parts]) for f in Stretches.__dataclass_fields__))
+
+
 def split(st: Stretches, held_out_every: int = 3) -> tuple[Stretches, Stretches]:
     """(fit, held out): every `held_out_every`-th episode (the 2nd, 5th, ...) is held out."""
     held = (st.episode % held_out_every) == 1

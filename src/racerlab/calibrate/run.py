@@ -5,10 +5,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
-
 from racerlab.analysis import load
-from racerlab.calibrate.data import Stretches, split, stretches
+from racerlab.calibrate.data import Stretches, concat, split, stretches
 from racerlab.calibrate.fit import FITTED, Fit, fit_with_spread
 from racerlab.errors import ConfigError
 from racerlab.spec import DEFAULT_SIMULATOR
@@ -31,7 +29,7 @@ def load_stretches(paths, every: int | None = None) -> Stretches:
         st.episode = st.episode + offset
         offset = int(st.episode.max()) + 1
         parts.append(st)
-    return Stretches(*(np.concatenate([getattr(s, f) for s in parts]) for f in Stretches.__dataclass_fields__))
+    return concat(parts)
 
 
 def calibrate(paths, simulator: str = DEFAULT_SIMULATOR, version="5", *, every: int | None = None, resamples: int = 3,

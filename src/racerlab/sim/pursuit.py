@@ -53,7 +53,16 @@ class PurePursuit:
     def __call__(self, sim) -> tuple[np.ndarray, np.ndarray]:
         """(steering °, speed m/s) for every car of `sim` from its current pose."""
         n = sim.num_cars
-        x, y, yaw, v = (sim.car[:, c] for c in (K.CX, K.CY, K.CYAW, K.CV))
+        x, y, yaw, v, w = (sim.car[:, c] for c in (K.CX, K.CY, K.CYAW, K.CV, K.CYAWRATE))
+        cp = sim.car_params
+        # steer from where the car will be when the command takes hold (its delay and lags: the pose the current
+        # speed and yaw rate lead to), through its weak yaw gain (tan δ scaled by the gain at this speed)
+        latency = cp.delay_steps * STEP_S + cp.steer_tau_s + cp.yaw_tau_s
+        turn = w * latency
+        head = yaw + 0.5 * turn
+        x = x + v * latency * np.cos(head)
+        y = y + v * latency * np.sin(head)
+        yaw = yaw + turn
         rear = np.stack([x - 0.5 * self.wheelbase * np.cos(yaw), y - 0.5 * self.wheelbase * np.sin(yaw)], axis=1)
         if self._hint is None or len(self._hint) != n:
             self._hint = np.full(n, -1, np.int64)
@@ -64,11 +73,7 @@ class PurePursuit:
         TK.project_many(np.ascontiguousarray(rear), self.path, self.seg_len, self.cum_s, self.closed, self._hint,
                         seg, t, s, lat)
         self._hint = seg
-        cp = sim.car_params
-        # aim where the car will be when the command has taken hold (its delay and lags), and steer through its
-        # weak yaw gain (tan δ scaled by the gain at this speed)
-        latency = cp.delay_steps * STEP_S + cp.steer_tau_s + cp.yaw_tau_s
-        ld = self.lookahead_m + (self.gain + latency) * np.maximum(v, 0.0)
+        ld = self.lookahead_m + self.gain * np.maximum(v, 0.0)
         target_s = s + ld
         target_s = np.mod(target_s, self.length) if self.closed else np.minimum(target_s, self.length)
         tx = np.interp(target_s, self.cum_s, self.path[:, 0])
