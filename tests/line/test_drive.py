@@ -13,7 +13,6 @@ from racerlab.sim.pursuit import PurePursuit, drive_lap
 from racerlab.spec import car_params
 from racerlab.track import load
 
-
 SHARE = 0.9  # of the profile's speed: the car's delay and lags leave a feedback driver no room at the limit itself
 
 
