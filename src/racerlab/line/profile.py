@@ -48,8 +48,10 @@ def max_curvature(v, car: CarParams) -> np.ndarray:
 
 def lateral_limit(curvature: np.ndarray, car: CarParams) -> np.ndarray:
     """Fastest speed at which the car holds each curvature (capped at the top speed; never below the slowest
-    speed it drives at), m/s. `max_curvature` falls with speed, so a bisection finds it."""
-    k = np.abs(np.asarray(curvature, dtype=np.float64))
+    speed it drives at), m/s. `max_curvature` falls with speed, so a bisection finds it. A bend tighter than full
+    lock holds at any speed (a kink of a shortest path) is taken as the car's tightest circle, which is what it
+    drives there."""
+    k = np.minimum(np.abs(np.asarray(curvature, dtype=np.float64)), max_curvature(1e-9, car))
     top = car.top_speed()
     lo = np.zeros_like(k)
     hi = np.full_like(k, top)
