@@ -8,7 +8,7 @@ AWS simulator (7.198 s), when the best lap was reached and the load average, sin
 shared (read the ratio, and compare runs taken at a similar load).
 
 Usage: python benchmarks/lap_near_limit.py [--kinds features camera] [--minutes 30] [--reward racing_line]
-       [--track PATH]
+       [--track PATH] [--simulator droa|console]
 """
 
 from __future__ import annotations
@@ -17,10 +17,12 @@ import argparse
 import json
 import os
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 from racerlab.line import racing_line
 from racerlab.model import init_model
+from racerlab.model.config import CarSettings
 from racerlab.rewards import TEMPLATES, top_speed, write_reward
 from racerlab.spec import car_params
 from racerlab.train import train
@@ -29,17 +31,18 @@ REPO = Path(__file__).resolve().parents[1]
 # the real AWS tracks beside the checkout, or where RACERLAB_TEST_AWS_TRACKS points (as the tests look)
 AWS_TRACKS = Path(os.environ.get("RACERLAB_TEST_AWS_TRACKS", REPO.parent / "shared" / "tracks"))
 REINVENT = AWS_TRACKS / "reInvent2019_track.npy"
-CAR = car_params("droa", "5")  # the default [car] of a new model (continuous actions: version 5)
 AWS_RECORD_S = 7.198  # all-time best lap on reInvent2019_track in the AWS simulator (track_records.md)
 TARGET_RATIO = {"features": 1.05, "camera": 1.25}
 
 
-def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float) -> dict:
+def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, car) -> dict:
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = init_model(Path(tmp) / "m", track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
                             best_model_metric="laptime")
-        write_reward(folder.reward_path, reward, str(track), top_speed(folder.metadata().actions))
+        cfg = folder.config()  # the simulator's car drives (its [car] table)
+        folder.config_path.write_text(replace(cfg, car=CarSettings(car.simulator)).to_toml())
+        write_reward(folder.reward_path, reward, str(track), top_speed(folder.metadata().actions), car)
         r = train(folder.path, minutes=minutes, progress=False)
     laps = [(h["eval/best_lap"], h["iteration"], h["env_steps"]) for h in r.history if h.get("eval/best_lap")]
     best = min(laps) if laps else (float("nan"), None, None)
@@ -47,7 +50,7 @@ def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float
             "reward": reward, "iterations": r.iterations, "env_steps": r.env_steps,
             "best_eval_lap_s": round(best[0], 3), "best_at_iteration": best[1], "best_at_env_steps": best[2],
             "theoretical_limit_s": round(limit_s, 3), "ratio_to_limit": round(best[0] / limit_s, 3),
-            "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S, "car": CAR.name,
+            "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S, "car": car.name,
             "first_lap": r.first_lap, "loadavg_1min_before_after": [round(load_before, 2),
                                                                     round(os.getloadavg()[0], 2)]}
 
@@ -58,10 +61,12 @@ def main():
     ap.add_argument("--minutes", type=float, default=30.0)
     ap.add_argument("--reward", choices=list(TEMPLATES), default="racing_line")
     ap.add_argument("--track", type=Path, default=REINVENT)
+    ap.add_argument("--simulator", choices=["droa", "console"], default="droa", help="whose car (default droa)")
     args = ap.parse_args()
-    limit = racing_line(str(args.track), car=CAR).lap_time  # the car `racerlab train` drives by default
+    car = car_params(args.simulator, "5")  # a new continuous model is version 5
+    limit = racing_line(str(args.track), car=car).lap_time
     for kind in args.kinds:
-        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit)), flush=True)
+        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit, car)), flush=True)
 
 
 if __name__ == "__main__":
