@@ -5,7 +5,10 @@ Prints one JSON line per measurement:
 - the same with an AWS-style centre-line reward, and the cost per car-step of building the
   params and calling the Python reward (budget: <= 5 us).
 
-Usage: python benchmarks/sim_throughput.py [--track NAME_OR_PATH] [--seconds 3]
+Usage: python benchmarks/sim_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--jitter]
+
+`--jitter` drives the training car (the droa car with its measured step-length jitter, as `racerlab train` does);
+without it the default car, exact 1/15 s steps.
 """
 
 from __future__ import annotations
@@ -41,8 +44,8 @@ def centre_line_reward(params):
     return float(reward)
 
 
-def measure(track, cars, reward, seconds):
-    env = DeepRacerVectorEnv(cars, track, reward_function=reward, observation="features")
+def measure(track, cars, reward, seconds, car=None):
+    env = DeepRacerVectorEnv(cars, track, reward_function=reward, observation="features", car=car)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = rng.integers(0, env.single_action_space.n, size=(64, cars))
@@ -64,16 +67,18 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--track", default="lab_technical")
     ap.add_argument("--seconds", type=float, default=3.0)
+    ap.add_argument("--jitter", action="store_true", help="the training car: steps of jittered length")
     args = ap.parse_args()
+    car = {"step_jitter": True} if args.jitter else None
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     results = {}
     for reward in (None, centre_line_reward):
         for cars in (1, 64, 1024):
-            rate = measure(args.track, cars, reward, args.seconds)
+            rate = measure(args.track, cars, reward, args.seconds, car)
             results[(reward is not None, cars)] = rate
             line = {"bench": "sim_features", "track": args.track, "cars": cars, "reward": reward is not None,
-                    "car_steps_per_s": round(rate)}
+                    "jitter": args.jitter, "car_steps_per_s": round(rate)}
             if cars == 1024 and reward is None:
                 line["budget"] = ">= 500000"
                 line["x_drfc_gazebo_15_per_s"] = round(rate / 15)

@@ -17,6 +17,7 @@ Every other part reads these names from here (a leaf module: it imports nothing 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -40,30 +41,61 @@ WHEEL_TRACK_M = 0.16
 MODEL_POINT_AHEAD_M = 0.14  # AWS RELATIVE_POSITION_OF_FRONT_OF_CAR: x, y, progress, ... are measured here
 
 
+# DeepRacer on AWS / DRfC >= 6 (simapp 6.x, ROS 2); the AWS console / DRfC <= 5 (simapp <= 5.3, ROS 1)
+SIMULATORS = ("droa", "console")
+DEFAULT_SIMULATOR = "droa"
+CONTROLS = ("velocity", "effort")  # model_metadata version >= 5 | 3-4 (facts §3)
+MAX_DELAY_STEPS = 3.0  # the compiled step keeps this many past commands (plus one)
+WHEEL_CAP_MPS = 3.5  # 100 rad/s (URDF wheel velocity limit) x 0.035 m (the controller's wheel radius)
+
+
 @dataclass(frozen=True)
 class CarParams:
-    """The car's geometry and dynamic limits; the defaults are the AWS car (see `racerlab.sim.car` for the
-    dynamics model and how its limits were calibrated)."""
+    """The car's geometry and dynamics; the defaults are the `droa` simulator's car for a version-5 model.
+
+    `racerlab.sim.car` has the model (its docstring says what each constant does) and `car_params` picks
+    the fitted constants of a simulator and model version (`CAR_TABLE`, fitted by `racerlab.calibrate`).
+    """
 
     wheelbase_m: float = WHEELBASE_M
     track_m: float = WHEEL_TRACK_M
     max_steer_deg: float = MAX_STEERING_DEG
     min_speed_mps: float = MIN_SPEED
-    max_speed_mps: float = MAX_SPEED
-    speed_tau_s: float = 0.1
-    accel_mps2: float = 3.0
-    brake_mps2: float = 4.9
-    steer_tau_s: float = 0.03
-    grip_mps2: float = 4.9
+    max_speed_mps: float = MAX_SPEED  # the command clip; the wheels' own cap is `wheel_cap_mps`
+    simulator: str = DEFAULT_SIMULATOR
+    control: str = "velocity"
+    # the defaults are the droa velocity car fitted on the DRoA 2026 logs (spread over resampled fits in docs/car.md)
+    delay_steps: float = 0.69  # the action starts to act this many steps after its row (fraction: within the step)
+    steer_tau_s: float = 0.158  # the hinge's first-order lag (the simapp's ROS 2 controller: 0.167 s)
+    yaw_gain: float = 0.632  # yaw rate / the kinematic bicycle's at low speed
+    slide_mps: float = 0.0  # the gain halves at this speed (gain / (1 + (v / slide)²)); 0 = no slide
+    yaw_tau_s: float = 0.0  # first-order lag of the yaw rate toward the one the wheels ask for (body inertia, slip)
+    speed_tau_s: float = 0.0065  # first-order lag of the ground speed toward the target
+    accel_mps2: float = 21.6  # traction limits
+    brake_mps2: float = 29.3
+    ground_factor: float = 1.014  # ground speed / command (wheel mesh radius ~0.036 m against the controller's 0.035)
+    wheel_cap_mps: float = WHEEL_CAP_MPS  # commands above it are clipped by the wheel joints' velocity limit
+    regulated: bool = True  # False: effort control without a speed loop (droa, version 3-4): full traction always
+    grip_mps2: float = 4.9  # lateral acceleration limit (mu 0.5 x g)
+    step_jitter: bool = False  # steps last a length drawn from the simulator's measured distribution (training: on)
     substeps: int = 4
 
     def __post_init__(self):
         for name in ("wheelbase_m", "track_m", "max_steer_deg", "max_speed_mps", "accel_mps2", "brake_mps2",
-                     "grip_mps2"):
+                     "grip_mps2", "yaw_gain", "ground_factor", "wheel_cap_mps"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"CarParams.{name} must be > 0")
+        for name in ("steer_tau_s", "speed_tau_s", "slide_mps", "yaw_tau_s"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"CarParams.{name} must be >= 0")
         if not 0 <= self.min_speed_mps <= self.max_speed_mps:
             raise ValueError("CarParams needs 0 <= min_speed_mps <= max_speed_mps")
+        if not 0 <= self.delay_steps <= MAX_DELAY_STEPS:
+            raise ValueError(f"CarParams.delay_steps must be in [0, {MAX_DELAY_STEPS:g}]")
+        if self.simulator not in SIMULATORS:
+            raise ValueError(f"CarParams.simulator must be one of {SIMULATORS}, got {self.simulator!r}")
+        if self.control not in CONTROLS:
+            raise ValueError(f"CarParams.control must be one of {CONTROLS}, got {self.control!r}")
         if self.substeps < 1:
             raise ValueError("CarParams.substeps must be >= 1")
 
@@ -71,6 +103,74 @@ class CarParams:
         """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
         hx, hy = self.wheelbase_m / 2, self.track_m / 2
         return np.array([[-hx, hy], [hx, hy], [-hx, -hy], [hx, -hy]], dtype=np.float64)
+
+    @property
+    def name(self) -> str:
+        """Which car this is, for logs and prints: e.g. "droa, velocity control (version >= 5)"."""
+        which = "version >= 5" if self.control == "velocity" else "version 3-4"
+        return f"{self.simulator}, {self.control} control ({which})"
+
+    def top_speed(self) -> float:
+        """The fastest ground speed the car settles at, m/s."""
+        return self.ground_factor * (self.wheel_cap_mps if not self.regulated
+                                     else min(self.max_speed_mps, self.wheel_cap_mps))
+
+    def yaw_gain_at(self, v):
+        """The effective yaw gain at ground speed `v` (scalar or array)."""
+        if self.slide_mps <= 0:
+            return self.yaw_gain + 0.0 * np.asarray(v, dtype=np.float64)
+        return self.yaw_gain / (1.0 + (np.asarray(v, dtype=np.float64) / self.slide_mps) ** 2)
+
+
+# The fitted cars: (simulator, control) -> the constants that differ from CarParams' defaults. Fitted by
+# `racerlab calibrate` on the shared real logs (docs/car.md has the fits, their spread and held-out errors).
+CAR_TABLE: dict[tuple[str, str], dict] = {
+    # DRoA 2026 (simapp 6.0), 867 fitted stretches: the defaults above
+    ("droa", "velocity"): {},
+    # no log: the code's effort controllers forward the command as a torque clipped to 10 N·m (facts §3), so the
+    # droa car without a speed loop, the rest unverified
+    ("droa", "effort"): {"control": "effort", "regulated": False},
+    # console August 2025 (simapp 5.0, ROS 1), commands 0.5-1.0 m/s only (the slide above them is extrapolated);
+    # gazebo_ros_control saturates velocity commands at the URDF's 100 rad/s: the same 3.5 m/s cap as ROS 2
+    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.76, "steer_tau_s": 0.068, "yaw_gain": 0.740,
+                              "slide_mps": 1.49, "yaw_tau_s": 0.0, "speed_tau_s": 0.0005, "accel_mps2": 22.0,
+                              "brake_mps2": 30.0, "ground_factor": 1.054},
+    # DRfC July 2022 (model version 4) and the console's June 2022 export, 2 707 fitted stretches; an effort
+    # command is saturated in torque, not speed (a P loop on the wheel speed): no cap below the 4 m/s clip
+    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.29, "steer_tau_s": 0.045,
+                            "yaw_gain": 0.672, "slide_mps": 6.26, "yaw_tau_s": 0.469, "speed_tau_s": 0.129,
+                            "accel_mps2": 30.0, "brake_mps2": 18.7, "ground_factor": 0.981, "wheel_cap_mps": 4.0},
+}
+# The measured step lengths (s) of each simulator at the quantiles STEP_QUANTILES: simtrace tstamp differences of the
+# shared logs (droa: the DRoA 2026 runs, 2 026 steps; console: DRfC 2022, console 2022 and 2025, 99 830 steps), the
+# 1 % at each end left out, scaled by < 3 % so that the mean is 1/15 s (the simulator's clock counts 1/15 s a
+# step). The simulator draws each car's step from them (inverse CDF, linear between quantiles) when
+# `step_jitter` is on.
+STEP_QUANTILES = tuple(i / 10 for i in range(11))
+STEP_LENGTHS: dict[str, tuple[float, ...]] = {
+    "droa": (0.0466, 0.0554, 0.0592, 0.0622, 0.0631, 0.0641, 0.0651, 0.067, 0.0699, 0.0738, 0.1272),
+    "console": (0.031, 0.054, 0.06, 0.063, 0.065, 0.067, 0.069, 0.071, 0.074, 0.079, 0.099),
+}
+CAR_KEYS = tuple(f.name for f in dataclasses.fields(CarParams))
+
+
+def control_of(version) -> str:
+    """The actuation a model_metadata `version` gets: "velocity" from 5 on, "effort" before (facts §3)."""
+    try:
+        v = float(str(version).strip() or "5")
+    except ValueError:
+        raise ConfigError(f"model version {version!r} is not a number; write e.g. \"5\"") from None
+    return "velocity" if v >= 5 else "effort"
+
+
+def car_params(simulator: str = DEFAULT_SIMULATOR, version="5", **overrides) -> CarParams:
+    """The fitted car of `simulator` for a model of `version`, with any constant of `overrides` replaced."""
+    if simulator not in SIMULATORS:
+        raise ConfigError(f"unknown simulator {simulator!r}; use one of {', '.join(SIMULATORS)}")
+    unknown = sorted(set(overrides) - set(CAR_KEYS))
+    if unknown:
+        raise ConfigError(f"unknown car constant {unknown[0]!r}; use one of {', '.join(CAR_KEYS)}")
+    return CarParams(**{**CAR_TABLE[(simulator, control_of(version))], **overrides})
 
 
 # ---- episode statuses -------------------------------------------------------------------------------------

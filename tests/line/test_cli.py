@@ -73,8 +73,10 @@ def test_action_space_covers_the_line_within_the_cars_limits(aws_track):
     assert np.all(np.abs(steer) <= 30.0) and np.all((speed >= MIN_SPEED) & (speed <= MAX_SPEED))
     assert np.all(speed <= grip_speed(steer, line) + 1e-9)  # no action slides the car
     assert {-30.0, 30.0} <= set(steer.tolist())  # recovery at full lock both ways
-    # every point of the line has an action within 3° of its steering
+    # every point of the line has an action within 4° (a fifteenth of the ±30° range) of its steering: the car's
+    # yaw gain of 0.63 spreads what the line asks over a wider range of angles than the kinematic bicycle did
+    # (within 3° then), so the same 12 actions cover it a little more coarsely
     need = line.steering_deg
-    assert np.max(np.min(np.abs(need[:, None] - steer[None, :]), axis=1)) < 3.0
+    assert np.max(np.min(np.abs(need[:, None] - steer[None, :]), axis=1)) < 4.0
     # the same line gives the same actions
     assert action_space(line, 12) == acts

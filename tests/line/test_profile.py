@@ -12,7 +12,9 @@ from racerlab.line import profile as P
 from racerlab.line.core import steering_for_curvature
 from racerlab.spec import STEP_S, CarParams
 
-CAR = CarParams()
+# the grip, traction and lag mechanisms alone (full kinematic steering, no cap below the 4 m/s clip, ground speed =
+# command): the hand-made answers below follow from them; tests/line/test_car_limits.py has the steering limit
+CAR = CarParams(yaw_gain=1.0, speed_tau_s=0.1, accel_mps2=3.0, brake_mps2=4.9, ground_factor=1.0, wheel_cap_mps=4.0)
 
 
 @pytest.mark.parametrize("radius", [0.4, 0.8, 1.5, 3.0])
@@ -83,9 +85,10 @@ def test_timer_counts_the_prepare_step_and_one_step_of_detection():
     assert P.timer_lap_time(15 * STEP_S + 1e-3) == pytest.approx(18 * STEP_S)
 
 
+@pytest.mark.parametrize("gain", [1.0, 0.632])
 @pytest.mark.parametrize("deg", [-30.0, -12.5, 0.0, 3.0, 29.0])
-def test_steering_from_curvature_inverts_the_simulators_bicycle(deg):
+def test_steering_from_curvature_inverts_the_simulators_bicycle(deg, gain):
     wb = CAR.wheelbase_m
-    tan_d = math.tan(math.radians(deg))
-    kappa = tan_d / math.sqrt(1 + 0.25 * tan_d**2) / wb  # car.advance: κ = cos β · tan δ / L
-    assert float(steering_for_curvature(kappa, wb)) == pytest.approx(deg, abs=1e-9)
+    tan_d = gain * math.tan(math.radians(deg))
+    kappa = tan_d / math.sqrt(1 + 0.25 * tan_d**2) / wb  # car.advance: κ = cos β · g · tan δ / L
+    assert float(steering_for_curvature(kappa, wb, gain)) == pytest.approx(deg, abs=1e-9)

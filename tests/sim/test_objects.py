@@ -13,7 +13,7 @@ from racerlab.errors import ConfigError
 from racerlab.sim import Simulator
 from racerlab.sim.objects import RaceConfig
 from racerlab.sim.params import ParamsBuilder
-from racerlab.spec import NO_OBJECTS
+from racerlab.spec import NO_OBJECTS, CarParams
 
 TRACK = "reInvent2019_track"
 
@@ -549,7 +549,11 @@ def test_head_to_model_evaluation_crash_holds_the_car_behind_in_place(aws_track)
 
     t = aws_track(TRACK)
     meta = ModelMetadata(ContinuousActions(-30.0, 30.0, 0.5, 4.0), ("LIDAR",), "MLP")
-    a = World(t, 2, meta, None, "lidar", max_episode_steps=100_000, seed=0, race={"type": "head_to_model"})
+    # a car that follows the lane exactly (no delay, lag or slip): the rules are under test, and the fast car must
+    # stay behind the slow one in the lane rather than swing out beside it
+    exact = CarParams(delay_steps=0.0, steer_tau_s=0.0, yaw_gain=1.0, ground_factor=1.0)
+    a = World(t, 2, meta, None, "lidar", max_episode_steps=100_000, seed=0, race={"type": "head_to_model"},
+              car=exact)
     b = World(None, 2, meta, None, "lidar", sim=a.sim)
     inner = 0.5 * (t.center + t.inner)
     slow, fast = PurePursuit(inner, speed=0.5), PurePursuit(inner, speed=2.5)

@@ -29,9 +29,11 @@ def model(tmp_path):
 
 
 def test_short_training_raises_progress(model):
-    r = train(model.path, iterations=6, **FAST)
+    # 9 iterations: the AWS car (issue 24: its delay, hinge lag, weak steering and jittered steps) takes a few more
+    # than the old instant car's 6 to learn the first corners (a run: completion 7.5 % -> 70.6 %, a 10.3 s lap)
+    r = train(model.path, iterations=9, **FAST)
     completion = [h["charts/completion"] for h in r.history]
-    assert r.iterations == 6
+    assert r.iterations == 9
     assert np.mean(completion[-2:]) > completion[0] + 20
     assert r.first_lap is not None and r.best_lap_time < 25
 

@@ -16,8 +16,8 @@ from racerlab import __version__
 from racerlab.errors import RacerlabError
 
 # module names under racerlab.cli, in the order `racerlab --help` lists them
-COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "report", "reward", "sim", "exchange",
-                   "console", "cluster"]
+COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "calibrate", "report", "reward", "sim",
+                   "exchange", "console", "cluster"]
 
 
 OUT_DIR = Path("racerlab-out")  # where commands with no model folder to write into put their files

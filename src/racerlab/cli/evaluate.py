@@ -69,6 +69,15 @@ def _race_flags(p) -> None:
                            help=text)
 
 
+def simulator_flag(p) -> None:
+    """--simulator: whose car drives (default the model's training.toml [car])."""
+    from racerlab.spec import SIMULATORS
+
+    p.add_argument("--simulator", choices=SIMULATORS, default=None,
+                   help="drive the car of this simulator (droa: DeepRacer on AWS / DRfC >= 6; console: the AWS "
+                        "console / DRfC <= 5; default: the model's training.toml [car], else droa)")
+
+
 def race_overrides(args) -> dict:
     """The [race] keys given as flags ({} when none): `race_type` is the table's `type`, `object_positions`
     the ';'-separated "fraction,lane" pairs DRfC's DR_OA_OBJECT_POSITIONS takes."""
@@ -104,6 +113,7 @@ def register(sub) -> None:
                         "action space's top speed and scaled by F (default 1)")
     p.add_argument("--top-speed", type=float, metavar="MPS",
                    help="m/s that the action space's top speed stands for (default: its own value)")
+    simulator_flag(p)
     p.set_defaults(func=run_evaluate)
 
     p = sub.add_parser("race", help="evaluate several models under the same rules and rank them",
@@ -116,6 +126,7 @@ def register(sub) -> None:
                    help="leaderboard JSON file (default race-<stamp>.json in the first model's folder)")
     p.add_argument("--head-to-model", action="store_true",
                    help="race two models on the track at once, each seeing the other (crashes between them count)")
+    simulator_flag(p)
     p.set_defaults(func=run_race)
 
 
@@ -191,7 +202,7 @@ def run_evaluate(args) -> int:
     plain, randomised = _settings(args)
     res = evaluate(args.model, track=args.track, rules=_rules(args), checkpoint=args.checkpoint, video=args.video,
                    ranking_laps=args.ranking_laps, device=args.device, progress=True, on_lap=_print_lap,
-                   race=race_overrides(args) or None, randomise=randomised or plain)
+                   race=race_overrides(args) or None, randomise=randomised or plain, car=args.simulator)
     print(res.report())
     names = ", ".join(str(p.relative_to(res.out_dir)) for p in res.files.values())
     print(f"written to {res.out_dir}: {names}")
@@ -209,7 +220,7 @@ def run_race(args) -> int:
         print(f"{res.model}: {res.text}", file=sys.stderr, flush=True)
 
     common = dict(track=args.track, rules=_rules(args), checkpoint=args.checkpoint, ranking_laps=args.ranking_laps,
-                  out=args.out, video=args.video, progress=True, on_result=done, device=args.device)
+                  out=args.out, video=args.video, progress=True, on_result=done, device=args.device, car=args.simulator)
     if args.head_to_model:
         if len(args.models) != 2:
             raise RacerlabError(f"race --head-to-model races two models, got {len(args.models)}; name two folders")

@@ -22,6 +22,11 @@ def register(sub) -> None:
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="folder for the files (default ./<track>_<method>_line, <track>_reversed_... with --reverse)")
     p.add_argument("--reverse", action="store_true", help="the track driven the other way")
+    p.add_argument("--simulator", choices=("droa", "console"), default="droa",
+                   help="whose car: droa (DeepRacer on AWS / DRfC >= 6, default) or console (the AWS console / DRfC "
+                        "<= 5)")
+    p.add_argument("--version", default="5", metavar="V",
+                   help="the model_metadata version the car is for (3-4: effort control, >= 5: velocity; default 5)")
     p.add_argument("--actions", type=int, default=None, metavar="N",
                    help="number of discrete actions in model_metadata.json (default 15, at least 3)")
     p.set_defaults(func=run_line)
@@ -31,6 +36,7 @@ def run_line(args) -> int:
     from racerlab.errors import RacerlabError
     from racerlab.line import DEFAULT_MARGIN_M, racing_line
     from racerlab.line.export import DEFAULT_ACTIONS, write_all
+    from racerlab.spec import car_params
     from racerlab.track import load
 
     margin = DEFAULT_MARGIN_M if args.margin is None else args.margin
@@ -40,7 +46,8 @@ def run_line(args) -> int:
     if n_actions < 3:
         raise RacerlabError(f"--actions must be at least 3, got {n_actions}")
     track = load(args.track, reverse=args.reverse)
-    line = racing_line(track, margin=margin, method=args.method)
+    car = car_params(args.simulator, args.version)
+    line = racing_line(track, margin=margin, method=args.method, car=car)
     out = args.out or Path(f"{line.track_name}_{args.method}_line")
     paths = write_all(line, track, out, n_actions)
     s = line.summary()
@@ -49,7 +56,7 @@ def run_line(args) -> int:
           f"{s['length_m']} m in {s['points']} points{state}")
     print(f"theoretical best lap {line.lap_time:.3f} s (standing start, as the simulator times it), "
           f"flying lap {line.flying_lap_time:.3f} s, speed {s['min_speed_mps']}-{s['max_speed_mps']} m/s, "
-          f"solved in {line.solve_s:.2f} s")
+          f"solved in {line.solve_s:.2f} s; car: {car.name}")
     print(f"wrote into {Path(out).resolve()}:")
     for kind, path in paths.items():
         print(f"  {kind:15s} {path.resolve()}")

@@ -82,7 +82,9 @@ def run_init(args) -> int:
         if args.reward in NEEDS_LINE:
             from racerlab.line import racing_line
 
-            line = racing_line(folder.config().track.names[0])
+            metadata = folder.metadata()
+            car = folder.config().car.params(f"{float(metadata.version):g}", training=False)  # the [car] it trains
+            line = racing_line(folder.config().track.names[0], car=car)
         folder.write_reward(reward_source(args.reward, line, folder.metadata().actions.top_speed))
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")

@@ -60,6 +60,7 @@ class EvaluationResult:
     run: EvalRun | None = field(default=None, repr=False)
     race: dict | None = None  # the [race] table the evaluation drove (summary.json "race")
     randomise: dict | None = None  # the [randomise] options (or speed mapping) driven under, those set only
+    car: str = ""  # which car drove (`CarParams.name`)
 
     @property
     def text(self) -> str:
@@ -72,8 +73,9 @@ class EvaluationResult:
         direction = ", reversed" if r.reverse else ""
         if self.randomise:
             direction += ", randomised (" + ", ".join(f"{k} {v:g}" for k, v in self.randomise.items()) + ")"
+        car = f", car: {self.car}" if self.car else ""
         return (f"{self.model} ({self.checkpoint}) on {self.track}{direction}: {counted(r.trials, 'trial')}, "
-                f"{mode} laps, off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets")
+                f"{mode} laps, off-track penalty {r.off_track_penalty:g} s, up to {r.max_resets} resets{car}")
 
     def table(self) -> str:
         return lap_table(self.laps)
@@ -89,7 +91,7 @@ class EvaluationResult:
             "laps": [lap.to_json() for lap in self.laps], "steps": self.steps,
             "wall_seconds": round(self.wall_seconds, 3), "race": self.race,
             "files": {k: str(v.relative_to(self.out_dir)) for k, v in self.files.items()} if self.out_dir else {},
-            "randomise": self.randomise,
+            "randomise": self.randomise, "car": self.car,
             "created": datetime.now().isoformat(timespec="seconds"),
         }
 
@@ -199,30 +201,42 @@ def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate")
     return RaceConfig.from_mapping({**table, **race}, where=where)
 
 
+def car_config(model: LoadedModel, car=None):
+    """The car an evaluation drives: `car` (a `CarParams`, a simulator name or a `[car]` dict, see
+    `racerlab.sim.car_for`) or, by default, the model's training.toml [car], without step jitter (an evaluation
+    repeats exactly unless the table sets `step_jitter`)."""
+    from racerlab.sim import car_for
+
+    if car is None:
+        return model.folder.config().car.params(f"{float(model.metadata.version):g}", training=False)
+    return car_for(car, model.metadata)
+
+
 def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = RACE_SEED, reward=None, race=None,
-               randomise=None):
+               randomise=None, car=None):
     """The race world. The model folder's reward_function.py is never imported (racing someone's model must
     not run their code): the reward column is 0, as AWS's evaluation logs it, unless `reward` (a callable or
     a path the user chose) is given. `race` (a RaceConfig, or [race] keys over the model's): see `race_config`.
-    `randomise`: domain randomisation or the physical car's speed mapping (`RandomiseSettings` or its dict)."""
+    `randomise`: domain randomisation or the physical car's speed mapping (`RandomiseSettings` or its dict).
+    `car`: see `car_config`."""
     from racerlab.sim import StartRules, World
 
     # evaluation places the car itself (`reset(start_ndist=0)`), so the round robin is never used
     start = StartRules(reverse=rules.reverse)
     return World(track, 1, model.metadata, reward, model.observation, start=start,
                  max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race),
-                 randomise=randomise)
+                 randomise=randomise, car=car_config(model, car))
 
 
 def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=None, device: str = "cpu",
-             where: str = "racerlab evaluate"):
+             where: str = "racerlab evaluate", car=None):
     """Two loaded models (or one model twice) in one head-to-model world, a car each, under `rules`: the
     worlds (one per car, sharing the simulator) and each car's `EvalRun`."""
     from racerlab.sim import StartRules, World
 
     first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
                   max_episode_steps=rules.max_episode_steps, seed=RACE_SEED,
-                  race=RaceConfig(type="head_to_model", where=where))
+                  race=RaceConfig(type="head_to_model", where=where), car=car_config(models[0], car))
     worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim)]
     policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
     image_of = None
@@ -243,7 +257,7 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
              checkpoint: str | int = "best",
              reverse: bool = False, video: bool = False, *, rules: RaceRules | None = None,
              ranking_laps: int = DEFAULT_RANKING_LAPS, write: bool = True, device: str = "cpu",
-             progress: bool = False, on_lap=None, reward=None, race=None, randomise=None) -> EvaluationResult:
+             progress: bool = False, on_lap=None, reward=None, race=None, randomise=None, car=None) -> EvaluationResult:
     """Evaluate the model in `model_dir` under race rules (DRfC defaults) and write its evaluation folder.
 
     `track` is a name or path (default: the model's first training track); `checkpoint` is best, last
@@ -254,7 +268,7 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
     `race` (a RaceConfig, or a dict of [race] keys over the model's training.toml [race]): boxes crash the car,
     which restarts 1 m behind the box; a bot car crash holds the car where it is. `randomise`
     (`RandomiseSettings` or its dict) drives the car under domain randomisation, or with the physical car's
-    speed mapping.
+    speed mapping. `car` (see `car_config`; default the model's training.toml [car]) is the simulator's car.
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
@@ -264,11 +278,11 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
         if randomise is not None or reward is not None:
             raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
                                 "without randomise or reward; drop those options or evaluate another race type")
-        worlds, runs = run_pair([model, model], track_obj, rules, video=video, device=device,
+        worlds, runs = run_pair([model, model], track_obj, rules, video=video, device=device, car=car,
                                 on_lap=(lambda k, lap: on_lap(lap) if k == 0 else None) if on_lap else None)
         world, run = worlds[0], runs[0]
     else:
-        world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise)
+        world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise, car=car)
         policy = make_policy(model, world, device)
         image_of = None
         if video:
@@ -279,7 +293,8 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
     result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                               wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race),
-                              randomise=world.randomise.changed() if world.randomise else None)
+                              randomise=world.randomise.changed() if world.randomise else None,
+                              car=world.sim.car_params.name)
     if write:
         _write(result, world, video, progress)
     return result

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import RacerlabError, TrackError
-from racerlab.evaluate.api import load_model, make_policy
+from racerlab.evaluate.api import car_config, load_model, make_policy
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import run_evaluation
 from racerlab.spec import STEPS_PER_SECOND
@@ -152,10 +152,11 @@ def evaluate_tracks(model_dir, tracks, trials: int = 1, checkpoint: str | int = 
                       max_episode_steps=int(MAX_LAP_SECONDS * STEPS_PER_SECOND))
     runs = [plain, randomise] if randomise is not None else [plain]
     results: list[list[TrackOutcome]] = [[] for _ in runs]
+    car = car_config(model)  # the model's [car]
     for track in objs:
         for k, r in enumerate(runs):
             world = World(track, 1, model.metadata, None, model.observation, start=StartRules(),
-                          max_episode_steps=rules.max_episode_steps, seed=seed, randomise=r)
+                          max_episode_steps=rules.max_episode_steps, seed=seed, randomise=r, car=car)
             outcome = _outcome(run_evaluation(world, make_policy(model, world, device), rules).laps, track.name)
             results[k].append(outcome)
             if on_track is not None:

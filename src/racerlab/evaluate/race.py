@@ -63,12 +63,13 @@ class Leaderboard:
 
 def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
          ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
-         on_result=None, device: str = "cpu", race=None) -> Leaderboard:
+         on_result=None, device: str = "cpu", race=None, car=None) -> Leaderboard:
     """Evaluate every model on `track` (default: the first model's training track) under `rules` and
     rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the first model's
     folder, never the current directory; `out=False` writes nothing). No model's reward_function.py is run.
     `on_result(result)` is called after each model. `race` is passed to each `evaluate` (a RaceConfig, or
-    [race] keys over each model's own)."""
+    [race] keys over each model's own); `car` likewise (a simulator name, a [car] dict or a `CarParams`; default
+    each model's own [car])."""
     model_dirs = [Path(m) for m in model_dirs]
     if not model_dirs:
         raise RacerlabError("race needs at least one model folder")
@@ -78,7 +79,7 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
     results = []
     for m in model_dirs:
         res = evaluate(m, track=track, rules=rules, checkpoint=checkpoint, ranking_laps=ranking_laps, video=video,
-                       progress=progress, device=device, race=race)
+                       progress=progress, device=device, race=race, car=car)
         results.append(res)
         if on_result:
             on_result(res)
@@ -87,7 +88,7 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
 
 def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
                   ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
-                  on_result=None, on_lap=None, device: str = "cpu", write: bool = True) -> Leaderboard:
+                  on_result=None, on_lap=None, device: str = "cpu", write: bool = True, car=None) -> Leaderboard:
     """Two models on the track at once (`racerlab race A B --head-to-model`): one world, a car each, each car's
     sensors and `objects_*` params seeing the other car, crashes between them judged by the crash rule (the car
     behind crashed). Each model's evaluation folder gets its simtrace, EvalMetrics and summary (and video); the
@@ -97,12 +98,13 @@ def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = Non
     models = [load_model(m, checkpoint) for m in dirs]
     track_obj = resolve_track(models[0].folder, track)
     worlds, runs = run_pair(models, track_obj, rules, video=video, on_lap=on_lap, device=device,
-                            where="racerlab race --head-to-model")
+                            where="racerlab race --head-to-model", car=car)
     results = []
     for m, w, run in zip(models, worlds, runs, strict=True):
         res = EvaluationResult(m.folder.path.resolve().name, m.folder.path, m.checkpoint, track_obj.name, rules,
                                run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
-                               wall_seconds=run.wall_seconds, run=run, race={"type": "head_to_model"})
+                               wall_seconds=run.wall_seconds, run=run, race={"type": "head_to_model"},
+                               car=w.sim.car_params.name)
         if write:
             _write(res, w, video, progress)
         results.append(res)

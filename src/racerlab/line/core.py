@@ -18,7 +18,7 @@ from racerlab.errors import TrackError
 from racerlab.line import geometry as G
 from racerlab.line import profile as P
 from racerlab.line.solve import METHODS, solve
-from racerlab.spec import MODEL_POINT_AHEAD_M, WHEELBASE_M, CarParams
+from racerlab.spec import MODEL_POINT_AHEAD_M, WHEELBASE_M, CarParams, car_params
 from racerlab.track import Track
 from racerlab.track import load as load_track
 
@@ -32,15 +32,16 @@ def car_clearance(car: CarParams | None = None, margin: float = DEFAULT_MARGIN_M
     return 0.5 * car.track_m + WHEEL_RADIUS_M + margin
 
 
-def steering_for_curvature(curvature, wheelbase_m: float = WHEELBASE_M) -> np.ndarray:
+def steering_for_curvature(curvature, wheelbase_m: float = WHEELBASE_M, gain=1.0) -> np.ndarray:
     """Steering angle (°, + = left) that makes the base point follow `curvature` (1/m).
 
-    The inverse of the simulator's bicycle about the mid-wheelbase point: κ = cos β · tan δ / L
-    with sin β = κ·L/2, so tan δ = κ·L / cos β.
+    The inverse of the simulator's bicycle about the mid-wheelbase point: κ = cos β · g · tan δ / L
+    with sin β = κ·L/2, so tan δ = κ·L / (g · cos β); `gain` g is the car's yaw gain at its speed
+    (`CarParams.yaw_gain_at`; 1 for the kinematic bicycle).
     """
     k = np.asarray(curvature, dtype=np.float64)
     half = np.clip(0.5 * k * wheelbase_m, -0.999, 0.999)
-    return np.degrees(np.arctan(k * wheelbase_m / np.sqrt(1.0 - half**2)))
+    return np.degrees(np.arctan(k * wheelbase_m / np.sqrt(1.0 - half**2) / gain))
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,8 +89,8 @@ class RacingLine:
 
     @property
     def steering_deg(self) -> np.ndarray:
-        """Steering angle each point needs (bicycle model with the car's wheelbase), ° (+ = left)."""
-        return steering_for_curvature(self.curvature, self.car.wheelbase_m)
+        """Steering angle each point needs at the line's speed (the car's wheelbase and yaw gain), ° (+ = left)."""
+        return steering_for_curvature(self.curvature, self.car.wheelbase_m, self.car.yaw_gain_at(self.speed))
 
     @property
     def lateral_accel(self) -> np.ndarray:
@@ -111,12 +112,13 @@ class RacingLine:
 
 
 def racing_line(track: Track | str, margin: float = DEFAULT_MARGIN_M, method: str = "mincurv",
-                car: CarParams | None = None, step_m: float = 0.1) -> RacingLine:
+                car: CarParams | str | None = None, step_m: float = 0.1) -> RacingLine:
     """Solve the racing line of `track` (a `Track` or a track name/path) and its speed profile.
 
     `method` is "mincurv" (minimum curvature: the fastest line in practice) or "shortest"
     (shortest path); `margin` (m) is kept between the car's wheels and each border; `car` sets
-    the limits (default `CarParams()`, the simulator's car). Raises `TrackError` for a loop-less
+    the limits: a `CarParams` or a simulator's name (its version-5 car, `spec.car_params`; default `CarParams()`,
+    the droa simulator's car). Raises `TrackError` for a loop-less
     (open) track or where the road is too narrow for the car and the margin.
     """
     if method not in METHODS:
@@ -126,7 +128,7 @@ def racing_line(track: Track | str, margin: float = DEFAULT_MARGIN_M, method: st
     t = track if isinstance(track, Track) else load_track(track)
     if not t.closed:
         raise TrackError(f"{t.name}: a racing line needs a closed loop; this track is open")
-    car = car or CarParams()
+    car = car_params(car) if isinstance(car, str) else car or CarParams()
     clearance = car_clearance(car, margin)
     t0 = time.perf_counter()
     sol = solve(t, clearance, method, step_m=step_m)

@@ -26,13 +26,24 @@ CSV_COLUMNS = ("s_m", "x_m", "y_m", "speed_mps", "time_s", "curvature_1pm", "hea
 
 
 def grip_speed(steering_deg, line: RacingLine) -> np.ndarray:
-    """Fastest speed the car's grip allows at a steady steering angle, m/s (capped at its top speed)."""
-    wb = line.car.wheelbase_m
+    """Fastest speed the car's grip allows at a steady steering angle, m/s (capped at its top speed).
+
+    The simulator's bicycle with the car's yaw gain g(v): κ = cos β · g(v) · tan δ / L; v²·κ grows with v, so a
+    bisection finds where it reaches the grip."""
+    car = line.car
     tan_d = np.tan(np.radians(np.abs(np.asarray(steering_deg, dtype=np.float64))))
-    kappa = tan_d / np.sqrt(1.0 + 0.25 * tan_d**2) / wb  # the simulator's bicycle: κ = cos β · tan δ / L
-    with np.errstate(divide="ignore"):
-        v = np.sqrt(line.car.grip_mps2 / kappa)
-    return np.minimum(v, line.car.max_speed_mps)
+
+    def lateral(v):
+        t = car.yaw_gain_at(v) * tan_d
+        return v * v * t / np.sqrt(1.0 + 0.25 * t * t) / car.wheelbase_m
+
+    top = car.top_speed()
+    lo, hi = np.zeros_like(tan_d), np.full_like(tan_d, top)
+    for _ in range(48):
+        mid = 0.5 * (lo + hi)
+        ok = lateral(mid) <= car.grip_mps2
+        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+    return np.where(lateral(np.full_like(tan_d, top)) <= car.grip_mps2, top, lo)
 
 
 def action_space(line: RacingLine, n_actions: int = DEFAULT_ACTIONS, seed: int = 0) -> DiscreteActions:
@@ -41,10 +52,10 @@ def action_space(line: RacingLine, n_actions: int = DEFAULT_ACTIONS, seed: int =
         raise ValueError(f"an action space from a line needs at least 3 actions, got {n_actions}")
     steer = np.clip(line.steering_deg, -MAX_STEERING_DEG, MAX_STEERING_DEG)
     dt = np.diff(np.append(line.time, line.flying_lap_time))
-    feats = np.stack([steer / MAX_STEERING_DEG, line.speed / line.car.max_speed_mps], axis=1)
+    feats = np.stack([steer / MAX_STEERING_DEG, line.speed / line.car.top_speed()], axis=1)
     centres = _kmeans(feats, dt, n_actions - 2, seed)
     s_act = np.round(centres[:, 0] * MAX_STEERING_DEG, 1)
-    v_act = _floor_cm(np.minimum(centres[:, 1] * line.car.max_speed_mps, grip_speed(s_act, line)))
+    v_act = _floor_cm(np.minimum(centres[:, 1] * line.car.top_speed(), grip_speed(s_act, line)))
     v_lock = float(_floor_cm(min(float(line.speed.min()), float(grip_speed(MAX_STEERING_DEG, line)))))
     pairs = {(float(s), float(v)) for s, v in zip(s_act, v_act, strict=True)}
     pairs |= {(-MAX_STEERING_DEG, v_lock), (MAX_STEERING_DEG, v_lock)}

@@ -3,8 +3,10 @@
 The limits are exactly the ones `racerlab.sim.car.advance` applies, so that a driver that follows
 the path can reach the predicted time:
 
-* lateral: the grip caps v²·|κ| at `grip_mps2`, so a point of curvature κ allows √(grip/|κ|);
-* speed cap: commands are clipped to `max_speed_mps`;
+* lateral: the grip caps v²·|κ| at `grip_mps2`, and the steering can bend the path at most as much as full lock
+  does at that speed (`yaw_gain_at(v)` · tan 30° / wheelbase: the car slides more the faster it goes), so a point
+  of curvature κ allows the fastest v at which both hold;
+* speed cap: the car settles at `top_speed()` (the command clip and the wheels' cap, times the ground factor);
 * longitudinal: speed follows the command with a first-order lag `speed_tau_s`, bounded by
   `accel_mps2` and `brake_mps2`. With the command at the cap the car can gain at most
   (cap - v)/τ per second, so the usable acceleration is min(accel, (cap - v)/τ); the same holds
@@ -33,20 +35,43 @@ class Profile(NamedTuple):
     lap_time: float  # time[-1]
 
 
-def lateral_limit(curvature: np.ndarray, car: CarParams) -> np.ndarray:
-    """Fastest speed the grip allows at each curvature (capped at the top speed), m/s."""
-    k = np.abs(np.asarray(curvature, dtype=np.float64))
+def max_curvature(v, car: CarParams) -> np.ndarray:
+    """The tightest path curvature (1/m) the car can hold at ground speed `v`: full lock through the yaw gain,
+    and the grip."""
+    v = np.asarray(v, dtype=np.float64)
+    tan_d = car.yaw_gain_at(v) * math.tan(math.radians(car.max_steer_deg))
+    steer = tan_d / (car.wheelbase_m * np.sqrt(1.0 + 0.25 * tan_d * tan_d))
     with np.errstate(divide="ignore"):
-        v = np.sqrt(car.grip_mps2 / k)
-    return np.minimum(v, car.max_speed_mps)
+        grip = car.grip_mps2 / (v * v)
+    return np.minimum(steer, grip)
+
+
+def lateral_limit(curvature: np.ndarray, car: CarParams) -> np.ndarray:
+    """Fastest speed at which the car holds each curvature (capped at the top speed; never below the slowest
+    speed it drives at), m/s. `max_curvature` falls with speed, so a bisection finds it. A bend tighter than full
+    lock holds at any speed (a kink of a shortest path) is taken as the car's tightest circle, which is what it
+    drives there."""
+    k = np.minimum(np.abs(np.asarray(curvature, dtype=np.float64)), max_curvature(1e-9, car))
+    top = car.top_speed()
+    lo = np.zeros_like(k)
+    hi = np.full_like(k, top)
+    for _ in range(48):
+        mid = 0.5 * (lo + hi)
+        ok = k <= max_curvature(mid, car)
+        lo = np.where(ok, mid, lo)
+        hi = np.where(ok, hi, mid)
+    v = np.where(k <= max_curvature(top, car), top, lo)
+    return np.maximum(v, car.min_speed_mps * car.ground_factor)
 
 
 def _accel(v: float, car: CarParams) -> float:
-    return min(car.accel_mps2, (car.max_speed_mps - v) / car.speed_tau_s) if car.speed_tau_s > 0 else car.accel_mps2
+    top = car.top_speed()
+    return min(car.accel_mps2, (top - v) / car.speed_tau_s) if car.speed_tau_s > 0 else car.accel_mps2
 
 
 def _brake(v: float, car: CarParams) -> float:
-    return min(car.brake_mps2, (v - car.min_speed_mps) / car.speed_tau_s) if car.speed_tau_s > 0 else car.brake_mps2
+    low = car.min_speed_mps * car.ground_factor
+    return min(car.brake_mps2, (v - low) / car.speed_tau_s) if car.speed_tau_s > 0 else car.brake_mps2
 
 
 def _gain(v: float, ds: float, rate, car: CarParams) -> float:

@@ -13,7 +13,7 @@ from pathlib import Path
 from racerlab.errors import ConfigError
 from racerlab.logs.metrics import BEST_MODEL_METRICS
 from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
-from racerlab.spec import RaceConfig
+from racerlab.spec import CAR_KEYS, DEFAULT_SIMULATOR, SIMULATORS, CarParams, RaceConfig, car_params
 
 REWARD_ORDERS = ("aws", "after_action")
 
@@ -111,6 +111,47 @@ class RandomiseSettings:
 
 
 @dataclass(frozen=True)
+class CarSettings:
+    """[car]: the simulator whose car racerlab drives (`spec.SIMULATORS`; the model's version picks the car
+    within it) and any of its constants overridden (`spec.CarParams`' names, e.g. the output of `racerlab
+    calibrate`)."""
+
+    simulator: str = DEFAULT_SIMULATOR
+    overrides: tuple[tuple[str, object], ...] = ()
+
+    def table(self) -> dict:
+        return {"simulator": self.simulator, **dict(self.overrides)}
+
+    def params(self, version="5", training: bool = True) -> CarParams:
+        """The car for a model of `version`. Its steps jitter as the simulator's in training (evaluations drive
+        exact 1/15 s steps, so that they repeat); `step_jitter` in the table decides for both."""
+        return car_params(self.simulator, version, **{"step_jitter": training, **dict(self.overrides)})
+
+    @classmethod
+    def from_mapping(cls, table: dict, where: str = "training.toml [car]") -> CarSettings:
+        simulator = table.get("simulator", DEFAULT_SIMULATOR)
+        if simulator not in SIMULATORS:
+            raise ConfigError(f"{where}: car.simulator {simulator!r} is not a simulator; use one of "
+                              f"{', '.join(SIMULATORS)}")
+        allowed = [k for k in CAR_KEYS if k not in ("simulator", "control")]
+        overrides = []
+        for key, value in table.items():
+            if key == "simulator":
+                continue
+            if key not in allowed:
+                raise ConfigError(f"{where}: unknown key car.{key}; allowed in [car]: simulator, "
+                                  f"{', '.join(allowed)}")
+            value = _coerce(where, f"car.{key}", getattr(CarParams(), key), value)
+            try:
+                CarParams(**{key: value})
+            except ValueError as exc:
+                raise ConfigError(f"{where}: car.{key} = {value!r}: {str(exc).removeprefix(f'CarParams.{key} ')}; "
+                                  "fix the value or remove the key to use the fitted one") from None
+            overrides.append((key, value))
+        return cls(simulator, tuple(overrides))
+
+
+@dataclass(frozen=True)
 class TrainingConfig:
     track: TrackSettings = field(default_factory=TrackSettings)
     run: RunSettings = field(default_factory=RunSettings)
@@ -119,6 +160,7 @@ class TrainingConfig:
     logs: LogSettings = field(default_factory=LogSettings)
     race: RaceConfig = field(default_factory=RaceConfig)  # [race]: DRfC's names (racerlab.spec.RaceConfig)
     randomise: RandomiseSettings = field(default_factory=RandomiseSettings)
+    car: CarSettings = field(default_factory=CarSettings)  # [car]: the simulator's car (racerlab.spec.car_params)
     source: str = "training.toml"
     # [[worker]] tables: what rollout worker k changes for itself ({section: {key: value}}), DRfC's multi-config
     workers: tuple[dict, ...] = ()
@@ -130,6 +172,10 @@ class TrainingConfig:
                 continue
             out.append(f"[{f.name}]")
             section = getattr(self, f.name)
+            if isinstance(section, CarSettings):
+                out.extend(f"{k} = {_toml_value(v)}" for k, v in section.table().items())
+                out.append("")
+                continue
             for sf in fields(section):
                 if sf.name == "where":
                     continue
@@ -168,7 +214,7 @@ def _toml_value(v) -> str:
 
 
 SECTIONS = {"track": TrackSettings, "run": RunSettings, "stop": StopSettings, "evaluation": EvaluationSettings,
-            "logs": LogSettings, "randomise": RandomiseSettings, "race": RaceConfig}
+            "logs": LogSettings, "randomise": RandomiseSettings, "race": RaceConfig, "car": CarSettings}
 
 
 def _coerce(src: str, key: str, default, value):
@@ -228,6 +274,8 @@ def _parse_section(source: str, name: str, section, base):
         raise ConfigError(f"{source}: {name} must be a [section]")
     if isinstance(base, RaceConfig):  # DRfC's race keys: RaceConfig checks them itself
         return RaceConfig.from_mapping({**base.table(), **section}, where=f"{source} [race]")
+    if isinstance(base, CarSettings):  # any CarParams constant: CarSettings checks them itself
+        return CarSettings.from_mapping({**base.table(), **section}, where=source)
     cls = type(base)
     allowed = {f.name for f in fields(cls)}
     values = {}

@@ -8,8 +8,10 @@ what training, evaluation and the Gymnasium adapters drive. The car state is rea
 
 from racerlab.sim.core import Simulator, StartRules
 from racerlab.sim.state import TRACE_COLUMNS, CarState, Status
-from racerlab.sim.world import World
-from racerlab.spec import STATUS_NAMES, STEP_S, CarParams  # the simulator's constants and car, defined in spec
+from racerlab.sim.world import World, car_for
 
-__all__ = ["STATUS_NAMES", "STEP_S", "TRACE_COLUMNS", "CarParams", "CarState", "Simulator", "StartRules", "Status",
-           "World"]
+# the simulator's constants and cars, defined in spec
+from racerlab.spec import SIMULATORS, STATUS_NAMES, STEP_S, CarParams, car_params
+
+__all__ = ["SIMULATORS", "STATUS_NAMES", "STEP_S", "TRACE_COLUMNS", "CarParams", "CarState", "Simulator", "StartRules",
+           "Status", "World", "car_for", "car_params"]

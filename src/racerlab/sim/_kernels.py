@@ -19,14 +19,16 @@ import math
 import numpy as np
 from numba import njit
 
-from racerlab.sim.car import advance
+from racerlab.sim.car import P_DELAY, QUEUE, advance
 from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES
 from racerlab.track.kernels import measure_on_track, point_in_road
 
 # ---- table layouts ----------------------------------------------------------------------------
 # car (float64)
 CX, CY, CYAW, CV, CSTEER, CBETA, CSTART, CBPX, CBPY, CCMD_STEER, CCMD_SPEED = range(11)
-N_CAR = 11
+CYAWRATE = 11
+CQUEUE = 12  # the last QUEUE commands, newest first: (steering rad, speed) pairs, for the car's delay
+N_CAR = CQUEUE + 2 * QUEUE
 # ctr (int64)
 KSTEPS, KPHASE, KIMMOB, KREVCNT, KREV, KSTATUS, KPAUSE = range(7)
 N_CTR = 7
@@ -125,22 +127,38 @@ def judge(i, car, ctr, meas):
 
 
 @njit(cache=True)
+def push(i, car, steer_rad, speed):
+    """Car i's newest command enters its queue (the oldest leaves it)."""
+    for q in range(CQUEUE + 2 * QUEUE - 1, CQUEUE + 1, -1):
+        car[i, q] = car[i, q - 2]
+    car[i, CQUEUE] = steer_rad
+    car[i, CQUEUE + 1] = speed
+
+
+@njit(cache=True)
 def move(i, car, hold, car_params, dt):
-    x, y, yaw, v, steer, beta = advance(car[i, CX], car[i, CY], car[i, CYAW], car[i, CV], car[i, CSTEER],
-                                        math.radians(car[i, CCMD_STEER]), car[i, CCMD_SPEED], hold,
-                                        car_params, dt)
+    """Car i over one step of `dt` s, acting on the command its delay reaches."""
+    d = int(car_params[P_DELAY])
+    new = CQUEUE + 2 * d
+    old = min(new + 2, CQUEUE + 2 * QUEUE - 2)
+    x, y, yaw, v, steer, w, beta = advance(car[i, CX], car[i, CY], car[i, CYAW], car[i, CV], car[i, CSTEER],
+                                           car[i, CYAWRATE], car[i, old], car[i, old + 1], car[i, new],
+                                           car[i, new + 1], hold,
+                                           car_params, dt)
     car[i, CX] = x
     car[i, CY] = y
     car[i, CYAW] = yaw
     car[i, CV] = v
     car[i, CSTEER] = steer
+    car[i, CYAWRATE] = w
     car[i, CBETA] = beta
 
 
 @njit(cache=True)
-def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dt, after_action, max_steps,
+def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dts, after_action, max_steps,
              truncated, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
-    """One step for every active car; params[i] receives the measurement the reward sees."""
+    """One step for every active car (car i's lasting dts[i] s); params[i] receives the measurement the reward
+    sees."""
     for i in range(car.shape[0]):
         truncated[i] = False
         if not active[i]:
@@ -150,23 +168,25 @@ def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dt, a
             # prepare step: the action is ignored, the car is held; reward 0, no rules
             car[i, CCMD_STEER] = 0.0
             car[i, CCMD_SPEED] = 0.0
+            push(i, car, 0.0, 0.0)
             params[i, :] = meas[i, :]
-            move(i, car, True, car_params, dt)
+            move(i, car, True, car_params, dts[i])
             measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
             ctr[i, KSTATUS] = STATUS_PREPARE
             ctr[i, KPHASE] = RUN
             continue
         car[i, CCMD_STEER] = steer_deg[i]
         car[i, CCMD_SPEED] = speed[i]
+        push(i, car, math.radians(steer_deg[i]), speed[i])
         if after_action:
-            move(i, car, False, car_params, dt)
+            move(i, car, False, car_params, dts[i])
             measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
             status = judge(i, car, ctr, meas)
             params[i, :] = meas[i, :]
         else:
             status = judge(i, car, ctr, meas)
             params[i, :] = meas[i, :]
-            move(i, car, False, car_params, dt)
+            move(i, car, False, car_params, dts[i])
             measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
         ctr[i, KSTATUS] = status
         truncated[i] = status == IN_PROGRESS and ctr[i, KSTEPS] >= max_steps
@@ -181,8 +201,11 @@ def _put(i, px, py, yaw, car):
     car[i, CV] = 0.0
     car[i, CSTEER] = 0.0
     car[i, CBETA] = 0.0
+    car[i, CYAWRATE] = 0.0
     car[i, CBPX] = px
     car[i, CBPY] = py
+    for q in range(CQUEUE, CQUEUE + 2 * QUEUE):
+        car[i, q] = 0.0
 
 
 @njit(cache=True)

@@ -1,35 +1,31 @@
-"""The car's dynamics: racerlab's model of how the AWS car moves, and how its default limits were chosen.
+"""The car's dynamics: racerlab's model of how the AWS simulator's car moves, fitted to its logs.
 
-Geometry (facts §3): wheelbase 0.164 m, wheel track 0.16 m, both front wheels steered by the
-same angle clipped to ±30°, commanded speed clipped to [0.1, 4.0] m/s. The pose (x, y, yaw) is
-the `base_link` origin, midway between the axles; AWS reports positions for the point 0.14 m
-ahead of it (`model_point`).
+Geometry (facts §3): wheelbase 0.164 m, wheel track 0.16 m, both front wheels steered by the same angle
+clipped to ±30°, commanded speed clipped to [0.1, 4.0] m/s. The pose (x, y, yaw) is the `base_link`
+origin, midway between the axles; AWS reports positions for the point 0.14 m ahead of it (`model_point`).
 
-Dynamics. Gazebo's velocity and position controllers make the v5+ car respond almost at once,
-but the physical tyres still limit how hard it can turn. racerlab models both explicitly:
+What the real simulator does (docs/car.md has the measurements) and how racerlab models it, per step:
 
-* speed follows the commanded speed with a first-order lag (time constant `speed_tau_s`),
-  bounded by an acceleration limit `accel_mps2` and a braking limit `brake_mps2`;
-* the steering angle follows the command with a first-order lag `steer_tau_s`;
-* the base point moves as a kinematic bicycle (slip angle β with sin β = κ·wheelbase/2 for path
-  curvature κ = cos β · tan δ / wheelbase), except that the lateral acceleration v²·κ cannot
-  exceed the grip limit `grip_mps2`: beyond it the path curvature is capped at grip / v², so a
-  car that enters a corner too fast runs wide (understeers) and leaves the track.
+* **delay**: a row's action starts to act `delay_steps` steps later (a fraction means part-way through
+  the step: for that part the car still follows the action before). The compiled step keeps the last
+  commands of every car for this.
+* **hinge lag**: the steering angle follows the (delayed) command with a first-order lag `steer_tau_s`
+  (ROS 2: the position controller closes 10 % of the error per 1/60 s tick, τ ≈ 0.167 s).
+* **yaw gain and slide**: the car turns like a kinematic bicycle whose tan δ is scaled by
+  `yaw_gain / (1 + (v / slide_mps)²)` (no Ackermann, no differential, tyre slip: 0.55-0.63 at low speed;
+  on ROS 1 it falls to 0.25-0.3 above 1.5 m/s); the lateral acceleration is also capped at `grip_mps2`.
+* **speed**: the ground speed follows a target with a first-order lag `speed_tau_s`, bounded by the
+  traction limits `accel_mps2` and `brake_mps2`. The target is the command clipped to the wheel joints'
+  velocity cap `wheel_cap_mps` (100 rad/s x 0.035 m) times `ground_factor` (the wheel mesh's 0.036 m
+  radius against the controller's 0.035 m: 1.03). Effort-controlled cars without a speed loop (`regulated`
+  False: version 3-4 models on the ROS 2 simulator) always drive toward the cap.
+* **step length**: a real step lasts 0.05-0.08 s of simulated time rather than 1/15 s; with `step_jitter`
+  the simulator draws each car's step from the measured distribution (`spec.STEP_LENGTHS`, mean 1/15 s).
 
-Calibration of the defaults. Gazebo gives the AWS car's wheels a friction coefficient μ = 0.5
-(`racecar.gazebo`, facts §3), so tyre forces top out near μ·g = 4.9 m/s²: that is `grip_mps2`
-and `brake_mps2`. No source gives the car's acceleration; `accel_mps2` = 3.0 m/s² (a standstill
-to 4 m/s in about 1.5 s) is the value that, with the others, puts the theoretical best lap of
-`reInvent2019_track` (racing line + speed profile of `racerlab.line`, 4 m/s cap, standing start
-timed as the simulator times it) at 6.87 s with the default 0.1 m margin and 6.53 s with none:
-inside the 6.5-7.2 s anchor and just under the all-time best human-trained lap in the AWS
-simulator there, 7.198 s (reference/track_records.md). The first defaults (grip 6.5, accel 6,
-brake 8 m/s²) gave 6.13 s, 15 % under the best lap anyone has driven there. `speed_tau_s`
-0.1 s barely matters (0.15 s adds a few hundredths of a second). `benchmarks/racing_line.py` re-measures the
-anchor; pure pursuit on the line drives it within a step or two of the prediction.
-
-Each step of 1/15 s is integrated in `substeps` sub-steps. The geometry constants and the `CarParams`
-dataclass with these defaults live in `racerlab.spec`; this module holds the compiled dynamics.
+`rollout` replays logged actions from a logged state with this model (the calibration, `racerlab
+calibrate`, fits the constants with it); `advance` is the compiled integration the simulator steps every
+car with. The constants of each simulator and model version are in `racerlab.spec` (`CAR_TABLE`,
+`car_params`).
 """
 
 from __future__ import annotations
@@ -39,54 +35,245 @@ import math
 import numpy as np
 from numba import njit
 
-from racerlab.spec import CarParams
+from racerlab.spec import (
+    MAX_DELAY_STEPS,
+    MODEL_POINT_AHEAD_M,
+    STEP_LENGTHS,
+    STEP_QUANTILES,
+    STEP_S,
+    CarParams,
+    car_params,
+)
+
+QUEUE = int(MAX_DELAY_STEPS) + 2  # commands kept per car: this step's and the ones before it
+# positions in `pack`'s array
+(P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED, P_SPEED_TAU, P_ACCEL, P_BRAKE, P_STEER_TAU, P_GRIP, P_SUBSTEPS,
+ P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU) = range(17)
 
 
 def pack(car: CarParams) -> np.ndarray:
-    """The car's limits packed for the compiled step (`advance` reads them by position)."""
+    """The car's constants packed for the compiled step (`advance` reads them by position)."""
     return np.array([car.wheelbase_m, math.radians(car.max_steer_deg), car.min_speed_mps, car.max_speed_mps,
                      car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
-                     float(car.substeps)], dtype=np.float64)
+                     float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
+                     car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s], dtype=np.float64)
+
+
+def step_lengths(rng: np.random.Generator, n: int, simulator: str) -> np.ndarray:
+    """`n` step lengths (s) drawn from `simulator`'s measured distribution."""
+    return np.interp(rng.random(n), STEP_QUANTILES, STEP_LENGTHS[simulator])
 
 
 @njit(cache=True)
-def advance(x, y, yaw, v, steer, steer_cmd_rad, speed_cmd, hold, car, dt):
-    """Integrate one car over `dt`; returns the new (x, y, yaw, v, steer, slip β).
+def yaw_rate(v, steer, car):
+    """The yaw rate (rad/s) the car settles at driving at `v` with the wheels at `steer` (rad)."""
+    gain = car[P_YAW_GAIN]
+    if car[P_SLIDE] > 0:
+        r = v / car[P_SLIDE]
+        gain = gain / (1.0 + r * r)
+    tan_d = gain * math.tan(steer)
+    kappa = tan_d / (car[P_WB] * math.sqrt(1.0 + 0.25 * tan_d * tan_d))
+    if v > 1e-6:
+        k_max = car[P_GRIP] / (v * v)
+        kappa = min(max(kappa, -k_max), k_max)
+    return v * kappa
 
-    `car` is `pack(CarParams)`. `hold` keeps the car still (prepare and pause steps).
-    """
-    if hold:
-        return x, y, yaw, 0.0, steer, 0.0
-    wb = car[0]
-    max_steer = car[1]
-    vc = min(max(speed_cmd, car[2]), car[3])
-    dc = min(max(steer_cmd_rad, -max_steer), max_steer)
-    n = int(car[9])
-    h = dt / n
-    a_speed = 1.0 - math.exp(-h / car[4]) if car[4] > 0 else 1.0
-    a_steer = 1.0 - math.exp(-h / car[7]) if car[7] > 0 else 1.0
+
+@njit(cache=True, inline="always")
+def _target_speed(speed_cmd, car):
+    """The ground speed a command asks for: clipped, capped by the wheels (or the cap itself without a speed
+    loop), times the ground factor."""
+    vc = min(max(speed_cmd, car[P_MIN_SPEED]), car[P_MAX_SPEED])
+    return (min(vc, car[P_CAP]) if car[P_REGULATED] > 0.5 else car[P_CAP]) * car[P_GROUND]
+
+
+@njit(cache=True, inline="always")
+def _speed_sub(v, vt, a_speed, h, car):
+    """One sub-step of the ground speed toward `vt`: (mid-step speed, new speed)."""
+    dv = (vt - v) * a_speed
+    dv = min(max(dv, -car[P_BRAKE] * h), car[P_ACCEL] * h)
+    return v + 0.5 * dv, v + dv
+
+
+@njit(cache=True)
+def _speed_over(v, old_speed, new_speed, car, dt):
+    """The ground speed alone over one step (commands as in `advance`): (mean speed, end speed)."""
+    n = int(car[P_SUBSTEPS])
+    frac = car[P_DELAY] - math.floor(car[P_DELAY])
+    n1 = max(1, int(round(n * frac))) if frac > 1e-9 else 0
+    dist = 0.0
+    for cmd, span, k in ((old_speed, frac * dt, n1), (new_speed, (1.0 - frac) * dt, max(1, n - n1))):
+        if k == 0:
+            continue
+        h = span / k
+        a_speed = 1.0 - math.exp(-h / car[P_SPEED_TAU]) if car[P_SPEED_TAU] > 0 else 1.0
+        vt = _target_speed(cmd, car)
+        for _ in range(k):
+            v_mid, v = _speed_sub(v, vt, a_speed, h, car)
+            dist += v_mid * h
+    return dist / dt, v
+
+
+@njit(cache=True)
+def _phase(x, y, yaw, v, steer, w, steer_cmd, speed_cmd, car, span, n):
+    """Integrate `span` seconds in `n` sub-steps toward one command; returns (x, y, yaw, v, steer, ω, β)."""
+    wb = car[P_WB]
+    dc = min(max(steer_cmd, -car[P_MAX_STEER]), car[P_MAX_STEER])
+    vt = _target_speed(speed_cmd, car)
+    h = span / n
+    a_speed = 1.0 - math.exp(-h / car[P_SPEED_TAU]) if car[P_SPEED_TAU] > 0 else 1.0
+    a_steer = 1.0 - math.exp(-h / car[P_STEER_TAU]) if car[P_STEER_TAU] > 0 else 1.0
+    a_yaw = 1.0 - math.exp(-h / car[P_YAW_TAU]) if car[P_YAW_TAU] > 0 else 1.0
+    slide = car[P_SLIDE]
     beta = 0.0
     for _ in range(n):
-        dv = (vc - v) * a_speed
-        dv = min(max(dv, -car[6] * h), car[5] * h)
-        v_mid = v + 0.5 * dv
-        v = v + dv
+        v_mid, v = _speed_sub(v, vt, a_speed, h, car)
         steer = steer + (dc - steer) * a_steer
-        tan_d = math.tan(steer)
-        cos_b = 1.0 / math.sqrt(1.0 + 0.25 * tan_d * tan_d)
-        kappa = cos_b * tan_d / wb
+        gain = car[P_YAW_GAIN]
+        if slide > 0:
+            r = v_mid / slide
+            gain = gain / (1.0 + r * r)
+        tan_d = gain * math.tan(steer)
+        kappa = tan_d / (wb * math.sqrt(1.0 + 0.25 * tan_d * tan_d))
         if v_mid > 1e-6:
-            k_max = car[8] / (v_mid * v_mid)
+            k_max = car[P_GRIP] / (v_mid * v_mid)
             kappa = min(max(kappa, -k_max), k_max)
-        sb = min(max(0.5 * kappa * wb, -1.0), 1.0)
-        beta = math.asin(sb)
-        dyaw = v_mid * kappa * h
+        w = w + (v_mid * kappa - w) * a_yaw
+        beta = math.asin(min(max(0.5 * kappa * wb, -1.0), 1.0))
+        dyaw = w * h
         head = yaw + 0.5 * dyaw + beta
         x += v_mid * h * math.cos(head)
         y += v_mid * h * math.sin(head)
         yaw += dyaw
+    return x, y, yaw, v, steer, w, beta
+
+
+@njit(cache=True)
+def advance(x, y, yaw, v, steer, w, old_steer, old_speed, new_steer, new_speed, hold, car, dt):
+    """Integrate one car over one step of `dt` s; returns the new (x, y, yaw, v, steer, yaw rate ω, slip β).
+
+    Steering commands in radians. The step follows (old_steer, old_speed) for the fraction of the delay
+    (`delay_steps` - floor) and (new_steer, new_speed) after it. `car` is `pack(CarParams)`. `hold` keeps
+    the car still (prepare and pause steps).
+    """
+    if hold:
+        return x, y, yaw, 0.0, steer, 0.0, 0.0
+    n = int(car[P_SUBSTEPS])
+    frac = car[P_DELAY] - math.floor(car[P_DELAY])
+    beta = 0.0
+    if frac > 1e-9:
+        n1 = max(1, int(round(n * frac)))
+        x, y, yaw, v, steer, w, beta = _phase(x, y, yaw, v, steer, w, old_steer, old_speed, car, frac * dt, n1)
+    x, y, yaw, v, steer, w, beta = _phase(x, y, yaw, v, steer, w, new_steer, new_speed, car, (1.0 - frac) * dt,
+                                          max(1, n - int(round(n * frac))))
     if yaw > math.pi:
         yaw -= 2.0 * math.pi
     elif yaw <= -math.pi:
         yaw += 2.0 * math.pi
-    return x, y, yaw, v, steer, beta
+    return x, y, yaw, v, steer, w, beta
+
+
+@njit(cache=True)
+def _settle(steer, old, new, car, dt):
+    """The hinge alone over one step (the start's steering angle estimated from the history)."""
+    frac = car[P_DELAY] - math.floor(car[P_DELAY])
+    tau = car[P_STEER_TAU]
+    ms = car[P_MAX_STEER]
+    for target, span in ((old, frac * dt), (new, (1.0 - frac) * dt)):
+        t = min(max(target, -ms), ms)
+        steer = t + (steer - t) * (math.exp(-span / tau) if tau > 0 else 0.0)
+    return steer
+
+
+@njit(cache=True)
+def _speed_from_mean(mean, old_speed, new_speed, car, dt):
+    """The speed at the end of a step whose mean speed was `mean` (the last position difference): the start speed
+    whose step, under the car's own speed model, averages `mean`, found by a few fixed-point rounds."""
+    v0 = mean
+    end = mean
+    for _ in range(6):
+        m, end = _speed_over(v0, old_speed, new_speed, car, dt)
+        v0 = max(v0 + (mean - m), 0.0)
+    return end
+
+
+@njit(cache=True)
+def rollout_batch(start, commands, first, dts, car, mean_speed=False, prev_dt=None):
+    """Replay many logged stretches at once: (N, k, 3) front x, y, heading (degrees) after each action.
+
+    start: (N, 6) front x, y, heading (rad), ground speed, wheel angle (rad; NaN: estimated from the history
+    by the hinge's lag), yaw rate (rad/s; NaN: the one the wheel angle and speed settle at). commands: (N, m + k, 2)
+    steering (rad) and speed, the history's m then the k actions
+    to replay; first: m (the index of the first replayed action); dts: (N, k) step lengths. With `mean_speed` the
+    start's speed is the mean over the step before (of `prev_dt[i]` s), the car's own model giving the speed now.
+    """
+    nrun = start.shape[0]
+    k = dts.shape[1]
+    out = np.empty((nrun, k, 3))
+    delay = car[P_DELAY]
+    d = int(math.floor(delay))
+    for i in range(nrun):
+        yaw = start[i, 2]
+        x = start[i, 0] - MODEL_POINT_AHEAD_M * math.cos(yaw)
+        y = start[i, 1] - MODEL_POINT_AHEAD_M * math.sin(yaw)
+        v = start[i, 3]
+        if mean_speed and first > 0:
+            r = first - 1
+            v = _speed_from_mean(v, commands[i, max(r - d - 1, 0), 1], commands[i, max(r - d, 0), 1], car,
+                                 prev_dt[i])
+        steer = start[i, 4]
+        if math.isnan(steer):
+            steer = min(max(commands[i, 0, 0], -car[P_MAX_STEER]), car[P_MAX_STEER])
+            for r in range(first):
+                steer = _settle(steer, commands[i, max(r - d - 1, 0), 0], commands[i, max(r - d, 0), 0], car, STEP_S)
+        w = start[i, 5]
+        if math.isnan(w):
+            w = yaw_rate(v, steer, car)
+        for j in range(k):
+            r = first + j
+            o = commands[i, max(r - d - 1, 0)]
+            c = commands[i, max(r - d, 0)]
+            x, y, yaw, v, steer, w, _ = advance(x, y, yaw, v, steer, w, o[0], o[1], c[0], c[1], False, car, dts[i, j])
+            out[i, j, 0] = x + MODEL_POINT_AHEAD_M * math.cos(yaw)
+            out[i, j, 1] = y + MODEL_POINT_AHEAD_M * math.sin(yaw)
+            out[i, j, 2] = math.degrees(yaw)
+    return out
+
+
+def rollout(start, actions, *, history=None, version="5", simulator="droa", car: CarParams | None = None,
+            dt=None) -> np.ndarray:
+    """Where the car goes when it is given `actions` from `start`: (k, 3) front x, y (m) and heading (°).
+
+    The semantics are a simtrace row's (facts §7): `start` is the state a row logs, a dict with `x`, `y`
+    (the front point, m), `heading` (degrees), `speed` (the ground speed now, m/s) or instead `mean_speed` (the
+    last position difference over its tstamp difference `mean_dt`, default 1/15 s: the car's own speed model
+    then works out the speed now from the history's commands), `steering_angle` (the front wheels' angle, degrees;
+    None estimates it from `history`) and,
+    optionally, `yaw_rate` (°/s, e.g. the last heading difference over its step; missing: the one the wheel
+    angle and speed settle at);
+    `actions` (k, 2) are the [steering_angle °, speed m/s] of that row and the k - 1 rows after it, as
+    logged; row j of the result is the pose the next row logs after action j. `history` (m, 2) holds the
+    actions of the rows before `start`, oldest first: the car is still acting on those for its delay
+    (missing ones repeat the oldest given, or, with no history, stand for the start's wheel angle and
+    speed). The car is `simulator`'s for a model of `version` (`spec.car_params`), or `car`; `dt` gives
+    each step's length (the tstamp differences; default 1/15 s).
+    """
+    car = car or car_params(simulator, version)
+    acts = np.asarray(actions, dtype=np.float64).reshape(-1, 2)
+    steer0 = start.get("steering_angle")
+    if history is None or len(history) == 0:
+        v0 = float(start["speed"] if "speed" in start else start["mean_speed"])
+        hist = np.array([[0.0 if steer0 is None else float(steer0), v0 / car.ground_factor]])
+    else:
+        hist = np.asarray(history, dtype=np.float64).reshape(-1, 2)
+    cmds = np.concatenate([hist, acts])
+    cmds[:, 0] = np.radians(cmds[:, 0])
+    k = len(acts)
+    dts = np.full((1, k), STEP_S) if dt is None else np.asarray(dt, dtype=np.float64).reshape(1, k)
+    w0 = start.get("yaw_rate")
+    mean = "mean_speed" in start and "speed" not in start
+    st = np.array([[start["x"], start["y"], math.radians(start["heading"]), start["mean_speed" if mean else "speed"],
+                    math.nan if steer0 is None else math.radians(steer0),
+                    math.nan if w0 is None else math.radians(w0)]], dtype=np.float64)
+    prev = np.array([float(start.get("mean_dt", STEP_S))])
+    return rollout_batch(st, cmds[None], len(hist), dts, pack(car), mean, prev)[0]

@@ -16,6 +16,7 @@ import numpy as np
 
 from racerlab.sim import _kernels as K
 from racerlab.sim.car import pack as pack_car
+from racerlab.sim.car import step_lengths
 from racerlab.sim.objects import FEATURE_OBJECTS, ObjectSet, RaceConfig, as_race, base_from_model_point
 from racerlab.sim.state import CarState
 from racerlab.spec import STEP_S, CarParams
@@ -64,6 +65,8 @@ class Simulator:
         self.after_action = reward_order == AFTER_ACTION
         self.dt = STEP_S
         self.rng = np.random.default_rng(seed)
+        self._jitter_rng = np.random.default_rng(self.rng.bit_generator.seed_seq.spawn(1)[0])
+        self._dts = np.full(self.num_cars, STEP_S)
         self.lookahead = np.asarray(lookahead_m, dtype=np.float64)
         self._pack_track()
         n = self.num_cars
@@ -106,6 +109,7 @@ class Simulator:
     def reseed(self, seed) -> None:
         """A new random stream for starts, noise and the race's random layouts and bot timings."""
         self.rng = np.random.default_rng(seed)
+        self._jitter_rng = np.random.default_rng(self.rng.bit_generator.seed_seq.spawn(1)[0])
         if self.objects is not None:
             self.objects.rng = self.rng
         self.episodes_started = 0
@@ -206,8 +210,10 @@ class Simulator:
         steer = np.broadcast_to(np.asarray(steering_deg, dtype=np.float64), (n,))
         spd = np.broadcast_to(np.asarray(speed, dtype=np.float64), (n,))
         act = self._all if active is None else np.asarray(active, dtype=np.bool_)
+        if self.car_params.step_jitter:
+            self._dts = step_lengths(self._jitter_rng, n, self.car_params.simulator)
         K.step_all(act, np.ascontiguousarray(steer), np.ascontiguousarray(spd), self.car, self.ctr, self.meas,
-                   self.params, self._car_arr, self.dt, self.after_action, self.max_episode_steps,
+                   self.params, self._car_arr, self._dts, self.after_action, self.max_episode_steps,
                    self.truncated, *self._geom)
         if self.objects is not None:
             if self.objects.racers:  # the other car where it was judged (stepped cars) or stands (held ones)

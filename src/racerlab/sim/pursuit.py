@@ -53,7 +53,16 @@ class PurePursuit:
     def __call__(self, sim) -> tuple[np.ndarray, np.ndarray]:
         """(steering °, speed m/s) for every car of `sim` from its current pose."""
         n = sim.num_cars
-        x, y, yaw, v = (sim.car[:, c] for c in (K.CX, K.CY, K.CYAW, K.CV))
+        x, y, yaw, v, w = (sim.car[:, c] for c in (K.CX, K.CY, K.CYAW, K.CV, K.CYAWRATE))
+        cp = sim.car_params
+        # steer from where the car will be when the command takes hold (its delay and lags: the pose the current
+        # speed and yaw rate lead to), through its weak yaw gain (tan δ scaled by the gain at this speed)
+        latency = cp.delay_steps * STEP_S + cp.steer_tau_s + cp.yaw_tau_s
+        turn = w * latency
+        head = yaw + 0.5 * turn
+        x = x + v * latency * np.cos(head)
+        y = y + v * latency * np.sin(head)
+        yaw = yaw + turn
         rear = np.stack([x - 0.5 * self.wheelbase * np.cos(yaw), y - 0.5 * self.wheelbase * np.sin(yaw)], axis=1)
         if self._hint is None or len(self._hint) != n:
             self._hint = np.full(n, -1, np.int64)
@@ -71,7 +80,7 @@ class PurePursuit:
         ty = np.interp(target_s, self.cum_s, self.path[:, 1])
         alpha = np.arctan2(ty - rear[:, 1], tx - rear[:, 0]) - yaw
         dist = np.maximum(np.hypot(tx - rear[:, 0], ty - rear[:, 1]), 1e-6)
-        steer = np.degrees(np.arctan2(2.0 * self.wheelbase * np.sin(alpha), dist))
+        steer = np.degrees(np.arctan(2.0 * self.wheelbase * np.sin(alpha) / dist / cp.yaw_gain_at(v)))
         if self.car is None:
             return steer, np.interp(self._wrap(s), self.cum_s, self.speed)
         return steer, self._speed_command(s + 0.5 * self.wheelbase, v)

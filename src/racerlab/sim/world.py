@@ -23,7 +23,7 @@ from racerlab.sim.core import Simulator, StartRules
 from racerlab.sim.observations import make_observation, observation_name_for
 from racerlab.sim.params import ParamsBuilder
 from racerlab.sim.randomise import Actuation, RandomisedObservation, as_settings, make_rng
-from racerlab.spec import CarParams
+from racerlab.spec import DEFAULT_SIMULATOR, CarParams, car_params
 
 
 def _start_rules(start):
@@ -32,10 +32,28 @@ def _start_rules(start):
     return StartRules(**start)
 
 
-def _car_params(car):
-    if car is None or isinstance(car, CarParams):
+def car_for(car, metadata=None) -> CarParams:
+    """The car a world drives: `car` is a `CarParams` (as is), None (the default simulator's car), a simulator name,
+    or a `[car]` table as a dict (`simulator` and constants to override); the model's `version` picks the car
+    within the simulator (`spec.car_params`)."""
+    if isinstance(car, CarParams):
         return car
-    return CarParams(**car)
+    version = _version(metadata)
+    if car is None:
+        return car_params(DEFAULT_SIMULATOR, version)
+    if isinstance(car, str):
+        return car_params(car, version)
+    if hasattr(car, "params"):  # model.config.CarSettings
+        return car.params(version)
+    table = dict(car)
+    return car_params(table.pop("simulator", DEFAULT_SIMULATOR), table.pop("version", version), **table)
+
+
+def _version(metadata) -> str:
+    if metadata is None:
+        return "5"
+    v = as_model_metadata(metadata).version
+    return f"{float(v):g}"
 
 
 class World:
@@ -44,8 +62,9 @@ class World:
     `metadata` is a `ModelMetadata`, its dict or path, or None (the console's default discrete space);
     `reward` a `RewardCaller`, a callable, a path, or None (reward 0 and no params built: the fastest
     path). `observation` names it ("features", "camera", ...); None follows the model's sensors, or
-    is "features" when no metadata is given either. `car` and `start` take `CarParams` / `StartRules`
-    or their keyword dicts; `race` a `RaceConfig`, its `[race]` table as a dict, or a race type name
+    is "features" when no metadata is given either. `car` is the car (`car_for`: a `CarParams`, a simulator
+    name, a `[car]` table; None: the default simulator's car for the model's version); `start` a `StartRules`
+    or its keyword dict; `race` a `RaceConfig`, its `[race]` table as a dict, or a race type name
     ("object_avoidance": 6 evenly spaced boxes), None for a time trial. With `keep_params`, `params` holds
     each car's params dict of the last step (None where no reward was called). `randomise`
     (`RandomiseSettings` or its keyword dict) perturbs actions and observations as the physical car would
@@ -58,7 +77,7 @@ class World:
                  randomise=None):
         # `sim`: drive an existing simulator (another model's cars in the same world); track, num_cars, car,
         # start, max_episode_steps, reward_order, seed and race are then its own
-        self.sim = sim or Simulator(track, num_cars, _car_params(car), start=_start_rules(start),
+        self.sim = sim or Simulator(track, num_cars, car_for(car, metadata), start=_start_rules(start),
                                     max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
                                     race=race)
         self.metadata = as_model_metadata(metadata)

@@ -95,7 +95,7 @@ class Progress:
         tracks = ", ".join(cfg.track.names)
         self._print(f"training {trainer.folder.path} ({what}): {meta.training_algorithm} on {tracks}, "
                     f"{cfg.run.num_cars} cars, observation {trainer.eval_world.observation.name}, "
-                    f"device {trainer.agent.device}", "bold")
+                    f"device {trainer.agent.device}, car {trainer.eval_world.sim.car_params.name}", "bold")
         limits = [f"{cfg.stop.minutes:g} min" if cfg.stop.minutes else "",
                   f"{cfg.stop.episodes} episodes" if cfg.stop.episodes else "",
                   f"{cfg.stop.iterations} iterations" if cfg.stop.iterations else ""]

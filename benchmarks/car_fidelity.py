@@ -1,0 +1,95 @@
+"""Car fidelity: how far racerlab's car lands from the real simulator's front point, per shared log set.
+
+Each set's episodes are split (every third held out, `racerlab.calibrate.split`); the table reports the median
+front-point error on the held-out stretches after 1, 3, 8 and 15 steps (15 = 1 s) for the car before this
+change (zero delay, τ 0.03 s, full kinematic steering), the built-in car of the set's simulator and model
+version (after), and the constant-velocity guess. One JSON line per set.
+
+    python benchmarks/car_fidelity.py              # before / after / constant velocity per set
+    python benchmarks/car_fidelity.py --fit        # refit the built-in cars on the fit episodes (spec.CAR_TABLE)
+
+Target (issue 24): after 1 s <= 0.10 m on every set; after one step no worse than constant velocity.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tarfile
+import tempfile
+from pathlib import Path
+
+from racerlab.calibrate import HORIZONS, constant_velocity_errors, errors, fit_with_spread, load_stretches, medians
+from racerlab.calibrate.data import concat, split
+from racerlab.spec import CarParams, car_params, control_of
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "reference"
+# name: (paths, simulator, model version)
+SETS = {
+    "drfc2022-v4": (["real_logs/sample-drfc-1-logs"], "console", "4"),
+    "console2022": (["real_logs/sample-console-logs"], "console", "4"),
+    "console2025-v5": (["simtraces/console2025aug-v5-ros1-2022_reinvent_champ_ccw"], "console", "5"),
+    "droa2026-training": (["simtraces/droa2026-v6-Spain_track"], "droa", "5"),
+    "droa2026-evaluation": (["simtraces/droa2026-v6-Spain_track-evaluation"], "droa", "5"),
+    "droa2026-eval-only-tar": (["real_logs/sample-droa-eval-only.tar.gz"], "droa", "5"),
+}
+# racerlab's car before issue 24
+BEFORE = CarParams(delay_steps=0.0, steer_tau_s=0.03, yaw_gain=1.0, slide_mps=0.0, yaw_tau_s=0.0, speed_tau_s=0.1,
+                   accel_mps2=3.0, brake_mps2=4.9, ground_factor=1.0, wheel_cap_mps=4.0, step_jitter=False)
+
+
+def _paths(rel: list[str], tmp: Path) -> list[Path]:
+    out = []
+    for r in rel:
+        p = SHARED / r
+        if p.name.endswith(".tar.gz"):
+            with tarfile.open(p) as tar:
+                tar.extractall(tmp / p.name, filter="data")
+            p = next((tmp / p.name).iterdir())
+        out.append(p)
+    return out
+
+
+def _round(d: dict) -> dict:
+    return {str(k): round(v, 4) for k, v in d.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fit", action="store_true", help="refit the built-in cars (one per simulator and control)")
+    ap.add_argument("--every", type=int, default=None, help="a stretch starts at every N-th row (default: about "
+                    "2 500 stretches per set)")
+    ap.add_argument("--sets", nargs="*", default=list(SETS))
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        loaded = {n: split(load_stretches(_paths(SETS[n][0], Path(tmp)), args.every)) for n in args.sets}
+    if args.fit:
+        groups: dict[tuple[str, str], list[str]] = {}
+        for n in args.sets:
+            groups.setdefault((SETS[n][1], control_of(SETS[n][2])), []).append(n)
+        for (sim, control), names in groups.items():
+            if names == ["droa2026-eval-only-tar"] or "droa2026-eval-only-tar" in names and len(names) > 1:
+                names = [n for n in names if n != "droa2026-eval-only-tar"]  # the same runs as droa2026-evaluation
+            fit = concat([loaded[n][0] for n in names])
+            held = concat([loaded[n][1] for n in names])
+            f = fit_with_spread(fit, held, sim, "5" if control == "velocity" else "4", resamples=2)
+            print(json.dumps({"simulator": sim, "control": control, "sets": names, "fit_stretches": f.fit_stretches,
+                              "constants": {k: round(getattr(f.car, k), 4) for k in f.spread},
+                              "spread": {k: round(v, 4) for k, v in f.spread.items()},
+                              "held_out": _round(f.held_out), "constant_velocity": _round(f.constant_velocity)}),
+                  flush=True)
+        return
+    for n in args.sets:
+        fit_st, held = loaded[n]
+        _, sim, version = SETS[n]
+        after = car_params(sim, version, step_jitter=False)
+        print(json.dumps({"set": n, "simulator": sim, "version": version, "car": after.name,
+                          "fit_stretches": len(fit_st), "held_out_stretches": len(held),
+                          "horizons_steps": list(HORIZONS),
+                          "before_m": _round(medians(errors(held, BEFORE))),
+                          "after_m": _round(medians(errors(held, after))),
+                          "constant_velocity_m": _round(medians(constant_velocity_errors(held)))}), flush=True)
+
+
+if __name__ == "__main__":
+    main()

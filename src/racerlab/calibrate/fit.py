@@ -1,0 +1,109 @@
+"""Fitting the car's constants to stretches of a real log, and measuring how well a car predicts them.
+
+The loss is the mean of a robust distance (√(d² + 1 cm²)) between the replayed and the logged front point over
+every step of every stretch: close to the median error the report gives, and smooth enough for Powell's method.
+Each constant is searched within `BOUNDS`; the spread is the standard deviation over fits on resampled episodes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import minimize
+
+from racerlab.calibrate.data import Stretches
+from racerlab.sim.car import pack, rollout_batch
+from racerlab.spec import CarParams, car_params
+
+HORIZONS = (1, 3, 8, 15)  # steps after which errors are reported
+# what is fitted, and where it is searched; `slide_mps` is searched as its inverse (0 = no slide)
+BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.15, 1.2), "slide_inv": (0.0, 2.5),
+          "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
+          "ground_factor": (0.95, 1.12)}
+FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
+          "ground_factor")
+
+
+def predict(st: Stretches, car: CarParams) -> np.ndarray:
+    """(N, horizon, 3) front x, y, heading the car predicts for each stretch."""
+    return rollout_batch(st.start, st.commands, st.commands.shape[1] - st.dts.shape[1], st.dts, pack(car), True,
+                         st.prev_dt)
+
+
+def errors(st: Stretches, car: CarParams) -> np.ndarray:
+    """(N, horizon) distance (m) between the predicted and the logged front point."""
+    p = predict(st, car)
+    return np.hypot(p[..., 0] - st.target[..., 0], p[..., 1] - st.target[..., 1])
+
+
+def constant_velocity_errors(st: Stretches) -> np.ndarray:
+    """(N, horizon) errors of the guess that ignores the actions: the last velocity, extrapolated."""
+    vel = (st.start[:, :2] - st.prev) / st.prev_dt[:, None]
+    t = np.cumsum(st.dts, axis=1)
+    guess = st.start[:, None, :2] + vel[:, None, :] * t[..., None]
+    return np.hypot(guess[..., 0] - st.target[..., 0], guess[..., 1] - st.target[..., 1])
+
+
+def medians(err: np.ndarray, horizons=HORIZONS) -> dict[int, float]:
+    """Median error after each of `horizons` steps."""
+    return {h: float(np.median(err[:, h - 1])) for h in horizons if h <= err.shape[1]}
+
+
+def _to_vector(car: CarParams) -> np.ndarray:
+    vals = {f: getattr(car, f) for f in FITTED}
+    vals["slide_inv"] = 1.0 / vals.pop("slide_mps") if car.slide_mps > 0 else 0.0
+    return np.array([min(max(vals[k], lo), hi) for k, (lo, hi) in BOUNDS.items()])
+
+
+def _to_car(base: CarParams, vec) -> CarParams:
+    vals = {k: float(min(max(v, lo), hi)) for (k, (lo, hi)), v in zip(BOUNDS.items(), vec, strict=True)}
+    inv = vals.pop("slide_inv")
+    vals["slide_mps"] = 1.0 / inv if inv > 1e-3 else 0.0
+    return replace(base, **vals)
+
+
+def _loss(st: Stretches, car: CarParams) -> float:
+    e = errors(st, car)
+    return float(np.mean(np.sqrt(e * e + 1e-4)))
+
+
+def fit_car(st: Stretches, base: CarParams, *, max_evals: int = 1500) -> CarParams:
+    """The constants of `base` (from `FITTED`) that best replay the stretches `st`."""
+    if not math.isfinite(_loss(st, base)):
+        raise ValueError("the starting car gives non-finite predictions")
+    res = minimize(lambda v: _loss(st, _to_car(base, v)), _to_vector(base), method="Powell",
+                   bounds=list(BOUNDS.values()), options={"maxfev": max_evals, "xtol": 1e-3, "ftol": 1e-5})
+    return _to_car(base, res.x)
+
+
+@dataclass
+class Fit:
+    """A fitted car with the spread of its constants and its errors on the held-out stretches."""
+
+    car: CarParams
+    spread: dict[str, float]  # standard deviation of each fitted constant over resampled fits
+    held_out: dict[int, float]  # median error (m) after each of HORIZONS steps
+    constant_velocity: dict[int, float]
+    fit_stretches: int
+    held_out_stretches: int
+    held: Stretches | None = field(default=None, repr=False)  # the held-out stretches (the picture replays them)
+
+
+def fit_with_spread(fit_st: Stretches, held_st: Stretches, simulator: str, version="5", *, resamples: int = 3,
+                    seed: int = 0, max_evals: int = 1500) -> Fit:
+    """Fit `simulator`'s car for a `version` model on `fit_st`, its spread on `resamples` bootstrap resamples of the
+    fit episodes, and its held-out errors on `held_st`."""
+    base = car_params(simulator, version, step_jitter=False)
+    car = fit_car(fit_st, base, max_evals=max_evals)
+    rng = np.random.default_rng(seed)
+    eps = np.unique(fit_st.episode)
+    samples = []
+    for _ in range(resamples if len(eps) > 1 else 0):
+        pick = rng.choice(eps, size=len(eps), replace=True)
+        idx = np.concatenate([np.flatnonzero(fit_st.episode == e) for e in pick])
+        samples.append(fit_car(fit_st.take(idx), car, max_evals=max_evals // 3))
+    spread = {f: float(np.std([getattr(c, f) for c in samples])) if samples else math.nan for f in FITTED}
+    return Fit(car, spread, medians(errors(held_st, car)), medians(constant_velocity_errors(held_st)),
+               len(fit_st), len(held_st), held_st)

@@ -1,0 +1,47 @@
+"""`racerlab calibrate LOGS...`: fit racerlab's car to a real simulator's logs and write the `[car]` table."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("calibrate", help="fit the car to real simulator logs and write a [car] table",
+                       description="Fit racerlab's car (delay, hinge lag, yaw gain and slide, traction, ground "
+                                   "speed) to the simtraces of a real simulator: any simtrace folder, console/DRoA "
+                                   "export or robomaker log. Every third episode is held out: the report gives "
+                                   "the median front-point error after 1, 3, 8 and 15 steps beside the "
+                                   "constant-velocity guess, the constants with their spread, and a picture. "
+                                   "The [car] table it writes goes into a model's training.toml.")
+    p.add_argument("logs", nargs="+", type=Path, metavar="LOGS", help="log folders, exports or files")
+    p.add_argument("--simulator", choices=("droa", "console"), default="droa",
+                   help="the simulator the logs come from (default droa)")
+    p.add_argument("--version", default="5", metavar="V",
+                   help="the model_metadata version of the logged model (3-4: effort control; default 5)")
+    p.add_argument("--out", type=Path, default=Path("car.toml"), metavar="FILE",
+                   help="the [car] table (default car.toml); the picture goes beside it as .png")
+    p.add_argument("--resamples", type=int, default=3, metavar="N",
+                   help="fits on resampled episodes for the constants' spread (default 3; 0: none)")
+    p.set_defaults(func=run_calibrate)
+
+
+def run_calibrate(args) -> int:
+    from racerlab.calibrate import calibrate, car_toml
+    from racerlab.calibrate.plot import plot_fit
+    from racerlab.logs import atomic_write_text
+
+    names = ", ".join(str(p) for p in args.logs)
+    print(f"fitting the {args.simulator} car (version {args.version}) to {names} ...", file=sys.stderr, flush=True)
+    fit = calibrate(args.logs, args.simulator, args.version, resamples=args.resamples)
+    print(f"{fit.fit_stretches} stretches fitted, {fit.held_out_stretches} held out")
+    print("median front-point error on held-out episodes (m):")
+    print("  after steps      " + "".join(f"{h:>8d}" for h in fit.held_out))
+    print("  fitted car       " + "".join(f"{v:8.3f}" for v in fit.held_out.values()))
+    print("  constant velocity" + "".join(f"{v:8.3f}" for v in fit.constant_velocity.values()))
+    text = car_toml(fit, names)
+    print(text, end="")
+    atomic_write_text(args.out, text)
+    png = plot_fit(fit, args.out.with_suffix(".png"))
+    print(f"wrote {args.out} and {png}")
+    return 0

@@ -1,0 +1,37 @@
+"""`racerlab calibrate` on a real DRoA log: a report beside the constant-velocity guess, a [car] table that
+training.toml takes, a picture."""
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from racerlab.cli import main
+from racerlab.model import load_training_config
+
+DROA_EVAL = Path(__file__).resolve().parents[2].parent / "shared" / "reference" / "simtraces" / \
+    "droa2026-v6-Spain_track-evaluation"
+
+
+@pytest.mark.skipif(not DROA_EVAL.is_dir(), reason="the shared real logs are not beside the checkout")
+def test_calibrate_writes_a_car_table_training_takes(tmp_path, capsys):
+    out = tmp_path / "car.toml"
+    assert main(["calibrate", str(DROA_EVAL), "--simulator", "droa", "--out", str(out), "--resamples", "0"]) == 0
+    text = capsys.readouterr().out
+    assert "constant velocity" in text and "fitted car" in text
+    rows = {line.split()[0]: line.split()[1:] for line in text.splitlines() if line.startswith("  ")}
+    fitted = [float(v) for v in rows["fitted"][1:]]
+    guess = [float(v) for v in rows["constant"][1:]]
+    assert len(fitted) == 4 and all(f < g for f, g in zip(fitted, guess, strict=True))  # beats the guess at 1-15
+    table = tomllib.loads(out.read_text())["car"]
+    assert table["simulator"] == "droa" and 0.3 < table["yaw_gain"] < 1.0
+    (tmp_path / "training.toml").write_text(out.read_text())
+    car = load_training_config(tmp_path / "training.toml").car.params()
+    assert car.yaw_gain == pytest.approx(table["yaw_gain"])
+    assert out.with_suffix(".png").stat().st_size > 10_000
+
+
+def test_calibrate_names_a_missing_log(tmp_path, capsys):
+    assert main(["calibrate", str(tmp_path / "nope"), "--out", str(tmp_path / "car.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "nope" in err and "no such file" in err

@@ -1,0 +1,76 @@
+"""Calibration: a fit on a log driven by a known car recovers its constants; stretches skip what is not driving."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from racerlab.calibrate import constant_velocity_errors, errors, fit_car, medians, split, stretches
+from racerlab.calibrate.data import HISTORY
+from racerlab.errors import ConfigError
+from racerlab.sim.car import rollout
+from racerlab.spec import STEP_S, car_params
+
+TRUE = car_params("droa", delay_steps=1.4, steer_tau_s=0.2, yaw_gain=0.55, slide_mps=2.0, yaw_tau_s=0.0,
+                  speed_tau_s=0.05, accel_mps2=4.0, brake_mps2=6.0, ground_factor=1.05)
+
+
+def synthetic_log(car, episodes=6, steps=160, seed=0) -> pd.DataFrame:
+    """Simtrace rows of `car` driving random held actions (each held 3-8 steps, as a policy's runs are) from a
+    standstill; jittered step lengths like the real simulator's."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for ep in range(episodes):
+        acts, n = [], 0
+        while n < steps:
+            k = int(rng.integers(3, 9))
+            acts += [[float(rng.choice([-30, -20, -10, 0, 10, 20, 30])), float(rng.choice([0.8, 1.4, 2.0, 2.6]))]] * k
+            n += k
+        acts = np.array(acts[:steps])
+        dts = rng.uniform(0.055, 0.078, steps)
+        dts *= STEP_S / dts.mean()
+        start = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 0.0, "steering_angle": 0.0, "yaw_rate": 0.0}
+        path = rollout(start, acts, history=[[0.0, 0.0]], car=car, dt=dts)
+        poses = np.vstack([[0.0, 0.0, 0.0], path[:-1]])
+        t = np.concatenate([[0.0], np.cumsum(dts[:-1])])
+        for j in range(steps):
+            rows.append({"unique_episode": ep, "steps": j + 1, "x": poses[j, 0], "y": poses[j, 1], "yaw": poses[j, 2],
+                         "steering_angle": acts[j, 0], "speed": acts[j, 1], "tstamp": t[j],
+                         "episode_status": "prepare" if j == 0 else "in_progress"})
+    return pd.DataFrame(rows)
+
+
+def test_a_fit_recovers_the_car_that_drove_the_log():
+    st = stretches(synthetic_log(TRUE), every=2)
+    fit_st, held = split(st)
+    start = car_params("droa")  # the default car: far from TRUE in delay, lag, gain, slide and traction
+    car = fit_car(fit_st, start)
+    assert car.delay_steps == pytest.approx(1.4, abs=0.1)
+    # the hinge's lag and the yaw rate's are two first-order lags in a row on the way from the command to the turn:
+    # the logs tell their sum, not how it divides
+    assert car.steer_tau_s + car.yaw_tau_s == pytest.approx(0.2, abs=0.03)
+    assert car.yaw_gain == pytest.approx(0.55, abs=0.05)
+    assert car.accel_mps2 == pytest.approx(4.0, rel=0.15)
+    assert car.ground_factor == pytest.approx(1.05, abs=0.01)
+    # and it predicts the held-out episodes almost exactly, far better than the constant-velocity guess
+    err = medians(errors(held, car))
+    assert err[15] < 0.03
+    assert err[15] < 0.2 * medians(constant_velocity_errors(held))[15]
+    assert medians(errors(held, start))[15] > 5 * err[15]
+
+
+def test_stretches_leave_out_prepare_pause_and_jumps():
+    df = synthetic_log(TRUE, episodes=1, steps=60)
+    n_all = len(stretches(df, horizon=15))
+    assert n_all == 60 - 15 - (HISTORY + 1)  # every start with a full history after the prepare row
+    df.loc[30, "episode_status"] = "pause"
+    df.loc[45, ["x", "y"]] = [50.0, 50.0]  # an evaluation reset
+    st = stretches(df, horizon=15)
+    assert 0 < len(st) < n_all
+    rows = np.round(st.start[:, 0], 9)
+    assert not np.isin(np.round(df["x"].to_numpy()[25:47], 9), rows).any()  # no stretch touches rows 30 or 45
+
+
+def test_a_log_without_simtrace_columns_is_one_line():
+    with pytest.raises(ConfigError, match="no 'tstamp' column"):
+        stretches(pd.DataFrame({"x": [0.0], "y": [0.0], "yaw": [0.0], "steering_angle": [0.0], "speed": [1.0],
+                                "steps": [1]}), source="my.csv")

@@ -1,0 +1,203 @@
+"""The car model (issue 24): hand-worked step responses, each built-in car's structure, rollout against the
+simulator, step jitter."""
+
+import math
+
+import numpy as np
+import pytest
+
+from racerlab.errors import ConfigError
+from racerlab.sim import Simulator, World
+from racerlab.sim.car import advance, pack, rollout, step_lengths
+from racerlab.spec import (
+    CAR_TABLE,
+    MODEL_POINT_AHEAD_M,
+    STEP_LENGTHS,
+    STEP_S,
+    WHEELBASE_M,
+    CarParams,
+    car_params,
+    control_of,
+)
+
+DT = STEP_S
+
+
+def bare(**kw) -> CarParams:
+    """A car with one mechanism at a time: no delay, no lags, full steering, no slide, instant traction."""
+    base = dict(delay_steps=0.0, steer_tau_s=0.0, yaw_gain=1.0, slide_mps=0.0, yaw_tau_s=0.0, speed_tau_s=0.0,
+                accel_mps2=1000.0, brake_mps2=1000.0, ground_factor=1.0, grip_mps2=1000.0)
+    return CarParams(**{**base, **kw})
+
+
+def step(car, v=0.0, steer=0.0, w=0.0, old=(0.0, 0.0), new=(0.0, 0.0), dt=DT):
+    """One `advance` from the origin heading east: (x, y, yaw, v, steer, w, beta)."""
+    return advance(0.0, 0.0, 0.0, v, steer, w, old[0], old[1], new[0], new[1], False, pack(car), dt)
+
+
+def test_hinge_is_a_first_order_lag():
+    """A 20° step through τ = 0.167 s: 1 - exp(-dt/τ) of it after one step (ROS 2's 10 % per 1/60 s tick
+    gives 1 - 0.9⁴ = 34 %, the exponential 33 %), whatever the sub-steps."""
+    cmd = math.radians(20)
+    for n in (1, 4, 9):
+        s = step(bare(steer_tau_s=0.167, substeps=n), v=1.0, new=(cmd, 1.0))[4]
+        assert s == pytest.approx(cmd * (1 - math.exp(-DT / 0.167)), rel=1e-9)
+    assert 1 - math.exp(-DT / 0.167) == pytest.approx(0.329, abs=1e-3)
+
+
+def test_traction_limits_the_acceleration_and_the_cap_the_speed():
+    # standing start, command 2 m/s, accel 3.2 m/s² (ROS 1's measured limit): 3.2 / 15 = 0.2133 m/s after a step
+    assert step(bare(accel_mps2=3.2), new=(0.0, 2.0))[3] == pytest.approx(3.2 / 15)
+    # braking from 2 to 1 at 6 m/s²: 0.4 m/s less
+    assert step(bare(brake_mps2=6.0), v=2.0, new=(0.0, 1.0))[3] == pytest.approx(1.6)
+    # 4 m/s commanded: the wheels' 100 rad/s x 0.035 m = 3.5 m/s cap, times the 1.03 ground factor
+    assert step(bare(ground_factor=1.03), v=3.0, new=(0.0, 4.0))[3] == pytest.approx(3.5 * 1.03)
+    # effort control without a speed loop (droa, version 3-4): toward the cap whatever the command
+    assert step(bare(regulated=False), v=1.0, new=(0.0, 1.0))[3] == pytest.approx(3.5)
+
+
+def test_speed_lag_after_the_traction_limit():
+    """τ_v = 0.1 s and no traction limit, one sub-step: 1 → 2 m/s gains (1 - e^(-2/3)) of the step."""
+    v = step(bare(speed_tau_s=0.1, substeps=1), v=1.0, new=(0.0, 2.0))[3]
+    assert v == pytest.approx(1.0 + (1 - math.exp(-DT / 0.1)))
+
+
+def test_yaw_gain_and_slide_scale_the_turn():
+    """Held wheels at 20°, 1 m/s: yaw rate v·κ, κ = g·tan δ / (L·√(1 + (g·tan δ / 2)²)); the slide halves g at
+    slide_mps."""
+    d = math.radians(20)
+    for gain, slide, v in ((1.0, 0.0, 1.0), (0.6, 0.0, 1.0), (0.6, 1.5, 1.5), (0.6, 1.5, 3.0)):
+        g = gain / (1 + (v / slide) ** 2) if slide else gain
+        t = g * math.tan(d)
+        kappa = t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t))
+        yaw = step(bare(yaw_gain=gain, slide_mps=slide), v=v, steer=d, new=(d, v))[2]
+        assert yaw == pytest.approx(v * kappa * DT, rel=1e-9)
+    # the grip caps v²κ: 3 m/s on full 30° lock with gain 1 would need 3²·1.78/0.164... the cap gives 4.9 / 9
+    yaw = step(bare(grip_mps2=4.9), v=3.0, steer=math.radians(30), new=(math.radians(30), 3.0))[2]
+    assert yaw == pytest.approx(4.9 / 3.0 * DT)
+
+
+def test_yaw_rate_lag():
+    """With yaw_tau_s the yaw rate approaches the wheels' v·κ exponentially, so the first step turns less."""
+    d = math.radians(20)
+    t = math.tan(d)
+    target = t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t))
+    w = step(bare(yaw_tau_s=0.1, substeps=1), v=1.0, steer=d, new=(d, 1.0))[5]
+    assert w == pytest.approx(target * (1 - math.exp(-DT / 0.1)))
+
+
+def test_delay_acts_late_and_fractions_split_the_step():
+    """delay 2: a speed command acts from the second step after its row; delay 1.5: half of step 1 still on the
+    old command, then the new one."""
+    sim = Simulator("lab_oval", 1, bare(delay_steps=2.0, accel_mps2=3.0))
+    sim.step(0.0, 0.0)  # prepare
+    speeds = []
+    for _ in range(4):
+        sim.step(0.0, 2.0)
+        speeds.append(float(sim.state.speed[0]))
+    # rows 1 and 2 move on the prepare step's zero command (clipped to 0.1 m/s: reached at once), row 3 on row 1's
+    assert speeds[0] == pytest.approx(0.1)
+    assert speeds[1] == pytest.approx(0.1)
+    assert speeds[2] == pytest.approx(0.1 + 3.0 / 15)
+    half = step(bare(delay_steps=0.5, accel_mps2=3.0, substeps=4), v=0.0, old=(0.0, 0.0), new=(0.0, 2.0))[3]
+    # first half toward 0.1 m/s (0.1 reached: 3 x 1/30 = 0.1 exactly), second half + 3 m/s² x 1/30 s
+    assert half == pytest.approx(0.1 + 3.0 / 30)
+
+
+@pytest.mark.parametrize("simulator,control", sorted(CAR_TABLE))
+def test_each_built_in_car(simulator, control):
+    """Each simulator's car for each control: no answer before its delay, the speed it settles at, the turn it
+    holds at 1 m/s with 20°."""
+    version = "5" if control == "velocity" else "4"
+    car = car_params(simulator, version)
+    assert (car.simulator, car.control) == (simulator, control)
+    hold = [[0.0, 1.0]] * 6
+    start = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 1.0 * car.ground_factor, "steering_angle": 0.0}
+    d = int(car.delay_steps)
+    turn = rollout(start, [[20.0, 1.0]] * 60, history=hold, car=car)
+    assert np.all(np.abs(turn[:d, 2]) < 1e-9)  # the wheels have not moved yet
+    assert abs(turn[d, 2]) > 0 or car.delay_steps == d  # a fractional delay turns within the next step
+    speed = rollout(start, [[0.0, 2.0]] * 60, history=hold, car=car)
+    settled = np.hypot(*(speed[-1, :2] - speed[-2, :2])) / STEP_S
+    expect = car.ground_factor * (min(2.0, car.wheel_cap_mps) if car.regulated else car.wheel_cap_mps)
+    assert settled == pytest.approx(expect, rel=1e-3)
+    # the held turn: heading gained per step once settled at 1 m/s (regulated cars)
+    if car.regulated:
+        v = car.ground_factor
+        g = car.yaw_gain / (1 + (v / car.slide_mps) ** 2) if car.slide_mps else car.yaw_gain
+        t = g * math.tan(math.radians(20))
+        kappa = min(t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t)), car.grip_mps2 / v**2)
+        per_step = (turn[-1, 2] - turn[-2, 2]) % 360
+        assert per_step == pytest.approx(math.degrees(v * kappa * STEP_S), rel=1e-3)
+
+
+def test_version_picks_the_control():
+    assert control_of("5") == control_of(6) == "velocity"
+    assert control_of("4") == control_of("3.0") == "effort"
+    assert car_params("console", "4").control == "effort"
+    with pytest.raises(ConfigError, match="simulator"):
+        car_params("gazebo")
+    with pytest.raises(ConfigError, match="yaw_gian"):
+        car_params("droa", yaw_gian=0.5)
+
+
+def test_rollout_matches_the_simulator_for_a_zero_delay_car():
+    """Zero delay: rollout from a car's simtrace state with its actions lands where the simulator drives it."""
+    car = car_params("droa", delay_steps=0.0)
+    sim = Simulator("lab_oval", 1, car)
+    sim.step(0.0, 0.0)  # prepare: the car stands
+    s = sim.state
+    start = {"x": float(s.model_x[0]), "y": float(s.model_y[0]), "heading": float(s.heading[0]), "speed": 0.0,
+             "steering_angle": 0.0, "yaw_rate": 0.0}
+    rng = np.random.default_rng(3)
+    actions = np.column_stack([rng.uniform(-15, 15, 25), rng.uniform(0.5, 2.0, 25)])
+    got = []
+    for a in actions:
+        sim.step(a[0], a[1])
+        got.append([s.model_x[0], s.model_y[0], s.heading[0]])
+    pred = rollout(start, actions, car=car)
+    assert np.allclose(pred, np.array(got), atol=1e-9)
+
+
+def test_rollout_history_feeds_the_delay():
+    """With a delay of 2 the first two steps follow the history's last two actions: a history of a held 1 m/s
+    straight keeps the car straight at 1 m/s for two steps whatever the new actions ask."""
+    car = car_params("droa", delay_steps=2.0, yaw_tau_s=0.0)
+    start = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": car.ground_factor, "steering_angle": 0.0}
+    out = rollout(start, [[30.0, 3.0]] * 4, history=[[0.0, 1.0]] * 3, car=car)
+    assert np.allclose(out[:2, 1], 0.0) and np.allclose(out[:2, 2], 0.0)
+    assert out[:2, 0] == pytest.approx([car.ground_factor * STEP_S, 2 * car.ground_factor * STEP_S])
+    assert out[2, 2] > 0.0  # the 30° command of row 0 acts in step 3
+
+
+def test_front_point_is_the_model_point():
+    out = rollout({"x": 1.0, "y": 2.0, "heading": 90.0, "speed": 1.0, "steering_angle": 0.0}, [[0.0, 1.0]],
+                  car=car_params(delay_steps=0.0, ground_factor=1.0, speed_tau_s=0.0))
+    assert out[0] == pytest.approx([1.0, 2.0 + STEP_S, 90.0])
+    assert MODEL_POINT_AHEAD_M == 0.14
+
+
+def test_step_jitter_is_seeded_and_measured():
+    rng = np.random.default_rng(0)
+    d = step_lengths(rng, 200_000, "droa")
+    lo, hi = STEP_LENGTHS["droa"][0], STEP_LENGTHS["droa"][-1]
+    assert lo <= d.min() and d.max() <= hi
+    assert d.mean() == pytest.approx(STEP_S, rel=2e-3)  # the table is scaled to a 1/15 s mean
+    a = Simulator("lab_oval", 4, car_params(step_jitter=True), seed=5)
+    b = Simulator("lab_oval", 4, car_params(step_jitter=True), seed=5)
+    c = Simulator("lab_oval", 4, car_params(step_jitter=False), seed=5)
+    for _ in range(12):
+        for sim in (a, b, c):
+            sim.step(0.0, 1.5)
+    assert np.array_equal(a.pose, b.pose)
+    assert not np.allclose(a.pose, c.pose)
+    assert len(set(np.round(a.state.progress, 9))) > 1  # cars draw their own steps
+
+
+def test_world_takes_the_simulator_and_the_model_version():
+    w = World("lab_oval", 1, {"action_space_type": "continuous", "version": "4",
+                              "action_space": {"steering_angle": {"low": -30, "high": 30},
+                                               "speed": {"low": 0.5, "high": 2}}}, car="console")
+    assert w.sim.car_params.name.startswith("console, effort")
+    assert World("lab_oval", 1).sim.car_params.simulator == "droa"
+    assert World("lab_oval", 1, car={"simulator": "console", "yaw_gain": 0.5}).sim.car_params.yaw_gain == 0.5
