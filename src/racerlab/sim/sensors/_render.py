@@ -9,11 +9,19 @@ curve, a brightness gradient and noise follow. Output is truncated to uint8 as A
 
 Argument groups (tuples, so the signature stays readable; the kernel unpacks them once, and its
 helpers are inlined, because every array passed to a compiled call costs reference counting):
-- plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az
+- plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az,
+  sub_fine (the fine grain's strength per ground line), edge_dir (H + 1, W, 3) rays through the rows' edges
 - raster: grey, ground, center (flat uint8 pyramids), off, stride, wmax, hmax, inv_cell, x0, y0
 - lit: plain, coef, tone, light, noise_amp, noise, noise_off
 - solids: pose (B, P, 3), dims (P, 4), grey (B, P), camera (cam_z, focal, cos pitch, sin pitch) — the objects
   each car sees (`racerlab.sim.sensors.solids`), drawn over the ground and sky where a pixel's ray meets one
+- world: walls (bool), their box (x min, y min, x max, y max), height; the fine grain tile, its values per
+  level-0 texel, its strength over grey (257,); the rounding bias added before the cast to uint8 (0: truncation
+  as AWS's camera filter, 0.5: rounding as the PIL conversion of its stereo pair)
+
+With walls (the AWS look) each image row's top and bottom edges are intersected with the walls column by column:
+a pixel shows the ground, the wall and the sky above it by the share of its height that sees each. Rows whose
+pixels all see the wall are not sampled on the ground; below the lowest wall base no intersection is done.
 """
 
 from __future__ import annotations
@@ -40,12 +48,6 @@ def _bilinear(data, base, stride, ax, ay):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _lit(g, gf, cf, base, stride, ax, ay, kn, kg, kc):
-    return kn * _bilinear(g, base, stride, ax, ay) + kg * _bilinear(gf, base, stride, ax, ay) \
-        + kc * _bilinear(cf, base, stride, ax, ay)
-
-
-@njit(cache=True, fastmath=True, inline="always")
 def _grey_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n):
     """dst[k] += wt · bilinear grey at texel coordinates (fx + k·sx, fy + k·sy) of one level, k < n."""
     x = fx
@@ -69,22 +71,56 @@ def _grey_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, kn, kg, kc, dst, n):
-    """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (kn, kg, kc)."""
-    x = fx
-    y = fy
+def _sharp(a):
+    """A texel fraction eased at both ends (smoothstep): where texels span several pixels (the rows that get the fine
+    grain), paint edges stay as sharp as the raster's anti-aliasing made them instead of ramping over the texel."""
+    return a * a * (np.float32(3.0) - np.float32(2.0) * a)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _texel(x, y, clamp, wm, hm, sharp):
+    """Texel column, row and the fractions within it (eased with `sharp`) of a read at texel coordinates (x, y)."""
+    if clamp:
+        x = min(max(x, np.float32(0.0)), wm)
+        y = min(max(y, np.float32(0.0)), hm)
+    ix = np.int32(x)
+    iy = np.int32(y)
+    ax = x - np.float32(ix)
+    ay = y - np.float32(iy)
+    if sharp:
+        ax = _sharp(ax)
+        ay = _sharp(ay)
+    return ix, iy, ax, ay
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _grainy_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n, fine, ratio, gain, amp):
+    """As `_grey_samples`, plus the fine grain: gain · amp[grey] · the tile's value under the sample."""
+    mask = fine.shape[0] - 1
     for k in range(n):
-        cx = x
-        cy = y
-        if clamp:
-            cx = min(max(x, np.float32(0.0)), wm)
-            cy = min(max(y, np.float32(0.0)), hm)
-        ix = np.int32(cx)
-        iy = np.int32(cy)
-        dst[k] += wt * _lit(grey, gfrac, cfrac, o + iy * stride + ix, stride, cx - np.float32(ix),
-                            cy - np.float32(iy), kn, kg, kc)
-        x += sx
-        y += sy
+        x = fx + k * sx
+        y = fy + k * sy
+        ix, iy, ax, ay = _texel(x, y, clamp, wm, hm, True)
+        v = _bilinear(grey, o + iy * stride + ix, stride, ax, ay)
+        dst[k] += wt * (v + gain * amp[np.int32(v)] * fine[np.int32(y * ratio) & mask, np.int32(x * ratio) & mask])
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, kn, kg, kc, dst, n, fine, ratio,
+                 gain, amp):
+    """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (kn, kg, kc), and the
+    fine grain (`_grainy_samples`) where `gain` > 0."""
+    mask = fine.shape[0] - 1
+    for k in range(n):
+        x = fx + k * sx
+        y = fy + k * sy
+        ix, iy, ax, ay = _texel(x, y, clamp, wm, hm, gain > 0.0)
+        base = o + iy * stride + ix
+        v = _bilinear(grey, base, stride, ax, ay)
+        if gain > 0.0:
+            v += gain * amp[np.int32(v)] * fine[np.int32(y * ratio) & mask, np.int32(x * ratio) & mask]
+        dst[k] += wt * (kn * v + kg * _bilinear(gfrac, base, stride, ax, ay) + kc * _bilinear(cfrac, base, stride,
+                                                                                               ax, ay))
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -114,16 +150,16 @@ def _sky_row(pano, el_row, az_row, yaw_bins, share, acc):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_plain(acc, dst):
+def _finish_plain(acc, bias, dst):
     lo = np.float32(0.0)
     hi = np.float32(255.0)
     for col in range(acc.shape[0]):
-        dst[col] = np.uint8(np.int32(min(max(acc[col], lo), hi)))
+        dst[col] = np.uint8(np.int32(min(max(acc[col] + bias, lo), hi)))
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, dst):
-    """Tone curve, brightness gradient and noise, then truncation to uint8 into dst."""
+def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, bias, dst):
+    """Tone curve, brightness gradient and noise, then truncation (after adding `bias`) to uint8 into dst."""
     w = acc.shape[0]
     gv = gain + grad_v * (2.0 * r / height - 1.0)
     gu = grad_u * 2.0 / w
@@ -131,23 +167,107 @@ def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, ds
         v = min(max(acc[col], 0.0), 254.999)
         lo = int(v)
         t = tone[lo] + (v - lo) * (tone[lo + 1] - tone[lo])
-        t = t * (gv + gu * (col - 0.5 * w)) + amp * noise[base + col]
+        t = t * (gv + gu * (col - 0.5 * w)) + amp * noise[base + col] + bias
         dst[col] = np.uint8(min(max(t, 0.0), 255.0))
 
 
+@njit(cache=True, fastmath=True, inline="always")
+def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
+    """out[col]: the height at which each ray of one image-row edge (car frame, `rays` (W, 3)) meets the walls
+    `box` (x min, y min, x max, y max) around the eye at (ex, ey, cam_z) looking along (c, s): below 0 where the
+    ray meets the ground first, above the wall's height where it passes over."""
+    for col in range(out.shape[0]):
+        fx = rays[col, 0]
+        fy = rays[col, 1]
+        dx = c * fx - s * fy
+        dy = s * fx + c * fy
+        tx = FAR
+        ty = FAR
+        if dx > 1e-9:
+            tx = (box[2] - ex) / dx
+        elif dx < -1e-9:
+            tx = (box[0] - ex) / dx
+        if dy > 1e-9:
+            ty = (box[3] - ey) / dy
+        elif dy < -1e-9:
+            ty = (box[1] - ey) / dy
+        out[col] = cam_z + max(min(tx, ty), 0.0) * rays[col, 2]
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _blend_walls(acc, z_top, z_bot, height, wall, sky):
+    """acc[col] = its ground grey, the wall's and the sky's, each by the share of the pixel's height that sees it
+    (the height at the walls taken linear between the pixel's top and bottom edges)."""
+    for col in range(acc.shape[0]):
+        zt = z_top[col]
+        zb = z_bot[col]
+        span = max(zt - zb, 1e-9)
+        ground = min(max(-zb / span, 0.0), 1.0)
+        above = min(max((zt - height) / span, 0.0), 1.0)
+        acc[col] = acc[col] * ground + sky * above + wall * max(1.0 - ground - above, 0.0)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _ground(j0, j1, ex, ey, c, s, plain, kn, kg, kc, plan, raster, world, acc, tmp):
+    """acc[col] += the ground lines j0..j1 of one image row (their share of each pixel), seen from the eye at
+    (ex, ey) looking along (c, s): every step-th column read from the raster, the others interpolated."""
+    sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sub_fine = plan[3:9] + plan[11:12]
+    grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
+    fine, fine_ratio, fine_amp = world[3:6]
+    width = acc.shape[0]
+    step = sub_step[j0] if j1 > j0 else 1
+    n = width if step == 1 else width // step + 1
+    dst = acc if step == 1 else tmp
+    if step > 1:
+        dst[:n] = 0.0
+    for j in range(j0, j1):
+        # the ground line in texel coordinates of its level
+        lv = sub_level[j]
+        ic = inv_cell[lv]
+        fx0 = (ex + c * sub_x[j] - s * sub_y0[j] - x0) * ic - 0.5
+        fy0 = (ey + s * sub_x[j] + c * sub_y0[j] - y0) * ic - 0.5
+        sd = sub_dy[j] * ic * step
+        sx = -s * sd
+        sy = c * sd
+        wm = wmax[lv]
+        hm = hmax[lv]
+        fx1 = fx0 + (n - 1) * sx
+        fy1 = fy0 + (n - 1) * sy
+        clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0 and max(fy0, fy1) <= hm)
+        gain = np.float32(sub_fine[j])
+        if not plain:
+            _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
+                         np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]),
+                         kn, kg, kc, dst, n, fine, np.float32(fine_ratio), gain, fine_amp)
+        elif gain > 0.0:
+            _grainy_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
+                            np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]), dst, n, fine,
+                            np.float32(fine_ratio), gain, fine_amp)
+        else:
+            _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
+                          np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]), dst, n)
+    if step > 1 and j1 > j0:
+        _spread(tmp, step, acc)
+
+
 @njit(cache=True, fastmath=True)
-def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids, out):
+def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids, world, out):
     """Render cars `cars` into out[car, H, W, eye] (uint8) from base poses (x, y, yaw per car).
 
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
     """
-    row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az = plan
-    grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
+    row_first, row_haze, row_sky = plan[0:3]
+    sky_el, sky_az = plan[9:11]
+    edge_dir = plan[12]
     plain, coef, tone, light, noise_amp, noise, noise_off = lit
     spose, sdims, sgrey, cam = solids
+    walls, box, wall_h = world[0:3]
+    bias = world[6]
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
+    z_top = np.empty(width)
+    z_bot = np.empty(width)
     m = sgrey.shape[1]
     bounds = np.empty((m, 4), dtype=np.int64)
     seen = np.empty(m, dtype=np.int64)
@@ -156,6 +276,7 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
     zbuf = np.empty(width)
     val = np.empty(width)
     nb = pano.shape[1] - 1
+    cam_z = cam[0]
     for k in range(cars.shape[0]):
         i = cars[k]
         c = math.cos(pose_yaw[i])
@@ -170,49 +291,34 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
             ey = pose_y[i] + s * eyes[eye, 0] + c * eyes[eye, 1]
             nseen = _see_objects(i, ex, ey, c, s, pose_yaw[i], spose, sdims, sgrey, cam, coef[i, 0], coef[i, 3],
                                  width, height, bounds, seen, shades, local)
+            in_walls = walls
+            if walls:
+                _wall_z(edge_dir[0], c, s, ex, ey, cam_z, box, z_bot)
             for r in range(height):
+                ground = True
+                if in_walls:
+                    z_top[:] = z_bot
+                    _wall_z(edge_dir[r + 1], c, s, ex, ey, cam_z, box, z_bot)
+                    if z_top.max() <= 0.0:
+                        in_walls = False  # this row and every row below see only the ground
+                    ground = z_bot.min() < 0.0
                 acc[:] = row_haze[r] * coef[i, 3]
-                if row_sky[r] > 0.0:
+                if row_sky[r] > 0.0 and not walls:
                     _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
                 j0 = row_first[r]
-                j1 = row_first[r + 1]
-                step = sub_step[j0] if j1 > j0 else 1
-                n = width if step == 1 else width // step + 1
-                dst = acc if step == 1 else tmp
-                if step > 1:
-                    dst[:n] = 0.0
-                for j in range(j0, j1):
-                    # the ground line in texel coordinates of its level
-                    lv = sub_level[j]
-                    ic = inv_cell[lv]
-                    fx0 = (ex + c * sub_x[j] - s * sub_y0[j] - x0) * ic - 0.5
-                    fy0 = (ey + s * sub_x[j] + c * sub_y0[j] - y0) * ic - 0.5
-                    sd = sub_dy[j] * ic * step
-                    sx = -s * sd
-                    sy = c * sd
-                    wm = wmax[lv]
-                    hm = hmax[lv]
-                    fx1 = fx0 + (n - 1) * sx
-                    fy1 = fy0 + (n - 1) * sy
-                    clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0
-                                 and max(fy0, fy1) <= hm)
-                    if plain[i]:
-                        _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
-                                      np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy),
-                                      np.float32(sub_weight[j]), dst, n)
-                    else:
-                        _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
-                                     np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy),
-                                     np.float32(sub_weight[j]), kn, kg, kc, dst, n)
-                if step > 1 and j1 > j0:
-                    _spread(tmp, step, acc)
+                _ground(j0, row_first[r + 1] if ground else j0, ex, ey, c, s, plain[i], kn, kg, kc, plan, raster, world,
+                        acc, tmp)
+                if in_walls:
+                    if 0.0 < row_sky[r] < 1.0:
+                        acc *= np.float32(1.0 / (1.0 - row_sky[r]))  # the ground lines cover only the part below
+                    _blend_walls(acc, z_top, z_bot, wall_h, coef[i, 5], coef[i, 6])
                 if nseen:
                     _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, height, zbuf, val, acc)
                 if plain[i]:
-                    _finish_plain(acc, out[i, r, :, eye])
+                    _finish_plain(acc, bias, out[i, r, :, eye])
                 else:
                     _finish_lit(acc, r, height, tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
-                                noise_off[i, eye] + r * width, out[i, r, :, eye])
+                                noise_off[i, eye] + r * width, bias, out[i, r, :, eye])
 
 
 @njit(cache=True, fastmath=True)

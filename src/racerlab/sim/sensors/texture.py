@@ -30,6 +30,10 @@ RASTER_CELL_M = 0.005  # paint raster, level 0
 BORDER_REACH_M = 0.25  # |e| is exact up to this distance from a border, clamped beyond
 FAR_M = 10.0  # `d` of cells no centre segment reached
 MAX_LEVELS = 9  # 5 mm ... 1.28 m
+BLOTCH_TEXELS = 6  # the grain's blotches: noise on a 3 cm grid
+COARSE_SHARE = 0.5  # the texel noise's share of the fine grain (a 5 mm texel averages the finer grain)
+FINE_CELL_M = RASTER_CELL_M / 4  # the fine grain tile: 1.25 mm per value, 512 values (0.64 m) before it repeats
+FINE_TILE = 512
 
 
 @njit(cache=True, inline="always")
@@ -250,7 +254,13 @@ class TrackRaster:
         g = self.look.grey()
         road, line, cen = frac[..., 0], frac[..., 1], frac[..., 2]
         bare = np.maximum(road - line - cen, 0.0)
-        grey = g[GROUND] * (1.0 - road) + g[ROAD] * bare + g[LINE] * line + g[CENTER] * cen
+        parts = ((GROUND, 1.0 - road, 3), (ROAD, bare, 0), (LINE, line, 1), (CENTER, cen, 2))
+        grain = coarse_grain(h, w, self.look) if self.look.grainy else None
+        grey = np.zeros((h, w))
+        for m, share, k in parts:
+            tone = g[m] if grain is None else g[m] * (1.0 + self.look.grain_blotch[k] * grain[0]
+                                                      + COARSE_SHARE * self.look.grain_fine[k] * grain[1])
+            grey += share * tone
         # kept as bytes until domain randomization asks for their pyramids
         self._ground0 = np.rint(255.0 * (1.0 - road)).astype(np.uint8)
         self._center0 = np.rint(255.0 * cen).astype(np.uint8)
@@ -277,6 +287,25 @@ class TrackRaster:
     def nbytes(self) -> int:
         extra = sum(p.data.nbytes for p in self._fractions) if self._fractions else 0
         return int(self.grey.data.nbytes + extra)
+
+
+def coarse_grain(h: int, w: int, look: TrackLook) -> tuple[np.ndarray, np.ndarray]:
+    """Two (h, w) float32 fields of unit standard deviation over the raster's texels: blotches (noise on a grid of
+    BLOTCH_TEXELS, interpolated) and texel noise. Seeded by the look, so a track always has the same grain."""
+    from scipy.ndimage import zoom
+
+    rng = np.random.default_rng(look.grain_seed)
+    coarse = rng.standard_normal((h // BLOTCH_TEXELS + 2, w // BLOTCH_TEXELS + 2)).astype(np.float32)
+    blotch = zoom(coarse, BLOTCH_TEXELS, order=1)[:h, :w]
+    blotch /= max(float(blotch.std()), 1e-6)
+    return blotch, rng.standard_normal((h, w), dtype=np.float32)
+
+
+def fine_grain(look: TrackLook) -> np.ndarray:
+    """(FINE_TILE, FINE_TILE) float32 unit noise: the grain finer than a raster texel, tiled over the ground at
+    FINE_CELL_M per value (the renderer adds it where a pixel sees less than a texel)."""
+    rng = np.random.default_rng([look.grain_seed, 1])
+    return rng.standard_normal((FINE_TILE, FINE_TILE), dtype=np.float32)
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
