@@ -11,7 +11,8 @@ either side of the centre line, heading within ±30° of the track's) and prints
   grey-level histograms of the real frames and of racerlab's: the whole frame, the top 20 rows (what lies
   beyond the track), the bottom third (the road just ahead). 0 = the same distribution of greys;
 - `grain`: the asphalt grain, the median |difference between horizontal neighbours| in the bottom third, over
-  pairs of pixels both below the white level (200), for the real frames and for racerlab's;
+  pairs of pixels both below the white level (200), for the real frames and for racerlab's (`grain_mean`: their
+  mean, which moves in finer steps than the median of whole grey levels);
 - `region_means`: mean grey of each region, real and racerlab, to see which way a distance goes.
 
 `matched` gives the same measures between each distinct real frame and the racerlab frame most like it, picked
@@ -75,12 +76,12 @@ def wasserstein(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.abs(ca - cb).sum())
 
 
-def grain(frames: np.ndarray) -> float:
-    """Median |horizontal neighbour difference| in the bottom third, over pairs both darker than WHITE."""
+def grain(frames: np.ndarray, stat=np.median) -> float:
+    """Median (or `stat`) |horizontal neighbour difference| in the bottom third, over pairs both darker than WHITE."""
     bottom = frames[:, frames.shape[1] - frames.shape[1] // 3:].astype(np.int16)
     left, right = bottom[:, :, :-1], bottom[:, :, 1:]
     keep = (left < WHITE) & (right < WHITE)
-    return float(np.median(np.abs(right - left)[keep])) if keep.any() else float("nan")
+    return round(float(stat(np.abs(right - left)[keep])), 2) if keep.any() else float("nan")
 
 
 def random_poses(track, n: int, rng, yaw_deg: float = YAW_DEG) -> np.ndarray:
@@ -106,7 +107,8 @@ def measure(real: np.ndarray, ours: np.ndarray) -> dict:
     r, o = regions(real), regions(ours)
     return {"wasserstein": {k: round(wasserstein(r[k], o[k]), 1) for k in r},
             "region_means": {k: [round(float(r[k].mean()), 1), round(float(o[k].mean()), 1)] for k in r},
-            "grain": {"real": grain(real), "racerlab": grain(ours)}}
+            "grain": {"real": grain(real), "racerlab": grain(ours)},
+            "grain_mean": {"real": grain(real, np.mean), "racerlab": grain(ours, np.mean)}}
 
 
 def distinct(frames: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

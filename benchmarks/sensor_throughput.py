@@ -22,7 +22,9 @@ Each rate is the best of several short trials (the machine may be shared; the be
 idle core), with the median alongside. The process is pinned to one core; `load_avg` is the 1-minute load
 average at the end, for judging how busy the machine was.
 
-Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--only objects|bots]
+`--only camera` stops after the camera and stereo renders.
+
+Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--only camera|objects|bots]
 """
 
 from __future__ import annotations
@@ -180,8 +182,9 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--track", default="lab_technical")
     ap.add_argument("--seconds", type=float, default=3.0)
-    ap.add_argument("--only", choices=["objects", "bots"],
-                    help="only the objects-vs-time-trial (6 boxes) or bots-vs-time-trial (head-to-bot) comparison")
+    ap.add_argument("--only", choices=["camera", "objects", "bots"],
+                    help="only the camera and stereo renders, or the objects-vs-time-trial (6 boxes) or "
+                         "bots-vs-time-trial (head-to-bot) comparison")
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
@@ -204,6 +207,8 @@ def main():
             emit(line)
     best, med = camera_render(args.track, 64, "stereo", sec)
     emit({"bench": "stereo_render", "cars": 64, "frames_per_s": round(best), "median": round(med)})
+    if args.only == "camera":
+        return
     best, med = env_rate(args.track, 64, "camera", sec)
     emit({"bench": "camera_env", "cars": 64, "car_steps_per_s": round(best), "median": round(med)})
     for label, obs, boxes in (("aws", "lidar", 0), ("walls", "lidar:walls", 0), ("6_boxes", "lidar", 6)):

@@ -34,6 +34,7 @@ from numba import njit
 from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, object_bounds, trace_row
 
 TWO_PI = 2.0 * math.pi
+WALL_STEP = 4  # columns between the rays intersected with the walls
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -71,56 +72,42 @@ def _grey_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _sharp(a):
-    """A texel fraction eased at both ends (smoothstep): where texels span several pixels (the rows that get the fine
-    grain), paint edges stay as sharp as the raster's anti-aliasing made them instead of ramping over the texel."""
-    return a * a * (np.float32(3.0) - np.float32(2.0) * a)
-
-
-@njit(cache=True, fastmath=True, inline="always")
-def _texel(x, y, clamp, wm, hm, sharp):
-    """Texel column, row and the fractions within it (eased with `sharp`) of a read at texel coordinates (x, y)."""
-    if clamp:
-        x = min(max(x, np.float32(0.0)), wm)
-        y = min(max(y, np.float32(0.0)), hm)
-    ix = np.int32(x)
-    iy = np.int32(y)
-    ax = x - np.float32(ix)
-    ay = y - np.float32(iy)
-    if sharp:
-        ax = _sharp(ax)
-        ay = _sharp(ay)
-    return ix, iy, ax, ay
-
-
-@njit(cache=True, fastmath=True, inline="always")
-def _grainy_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n, fine, ratio, gain, amp):
-    """As `_grey_samples`, plus the fine grain: gain · amp[grey] · the tile's value under the sample."""
-    mask = fine.shape[0] - 1
+def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, kn, kg, kc, dst, n):
+    """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (kn, kg, kc)."""
     for k in range(n):
         x = fx + k * sx
         y = fy + k * sy
-        ix, iy, ax, ay = _texel(x, y, clamp, wm, hm, True)
-        v = _bilinear(grey, o + iy * stride + ix, stride, ax, ay)
-        dst[k] += wt * (v + gain * amp[np.int32(v)] * fine[np.int32(y * ratio) & mask, np.int32(x * ratio) & mask])
-
-
-@njit(cache=True, fastmath=True, inline="always")
-def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, kn, kg, kc, dst, n, fine, ratio,
-                 gain, amp):
-    """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (kn, kg, kc), and the
-    fine grain (`_grainy_samples`) where `gain` > 0."""
-    mask = fine.shape[0] - 1
-    for k in range(n):
-        x = fx + k * sx
-        y = fy + k * sy
-        ix, iy, ax, ay = _texel(x, y, clamp, wm, hm, gain > 0.0)
+        if clamp:
+            x = min(max(x, np.float32(0.0)), wm)
+            y = min(max(y, np.float32(0.0)), hm)
+        ix = np.int32(x)
+        iy = np.int32(y)
+        ax = x - np.float32(ix)
+        ay = y - np.float32(iy)
         base = o + iy * stride + ix
-        v = _bilinear(grey, base, stride, ax, ay)
-        if gain > 0.0:
-            v += gain * amp[np.int32(v)] * fine[np.int32(y * ratio) & mask, np.int32(x * ratio) & mask]
-        dst[k] += wt * (kn * v + kg * _bilinear(gfrac, base, stride, ax, ay) + kc * _bilinear(cfrac, base, stride,
-                                                                                               ax, ay))
+        dst[k] += wt * (kn * _bilinear(grey, base, stride, ax, ay) + kg * _bilinear(gfrac, base, stride, ax, ay)
+                        + kc * _bilinear(cfrac, base, stride, ax, ay))
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _fine_grain(acc, fx, fy, sx, sy, gain, fine, amp):
+    """acc[col] += gain · amp[acc[col]] · the fine tile's value under the pixel, the tile coordinates of column 0
+    being (fx, fy) and stepping by (sx, sy) per column (in 16.16 fixed point, the cheapest way to wrap them).
+    `fine` is the square tile flattened, its side a power of two."""
+    side = np.int64(round(math.sqrt(fine.shape[0])))
+    mask = side - 1
+    bits = np.int64(round(math.log2(side)))
+    gx = np.int64((fx + 1048576.0) * 65536.0)
+    gy = np.int64((fy + 1048576.0) * 65536.0)
+    dgx = np.int64(sx * 65536.0)
+    dgy = np.int64(sy * 65536.0)
+    top = np.float32(255.0)
+    for col in range(acc.shape[0]):
+        v = acc[col]
+        t = fine[(((gy >> 16) & mask) << bits) | ((gx >> 16) & mask)]
+        acc[col] = v + gain * amp[np.int32(min(max(v, np.float32(0.0)), top))] * np.float32(t)
+        gx += dgx
+        gy += dgy
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -175,10 +162,13 @@ def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, bi
 def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
     """out[col]: the height at which each ray of one image-row edge (car frame, `rays` (W, 3)) meets the walls
     `box` (x min, y min, x max, y max) around the eye at (ex, ey, cam_z) looking along (c, s): below 0 where the
-    ray meets the ground first, above the wall's height where it passes over."""
-    for col in range(out.shape[0]):
-        fx = rays[col, 0]
-        fy = rays[col, 1]
+    ray meets the ground first, above the wall's height where it passes over. Worked out every WALL_STEP columns
+    and interpolated between (the heights change smoothly along a row, but at a corner of the walls)."""
+    w = out.shape[0]
+    for col in range(0, w + WALL_STEP - 1, WALL_STEP):
+        q = min(col, w - 1)
+        fx = rays[q, 0]
+        fy = rays[q, 1]
         dx = c * fx - s * fy
         dy = s * fx + c * fy
         tx = FAR
@@ -191,7 +181,12 @@ def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
             ty = (box[3] - ey) / dy
         elif dy < -1e-9:
             ty = (box[1] - ey) / dy
-        out[col] = cam_z + max(min(tx, ty), 0.0) * rays[col, 2]
+        out[q] = cam_z + max(min(tx, ty), 0.0) * rays[q, 2]
+        if q > 0:
+            p = q - (q - 1) % WALL_STEP - 1  # the last column worked out
+            d = (out[q] - out[p]) / (q - p)
+            for k in range(p + 1, q):
+                out[k] = out[p] + (k - p) * d
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -234,20 +229,21 @@ def _ground(j0, j1, ex, ey, c, s, plain, kn, kg, kc, plan, raster, world, acc, t
         fx1 = fx0 + (n - 1) * sx
         fy1 = fy0 + (n - 1) * sy
         clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0 and max(fy0, fy1) <= hm)
-        gain = np.float32(sub_fine[j])
         if not plain:
             _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
                          np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]),
-                         kn, kg, kc, dst, n, fine, np.float32(fine_ratio), gain, fine_amp)
-        elif gain > 0.0:
-            _grainy_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
-                            np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]), dst, n, fine,
-                            np.float32(fine_ratio), gain, fine_amp)
+                         kn, kg, kc, dst, n)
         else:
             _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
                           np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]), dst, n)
     if step > 1 and j1 > j0:
         _spread(tmp, step, acc)
+    if j1 > j0 and sub_fine[j0] > 0.0:
+        # the fine grain, on the rows that read the finest level (one ground line each), added per column
+        ic = inv_cell[0] * fine_ratio
+        gx = (ex + c * sub_x[j0] - s * sub_y0[j0] - x0) * ic
+        gy = (ey + s * sub_x[j0] + c * sub_y0[j0] - y0) * ic
+        _fine_grain(acc, gx, gy, -s * sub_dy[j0] * ic, c * sub_dy[j0] * ic, np.float32(sub_fine[j0]), fine, fine_amp)
 
 
 @njit(cache=True, fastmath=True)

@@ -31,7 +31,7 @@ from racerlab.sim.sensors.geometry import (
 )
 from racerlab.sim.sensors.look import DomainRandomization, Lighting, TrackLook
 from racerlab.sim.sensors.solids import Solids
-from racerlab.sim.sensors.texture import FINE_CELL_M, fine_grain, track_raster
+from racerlab.sim.sensors.texture import FINE_CELL_M, FINE_SCALE, fine_grain, track_raster
 
 NOISE_TILES = 4  # the noise tile holds this many frames' worth of values; each frame starts at a random offset
 NOISE_SEED = 15
@@ -77,8 +77,8 @@ class Camera:
         look = self.look
         box = np.array(look.wall_box(self.sim.track) if look.walls else (0.0, 0.0, 0.0, 0.0))
         grainy = look.grainy
-        fine = fine_grain(look) if grainy else np.zeros((1, 1), dtype=np.float32)
-        amp = look.fine_grain_table() if grainy else np.zeros(257, dtype=np.float32)
+        fine = (fine_grain(look) if grainy else np.zeros((1, 1), dtype=np.int8)).ravel()
+        amp = look.fine_grain_table() * np.float32(FINE_SCALE) if grainy else np.zeros(257, dtype=np.float32)
         # AWS's camera filter truncates its float grey; the stereo pair goes through PIL's convert('L'), which rounds
         return (look.walls, box, float(look.wall_height_m), fine, self.raster.cell / FINE_CELL_M, amp,
                 0.5 if stereo else 0.0)

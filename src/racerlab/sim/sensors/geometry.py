@@ -41,6 +41,7 @@ ANISOTROPY = 4.0  # a sample may stretch this much more along the view than acro
 MAX_SUBROWS = 3
 LEVEL_BIAS = -0.5  # + blurrier, - sharper (more shimmer): the raster level is floor(log2(footprint / texel) + bias)
 COLUMN_STEP_TEXELS = 0.75  # read every 2nd / 4th column where that many columns span less than this
+FINE_MIN_GAIN = 0.25  # the fine grain is left out of rows that would show less than this share of it
 SKY_EL_STEP_RAD = math.radians(0.25)
 SKY_AZ_BINS = 1024
 
@@ -194,8 +195,7 @@ class RowPlan:
                 float(np.clip((x - self.haze_m[0]) / (self.haze_m[1] - self.haze_m[0]), 0.0, 1.0)) ** 0.7
             y0 = dy * (0.5 - 0.5 * m.width)
             texels = abs(dy) / (cell_m * 2.0 ** level)
-            step = 1 if self.fine_cell_m > 0.0 else 4 if 4 * texels <= COLUMN_STEP_TEXELS else \
-                2 if 2 * texels <= COLUMN_STEP_TEXELS else 1
+            step = 4 if 4 * texels <= COLUMN_STEP_TEXELS else 2 if 2 * texels <= COLUMN_STEP_TEXELS else 1
             subs.append((r, x, y0, dy, level, step, share / n * (1.0 - fade)))
             haze += share / n * fade
         return haze
@@ -203,14 +203,16 @@ class RowPlan:
     def _fine_gains(self) -> None:
         """`sub_fine`: how much of the fine grain (values `fine_cell_m` apart on the ground) each ground line shows.
         A pixel averages the grain over its footprint, which leaves 1 / sqrt(values covered) of it; lines read
-        from coarser raster levels show none (their texels already average it)."""
+        from coarser raster levels, or that would keep under FINE_MIN_GAIN of it, show none (the raster's texel
+        noise stands in for it there, at no cost)."""
         self.sub_fine = np.zeros(self.sub_x.size)
         if self.fine_cell_m <= 0.0:
             return
         for j, r in enumerate(self.sub_row):
             if self.sub_level[j] == 0:
                 across, along = self.footprint(int(r))
-                self.sub_fine[j] = min(1.0, self.fine_cell_m / math.sqrt(across * along))
+                gain = min(1.0, self.fine_cell_m / math.sqrt(across * along))
+                self.sub_fine[j] = gain if gain >= FINE_MIN_GAIN else 0.0
 
     def footprint(self, r: int) -> tuple[float, float]:
         """Ground footprint of a pixel of image row r (below the horizon): across (filter width) and along, m."""

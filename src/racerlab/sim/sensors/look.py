@@ -74,7 +74,7 @@ class TrackLook:
     line: tuple = (254.0, 254.0, 254.0)
     center: tuple = _tint(CENTER_HUE, 190.0)
     ground: tuple = _tint(FIELD_HUE, 166.0)
-    sky: tuple = (178.5, 178.5, 178.5)  # Gazebo's default background, 0.7 grey, above the walls
+    sky: tuple = (179, 179, 179)  # Gazebo's default background, 0.7 grey (178.5, a uint8 179), above the walls
     skyline: tuple = (84, 90, 96)
     haze: tuple = (165, 175, 180)
     wall: tuple = _tint(WALL_HUE, 84.0)
@@ -92,8 +92,8 @@ class TrackLook:
     haze_m: tuple | None = None
     # grain, as a fraction of each material's grey (road, line, centre, ground): the fine part's standard
     # deviation at the pixel scale of the nearest rows, the blotchy part's over a few centimetres
-    grain_fine: tuple = (0.05, 0.0, 0.02, 0.17)
-    grain_blotch: tuple = (0.035, 0.0, 0.01, 0.04)
+    grain_fine: tuple = (0.06, 0.0, 0.02, 0.17)
+    grain_blotch: tuple = (0.045, 0.0, 0.01, 0.04)
     grain_seed: int = 2019
 
     def colors(self) -> np.ndarray:
