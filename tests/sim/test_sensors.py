@@ -399,6 +399,21 @@ def test_domain_randomization_changes_the_look_per_episode(aws_track):
     assert np.array_equal(plain.render()[1:], Camera(sim).render()[1:])
 
 
+def test_domain_randomization_is_centred_on_the_default_look(aws_track):
+    """Over many draws, the randomized frames' greys average to the default look's, region by region (the white
+    lines' extra light clipped at 255 takes a few grey levels off); each draw differs."""
+    t = aws_track("reinvent_base")
+    sim = Simulator(t, 256, seed=2)
+    s = np.random.default_rng(0).uniform(0.0, t.length, 256)
+    for i, (x, y) in enumerate(t.point_at(s)):
+        sim.set_pose(i, x, y, float(t.heading_at(s[i])))
+    plain = Camera(sim).render()[..., 0].astype(float)
+    dr = Camera(sim, randomization=DomainRandomization()).render()[..., 0].astype(float)
+    for rows in (slice(0, 20), slice(20, 80), slice(80, 120)):
+        assert dr[:, rows].mean() == pytest.approx(plain[:, rows].mean(), abs=4.0)
+    assert (dr.mean(axis=(1, 2)) - plain.mean(axis=(1, 2))).std() > 5  # each car its own light
+
+
 def test_partial_update_renders_only_the_given_rows(aws_track):
     sim = Simulator(aws_track("reInvent2019_track"), 4, seed=0)
     obs = build_observation("camera+lidar", sim)

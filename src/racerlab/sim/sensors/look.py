@@ -182,22 +182,26 @@ class DomainRandomization:
 
     - `brightness`: gain of the light (1 = the default look);
     - `tint`: each RGB channel of the light colour is scaled by a draw from this range (then the
-      colour is normalised to its brightest channel), so materials change grey by their colour;
+      colour is normalised to a neutral grey's gain of 1), so materials change grey by their colour;
     - `contrast`: slope of the tone curve around mid grey; `gamma`: its exponent;
     - `gradient`: the gain changes linearly by up to this fraction from the image centre to its
       left/right and top/bottom edges (a light off to one side);
     - `noise_sigma`: the standard deviation of per-pixel Gaussian noise, grey levels, drawn from
       [0, noise_sigma] per episode; fresh noise every frame.
 
-    The defaults are racerlab's choice (AWS gives lights a uniform random colour and attenuation
-    in [0, 1] but publishes no resulting image statistics); they keep the road darker than the
-    lines in almost every draw, as in AWS's randomized frames.
+    The ranges are racerlab's choice (AWS gives lights a uniform random colour and attenuation
+    in [0, 1] but publishes no resulting image statistics), centred on the default look: brightness
+    and contrast around 1, gamma from 0.8 to 1.2 (which leaves mid greys where they were on average),
+    a tint that keeps a neutral grey's level, a gradient either way. Averaged over draws, a frame's
+    greys are the default look's but for the white lines' light clipped at 255, about 3 grey levels
+    darker over a frame (`tests/sim/test_sensors.py`); the road stays darker than the lines in
+    almost every draw.
     """
 
-    brightness: tuple[float, float] = (0.55, 1.35)
-    tint: tuple[float, float] = (0.55, 1.0)
+    brightness: tuple[float, float] = (0.7, 1.3)
+    tint: tuple[float, float] = (0.6, 1.0)
     contrast: tuple[float, float] = (0.7, 1.3)
-    gamma: tuple[float, float] = (0.75, 1.35)
+    gamma: tuple[float, float] = (0.8, 1.2)
     gradient: float = 0.25
     noise_sigma: float = 6.0
 
@@ -241,7 +245,7 @@ class Lighting:
         if n == 0:
             return None
         tint = rng.uniform(*dr.tint, size=(n, 3))
-        tint /= tint.max(axis=1, keepdims=True)
+        tint /= (tint @ LUMA)[:, None]  # a neutral grey keeps its level: the tint changes colours only
         light_rgb = tint * rng.uniform(*dr.brightness, size=(n, 1))
         cols = look.colors()
         lit = (light_rgb[:, None, :] * cols[None, :, :]) @ LUMA  # (n, materials) grey under that light
