@@ -34,7 +34,7 @@ from numba import njit
 from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, object_bounds, trace_row
 
 TWO_PI = 2.0 * math.pi
-WALL_STEP = 4  # columns between the rays intersected with the walls
+WALL_STEP = 8  # columns between the rays intersected with the walls
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -74,19 +74,23 @@ def _grey_samples(grey, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, dst, n):
 @njit(cache=True, fastmath=True, inline="always")
 def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, wt, kn, kg, kc, dst, n):
     """As `_grey_samples`, with the neutral, ground and centre terms of a coloured light (kn, kg, kc)."""
+    x = fx
+    y = fy
     for k in range(n):
-        x = fx + k * sx
-        y = fy + k * sy
+        cx = x
+        cy = y
         if clamp:
-            x = min(max(x, np.float32(0.0)), wm)
-            y = min(max(y, np.float32(0.0)), hm)
-        ix = np.int32(x)
-        iy = np.int32(y)
-        ax = x - np.float32(ix)
-        ay = y - np.float32(iy)
+            cx = min(max(x, np.float32(0.0)), wm)
+            cy = min(max(y, np.float32(0.0)), hm)
+        ix = np.int32(cx)
+        iy = np.int32(cy)
+        ax = cx - np.float32(ix)
+        ay = cy - np.float32(iy)
         base = o + iy * stride + ix
         dst[k] += wt * (kn * _bilinear(grey, base, stride, ax, ay) + kg * _bilinear(gfrac, base, stride, ax, ay)
                         + kc * _bilinear(cfrac, base, stride, ax, ay))
+        x += sx
+        y += sy
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -159,14 +163,25 @@ def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, bi
 
 
 @njit(cache=True, fastmath=True, inline="always")
+def _finish_row(acc, r, i, eye, plain, tone, light, noise_amp, noise, noise_off, bias, out):
+    """Row r of car i's eye `eye` into `out`: as it is, or through the car's randomized light (`_finish_lit`)."""
+    if plain[i]:
+        _finish_plain(acc, bias, out[i, r, :, eye])
+    else:
+        _finish_lit(acc, r, out.shape[1], tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
+                    noise_off[i, eye] + r * out.shape[2], bias, out[i, r, :, eye])
+
+
+@njit(cache=True, fastmath=True, inline="always")
 def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
-    """out[col]: the height at which each ray of one image-row edge (car frame, `rays` (W, 3)) meets the walls
-    `box` (x min, y min, x max, y max) around the eye at (ex, ey, cam_z) looking along (c, s): below 0 where the
-    ray meets the ground first, above the wall's height where it passes over. Worked out every WALL_STEP columns
-    and interpolated between (the heights change smoothly along a row, but at a corner of the walls)."""
-    w = out.shape[0]
-    for col in range(0, w + WALL_STEP - 1, WALL_STEP):
-        q = min(col, w - 1)
+    """out[k]: the height at which the ray of one image-row edge through column min(k · WALL_STEP, W - 1) (car
+    frame, `rays` (W, 3)) meets the walls `box` (x min, y min, x max, y max) around the eye at (ex, ey, cam_z)
+    looking along (c, s): below 0 where the ray meets the ground first, above the wall's height where it passes
+    over. The columns between are interpolated (`_expand`): the heights change smoothly along a row, but at a
+    corner of the walls."""
+    w = rays.shape[0]
+    for k in range(out.shape[0]):
+        q = min(k * WALL_STEP, w - 1)
         fx = rays[q, 0]
         fy = rays[q, 1]
         dx = c * fx - s * fy
@@ -181,12 +196,21 @@ def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
             ty = (box[3] - ey) / dy
         elif dy < -1e-9:
             ty = (box[1] - ey) / dy
-        out[q] = cam_z + max(min(tx, ty), 0.0) * rays[q, 2]
-        if q > 0:
-            p = q - (q - 1) % WALL_STEP - 1  # the last column worked out
-            d = (out[q] - out[p]) / (q - p)
-            for k in range(p + 1, q):
-                out[k] = out[p] + (k - p) * d
+        out[k] = cam_z + max(min(tx, ty), 0.0) * rays[q, 2]
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _expand(samples, out):
+    """out[col]: `samples` (one every WALL_STEP columns, and the last column) interpolated linearly."""
+    w = out.shape[0]
+    for col in range(w):
+        k = col // WALL_STEP
+        q0 = k * WALL_STEP
+        q1 = min(q0 + WALL_STEP, w - 1)
+        if q1 == q0:
+            out[col] = samples[k]
+        else:
+            out[col] = samples[k] + (samples[k + 1] - samples[k]) * (col - q0) / (q1 - q0)
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -206,9 +230,10 @@ def _blend_walls(acc, z_top, z_bot, height, wall, sky):
 def _ground(j0, j1, ex, ey, c, s, plain, kn, kg, kc, plan, raster, world, acc, tmp):
     """acc[col] += the ground lines j0..j1 of one image row (their share of each pixel), seen from the eye at
     (ex, ey) looking along (c, s): every step-th column read from the raster, the others interpolated."""
-    sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sub_fine = plan[3:9] + plan[11:12]
+    sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sub_fine = (plan[3], plan[4], plan[5], plan[6], plan[7],
+                                                                         plan[8], plan[11])
     grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
-    fine, fine_ratio, fine_amp = world[3:6]
+    fine, fine_ratio, fine_amp = world[3], world[4], world[5]
     width = acc.shape[0]
     step = sub_step[j0] if j1 > j0 else 1
     n = width if step == 1 else width // step + 1
@@ -252,18 +277,19 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
 
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
     """
-    row_first, row_haze, row_sky = plan[0:3]
-    sky_el, sky_az = plan[9:11]
-    edge_dir = plan[12]
+    row_first, row_haze, row_sky, sky_el, sky_az, edge_dir = plan[0], plan[1], plan[2], plan[9], plan[10], plan[12]
     plain, coef, tone, light, noise_amp, noise, noise_off = lit
     spose, sdims, sgrey, cam = solids
-    walls, box, wall_h = world[0:3]
-    bias = world[6]
+    walls, box, wall_h = world[0], world[1], world[2]
+    bias = np.float32(world[6])
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
     z_top = np.empty(width)
     z_bot = np.empty(width)
+    nz = (width - 1 + WALL_STEP - 1) // WALL_STEP + 1
+    zs_top = np.empty(nz)
+    zs_bot = np.empty(nz)
     m = sgrey.shape[1]
     bounds = np.empty((m, 4), dtype=np.int64)
     seen = np.empty(m, dtype=np.int64)
@@ -289,32 +315,39 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
                                  width, height, bounds, seen, shades, local)
             in_walls = walls
             if walls:
-                _wall_z(edge_dir[0], c, s, ex, ey, cam_z, box, z_bot)
+                _wall_z(edge_dir[0], c, s, ex, ey, cam_z, box, zs_bot)
             for r in range(height):
                 ground = True
+                blend = False
+                flat = False
+                hi = 0.0
                 if in_walls:
-                    z_top[:] = z_bot
-                    _wall_z(edge_dir[r + 1], c, s, ex, ey, cam_z, box, z_bot)
-                    if z_top.max() <= 0.0:
-                        in_walls = False  # this row and every row below see only the ground
-                    ground = z_bot.min() < 0.0
-                acc[:] = row_haze[r] * coef[i, 3]
-                if row_sky[r] > 0.0 and not walls:
-                    _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
-                j0 = row_first[r]
-                _ground(j0, row_first[r + 1] if ground else j0, ex, ey, c, s, plain[i], kn, kg, kc, plan, raster, world,
-                        acc, tmp)
-                if in_walls:
+                    zs_top[:] = zs_bot
+                    _wall_z(edge_dir[r + 1], c, s, ex, ey, cam_z, box, zs_bot)
+                    lo = zs_bot.min()
+                    hi = zs_top.max()
+                    in_walls = hi > 0.0  # once every pixel's top edge sees the ground, so do all rows below
+                    ground = lo < 0.0
+                    flat = not ground and (hi <= wall_h or lo >= wall_h)  # all wall, or all sky above it
+                    blend = in_walls and not flat
+                if flat:
+                    acc[:] = coef[i, 5] if hi <= wall_h else coef[i, 6]
+                else:
+                    acc[:] = row_haze[r] * coef[i, 3]
+                    if row_sky[r] > 0.0 and not walls:
+                        _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
+                    j0 = row_first[r]
+                    _ground(j0, row_first[r + 1] if ground else j0, ex, ey, c, s, plain[i], kn, kg, kc, plan, raster,
+                            world, acc, tmp)
+                if blend:
                     if 0.0 < row_sky[r] < 1.0:
                         acc *= np.float32(1.0 / (1.0 - row_sky[r]))  # the ground lines cover only the part below
+                    _expand(zs_top, z_top)
+                    _expand(zs_bot, z_bot)
                     _blend_walls(acc, z_top, z_bot, wall_h, coef[i, 5], coef[i, 6])
                 if nseen:
                     _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, height, zbuf, val, acc)
-                if plain[i]:
-                    _finish_plain(acc, bias, out[i, r, :, eye])
-                else:
-                    _finish_lit(acc, r, height, tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
-                                noise_off[i, eye] + r * width, bias, out[i, r, :, eye])
+                _finish_row(acc, r, i, eye, plain, tone, light, noise_amp, noise, noise_off, bias, out)
 
 
 @njit(cache=True, fastmath=True)

@@ -41,7 +41,7 @@ ANISOTROPY = 4.0  # a sample may stretch this much more along the view than acro
 MAX_SUBROWS = 3
 LEVEL_BIAS = -0.5  # + blurrier, - sharper (more shimmer): the raster level is floor(log2(footprint / texel) + bias)
 COLUMN_STEP_TEXELS = 0.75  # read every 2nd / 4th column where that many columns span less than this
-FINE_MIN_GAIN = 0.25  # the fine grain is left out of rows that would show less than this share of it
+FINE_MIN_GAIN = 0.3  # the fine grain is left out of rows that would show less than this share of it
 SKY_EL_STEP_RAD = math.radians(0.25)
 SKY_AZ_BINS = 1024
 
