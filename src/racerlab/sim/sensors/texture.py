@@ -255,13 +255,20 @@ class TrackRaster:
         g = self.look.grey()
         road, line, cen = frac[..., 0], frac[..., 1], frac[..., 2]
         bare = np.maximum(road - line - cen, 0.0)
+        look = self.look
+        # grey = sum over materials of share · grey · (1 + blotch · B + texel noise · N): three weighted sums
         parts = ((GROUND, 1.0 - road, 3), (ROAD, bare, 0), (LINE, line, 1), (CENTER, cen, 2))
-        grain = coarse_grain(h, w, self.look) if self.look.grainy else None
-        grey = np.zeros((h, w))
+        grey = np.zeros((h, w), dtype=np.float32)
+        blotchy = np.zeros((h, w), dtype=np.float32) if look.grainy else None
+        noisy = np.zeros((h, w), dtype=np.float32) if look.grainy else None
         for m, share, k in parts:
-            tone = g[m] if grain is None else g[m] * (1.0 + self.look.grain_blotch[k] * grain[0]
-                                                      + COARSE_SHARE * self.look.grain_fine[k] * grain[1])
-            grey += share * tone
+            grey += np.float32(g[m]) * share
+            if look.grainy:
+                blotchy += np.float32(g[m] * look.grain_blotch[k]) * share
+                noisy += np.float32(g[m] * COARSE_SHARE * look.grain_fine[k]) * share
+        if look.grainy:
+            blotch, texel = coarse_grain(h, w, look)
+            grey += blotchy * blotch + noisy * texel
         # kept as bytes until domain randomization asks for their pyramids
         self._ground0 = np.rint(255.0 * (1.0 - road)).astype(np.uint8)
         self._center0 = np.rint(255.0 * cen).astype(np.uint8)
