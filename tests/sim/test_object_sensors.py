@@ -98,19 +98,22 @@ def test_the_box_hides_the_road_behind_it_not_in_front(straight):
     assert (img[: math.floor(bottom)] != empty[: math.floor(bottom)]).any()
 
 
-def test_box_sides_are_shaded_and_far_boxes_fade_into_haze(straight):
+def test_box_sides_are_shaded_and_far_boxes_fade_into_haze_where_the_look_has_haze(straight):
     # turned 45 degrees, the box shows the camera two sides: -x (normal (-1, -1)/sqrt 2) and +y (normal (-1, 1)/sqrt 2)
     q = math.sqrt(0.5)
     row = Camera(box_sim(straight, [(2.0, 0.0, math.pi / 4)])).render()[0, 30, :, 0].astype(float)  # mid-box
     for normal in ((-q, -q), (-q, q)):
         assert np.abs(row - face_grey(*normal)).min() <= 1.0
     assert abs(face_grey(-q, -q) - face_grey(-q, q)) > 10
-    far = Camera(box_sim(straight, [(20.0, 0.0, 0.0)])).render()[0, :, :, 0].astype(float)
-    haze = TrackLook().grey()[6]
-    fade = ((20.0 - 0.2 - CAM_X - 4.0) / 26.0) ** 0.7  # the ground's haze ramp, 4 to 30 m
+    sim = box_sim(straight, [(20.0, 0.0, 0.0)])
+    far = Camera(sim, look=LOOKS["classic"]).render()[0, :, :, 0].astype(float)
+    haze = LOOKS["classic"].grey()[6]
+    fade = ((20.0 - 0.2 - CAM_X - 4.0) / 26.0) ** 0.7  # the classic look's haze ramp, 4 to 30 m
     expected = face_grey(-1.0, 0.0) * (1.0 - fade) + haze * fade
     r = int(0.5 * (row_of(math.atan2(BOX_H - CAM_Z, 19.7)) + row_of(math.atan2(-CAM_Z, 19.7))))
     assert far[r, W // 2] == pytest.approx(expected, abs=1.5)
+    # the AWS look has no haze: the far box keeps its grey
+    assert Camera(sim).render()[0, r, W // 2, 0] == pytest.approx(face_grey(-1.0, 0.0), abs=1.5)
 
 
 def test_stereo_disparity_matches_the_baseline(straight):

@@ -17,7 +17,7 @@ helpers are inlined, because every array passed to a compiled call costs referen
   each car sees (`racerlab.sim.sensors.solids`), drawn over the ground and sky where a pixel's ray meets one
 - world: walls (bool), their box (x min, y min, x max, y max), height; the fine grain tile, its values per
   level-0 texel, its strength over grey (257,); the rounding bias added before the cast to uint8 (0: truncation
-  as AWS's camera filter, 0.5: rounding as the PIL conversion of its stereo pair)
+  as AWS's camera filter, 0.5: rounding as the PIL conversion of its stereo pair); whether the look has haze
 
 With walls (the AWS look) each image row's top and bottom edges are intersected with the walls column by column:
 a pixel shows the ground, the wall and the sky above it by the share of its height that sees each. Rows whose
@@ -282,6 +282,7 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
     spose, sdims, sgrey, cam = solids
     walls, box, wall_h = world[0], world[1], world[2]
     bias = np.float32(world[6])
+    hazy = world[7]
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
@@ -311,8 +312,8 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
         for eye in range(eyes.shape[0]):
             ex = pose_x[i] + c * eyes[eye, 0] - s * eyes[eye, 1]
             ey = pose_y[i] + s * eyes[eye, 0] + c * eyes[eye, 1]
-            nseen = _see_objects(i, ex, ey, c, s, pose_yaw[i], spose, sdims, sgrey, cam, coef[i, 0], coef[i, 3],
-                                 width, height, bounds, seen, shades, local)
+            nseen = _see_objects(i, ex, ey, c, s, pose_yaw[i], spose, sdims, sgrey, cam, coef[i, 0],
+                                 coef[i, 3] if hazy else -1.0, width, height, bounds, seen, shades, local)
             in_walls = walls
             if walls:
                 _wall_z(edge_dir[0], c, s, ex, ey, cam_z, box, zs_bot)
@@ -354,7 +355,8 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
 def _see_objects(i, ex, ey, c, s, yaw, spose, sdims, sgrey, cam, gain, haze, width, height, bounds, seen, shades,
                  local):
     """Car i's objects in view of the eye at (ex, ey): their indices into `seen`, pixel bounds, face greys (lit
-    by the car's neutral light `gain`, faded into `haze` with distance) and the camera in each one's frame."""
+    by the car's neutral light `gain`, faded into `haze` with distance as the ground is, unless `haze` < 0: a look
+    without haze) and the camera in each one's frame."""
     cam_z, f, cp, sp = cam
     n = 0
     for q in range(sgrey.shape[1]):
@@ -365,7 +367,7 @@ def _see_objects(i, ex, ey, c, s, yaw, spose, sdims, sgrey, cam, gain, haze, wid
                              cp, sp, f, width, height, bounds[n]):
             continue
         face_greys(oyaw, sgrey[i, q] * gain, shades[n])
-        fade = haze_fade(c * (ox - ex) + s * (oy - ey))
+        fade = haze_fade(c * (ox - ex) + s * (oy - ey)) if haze >= 0.0 else 0.0
         for k in range(FACES):
             shades[n, k] = shades[n, k] * (1.0 - fade) + haze * fade
         co = math.cos(oyaw)

@@ -5,9 +5,10 @@ Y = 0.2989 R + 0.587 G + 0.114 B, truncated), from a pinhole camera 0.145 m ahea
 above the base origin, pitched 15° down, 64.7° horizontal field of view; stereo renders two such
 cameras 6 cm apart into the two channels (left eye first, as AWS stacks LEFT then RIGHT).
 
-With a `DomainRandomization`, each car draws a new look (light colour and brightness, tone curve,
-gradient, noise strength) whenever the camera sees it at step 0 of an episode, from the
-simulator's seeded generator; without one every frame has the default look and no noise.
+The world looks as `look` (a `TrackLook`) says: by default the AWS simulator's (walls, field, grainy
+asphalt), `look.LOOKS["classic"]` racerlab's earlier one. With a `DomainRandomization`, each car draws a new
+look (light colour and brightness, tone curve, gradient, noise strength) whenever the camera sees it at step 0
+of an episode, from the simulator's seeded generator; without one every frame has the default look and no noise.
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ class Camera:
         amp = look.fine_grain_table() * np.float32(FINE_SCALE) if grainy else np.zeros(257, dtype=np.float32)
         # AWS's camera filter truncates its float grey; the stereo pair goes through PIL's convert('L'), which rounds
         return (look.walls, box, float(look.wall_height_m), fine, self.raster.cell / FINE_CELL_M, amp,
-                0.5 if stereo else 0.0)
+                0.5 if stereo else 0.0, look.haze_m is not None)
 
     def replan(self, **options) -> None:
         """Rebuild the row plan with `RowPlan` keyword options (anisotropy, max_subrows, level_bias):

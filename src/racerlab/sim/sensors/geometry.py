@@ -130,7 +130,8 @@ class RowPlan:
     pixels; the same for all lines of a row), `sub_weight` its share of the pixel after haze.
     Per row: `row_haze` the share of haze colour, `row_sky` the share above the horizon, whose
     pixels read the background panorama at `sky_el` (row index) and `sky_az` (azimuth in
-    panorama columns, car frame, + left).
+    panorama columns, car frame, + left). For a grainy look, `sub_fine`: the share of the fine grain
+    each ground line shows; for walls, `edge_dir`: the rays through the rows' pixel edges.
     """
 
     def __init__(self, model: CameraModel, cam_z: float, cell_m: float, num_levels: int, filter_px: float, *,

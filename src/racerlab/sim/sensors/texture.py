@@ -12,6 +12,11 @@ domain randomization, the fractions of ground and centre paint, whose grey depen
 colour. Coarser levels (2, 4, ... cm) average 2×2 texels; the renderer picks per image row the
 level that matches the pixel's footprint on the ground, which is what keeps distant lines from
 shimmering.
+
+A grainy look (`TrackLook.grain_*`) also puts its grain into the raster: blotches (noise on a 3 cm grid,
+interpolated) and texel noise, each a fraction of the material's grey, seeded by the look, so that the grain
+is fixed to the ground and the same on every run. The grain finer than a texel is a separate small tile
+(`fine_grain`) that the renderer adds on the nearest rows.
 """
 
 from __future__ import annotations
