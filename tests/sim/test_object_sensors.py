@@ -11,7 +11,7 @@ from racerlab.sim import Simulator
 from racerlab.sim.objects import RaceConfig
 from racerlab.sim.sensors import Camera, Lidar
 from racerlab.sim.sensors.geometry import CAMERA_HFOV_RAD, CAMERA_PITCH_RAD, camera_position
-from racerlab.sim.sensors.look import TrackLook
+from racerlab.sim.sensors.look import LOOKS, TrackLook
 from racerlab.sim.sensors.solids import AMBIENT, BOT_CAR_HEIGHT_M, DIFFUSE, LIGHT_DIR
 from racerlab.track import from_array
 
@@ -55,7 +55,8 @@ def face_grey(nx, ny):
 def test_a_box_ahead_covers_the_rows_and_columns_the_camera_model_predicts(straight):
     ahead = 2.0  # box centre, m ahead of the base; its near face is 1.8 m ahead, 1.8 - CAM_X from the camera
     sim = box_sim(straight, [(ahead, 0.0, 0.0)])
-    img = Camera(sim).render()[0, :, :, 0].astype(float)
+    # the classic look's flat dark road: the AWS look's grainy asphalt comes within 20 grey levels of the box's face
+    img = Camera(sim, look=LOOKS["classic"]).render()[0, :, :, 0].astype(float)
     d = ahead - 0.5 * BOX_L - CAM_X
     top = row_of(math.atan2(BOX_H - CAM_Z, d))  # the face's top edge, above the camera (the top face is hidden)
     bottom = row_of(math.atan2(-CAM_Z, d))
@@ -97,19 +98,22 @@ def test_the_box_hides_the_road_behind_it_not_in_front(straight):
     assert (img[: math.floor(bottom)] != empty[: math.floor(bottom)]).any()
 
 
-def test_box_sides_are_shaded_and_far_boxes_fade_into_haze(straight):
+def test_box_sides_are_shaded_and_far_boxes_fade_into_haze_where_the_look_has_haze(straight):
     # turned 45 degrees, the box shows the camera two sides: -x (normal (-1, -1)/sqrt 2) and +y (normal (-1, 1)/sqrt 2)
     q = math.sqrt(0.5)
     row = Camera(box_sim(straight, [(2.0, 0.0, math.pi / 4)])).render()[0, 30, :, 0].astype(float)  # mid-box
     for normal in ((-q, -q), (-q, q)):
         assert np.abs(row - face_grey(*normal)).min() <= 1.0
     assert abs(face_grey(-q, -q) - face_grey(-q, q)) > 10
-    far = Camera(box_sim(straight, [(20.0, 0.0, 0.0)])).render()[0, :, :, 0].astype(float)
-    haze = TrackLook().grey()[6]
-    fade = ((20.0 - 0.2 - CAM_X - 4.0) / 26.0) ** 0.7  # the ground's haze ramp, 4 to 30 m
+    sim = box_sim(straight, [(20.0, 0.0, 0.0)])
+    far = Camera(sim, look=LOOKS["classic"]).render()[0, :, :, 0].astype(float)
+    haze = LOOKS["classic"].grey()[6]
+    fade = ((20.0 - 0.2 - CAM_X - 4.0) / 26.0) ** 0.7  # the classic look's haze ramp, 4 to 30 m
     expected = face_grey(-1.0, 0.0) * (1.0 - fade) + haze * fade
     r = int(0.5 * (row_of(math.atan2(BOX_H - CAM_Z, 19.7)) + row_of(math.atan2(-CAM_Z, 19.7))))
     assert far[r, W // 2] == pytest.approx(expected, abs=1.5)
+    # the AWS look has no haze: the far box keeps its grey
+    assert Camera(sim).render()[0, r, W // 2, 0] == pytest.approx(face_grey(-1.0, 0.0), abs=1.5)
 
 
 def test_stereo_disparity_matches_the_baseline(straight):

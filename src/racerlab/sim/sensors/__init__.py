@@ -27,14 +27,14 @@ import gymnasium as gym
 from racerlab.errors import ConfigError
 from racerlab.sim.sensors.camera import Camera, CameraObservation
 from racerlab.sim.sensors.lidar import Lidar, LidarObservation
-from racerlab.sim.sensors.look import DomainRandomization, TrackLook
+from racerlab.sim.sensors.look import LOOKS, DomainRandomization, TrackLook
 
 CAMERAS = ("camera", "stereo")
 LIDARS = ("lidar", "sector_lidar", "discretized_sector_lidar")
 SENSOR_OBSERVATIONS = CAMERAS + LIDARS + tuple(f"{c}+{li}" for c in CAMERAS for li in LIDARS)
 OPTIONS = {"dr": "domain randomization of the camera", "walls": "the lidar sees the track borders as walls"}
 
-__all__ = ["CAMERAS", "LIDARS", "OPTIONS", "SENSOR_OBSERVATIONS", "Camera", "CameraObservation",
+__all__ = ["CAMERAS", "LIDARS", "LOOKS", "OPTIONS", "SENSOR_OBSERVATIONS", "Camera", "CameraObservation",
            "CombinedObservation", "DomainRandomization", "Lidar", "LidarObservation", "TrackLook",
            "build_observation"]
 

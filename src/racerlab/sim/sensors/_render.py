@@ -9,11 +9,19 @@ curve, a brightness gradient and noise follow. Output is truncated to uint8 as A
 
 Argument groups (tuples, so the signature stays readable; the kernel unpacks them once, and its
 helpers are inlined, because every array passed to a compiled call costs reference counting):
-- plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az
+- plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az,
+  sub_fine (the fine grain's strength per ground line), edge_dir (H + 1, W, 3) rays through the rows' edges
 - raster: grey, ground, center (flat uint8 pyramids), off, stride, wmax, hmax, inv_cell, x0, y0
 - lit: plain, coef, tone, light, noise_amp, noise, noise_off
 - solids: pose (B, P, 3), dims (P, 4), grey (B, P), camera (cam_z, focal, cos pitch, sin pitch) — the objects
   each car sees (`racerlab.sim.sensors.solids`), drawn over the ground and sky where a pixel's ray meets one
+- world: walls (bool), their box (x min, y min, x max, y max), height; the fine grain tile, its values per
+  level-0 texel, its strength over grey (257,); the rounding bias added before the cast to uint8 (0: truncation
+  as AWS's camera filter, 0.5: rounding as the PIL conversion of its stereo pair); whether the look has haze
+
+With walls (the AWS look) each image row's top and bottom edges are intersected with the walls column by column:
+a pixel shows the ground, the wall and the sky above it by the share of its height that sees each. Rows whose
+pixels all see the wall are not sampled on the ground; below the lowest wall base no intersection is done.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from numba import njit
 from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, object_bounds, trace_row
 
 TWO_PI = 2.0 * math.pi
+WALL_STEP = 8  # columns between the rays intersected with the walls
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -37,12 +46,6 @@ def _bilinear(data, base, stride, ax, ay):
     top = v00 + ax * (v01 - v00)
     bot = v10 + ax * (v11 - v10)
     return top + ay * (bot - top)
-
-
-@njit(cache=True, fastmath=True, inline="always")
-def _lit(g, gf, cf, base, stride, ax, ay, kn, kg, kc):
-    return kn * _bilinear(g, base, stride, ax, ay) + kg * _bilinear(gf, base, stride, ax, ay) \
-        + kc * _bilinear(cf, base, stride, ax, ay)
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -81,10 +84,34 @@ def _lit_samples(grey, gfrac, cfrac, o, stride, wm, hm, clamp, fx, fy, sx, sy, w
             cy = min(max(y, np.float32(0.0)), hm)
         ix = np.int32(cx)
         iy = np.int32(cy)
-        dst[k] += wt * _lit(grey, gfrac, cfrac, o + iy * stride + ix, stride, cx - np.float32(ix),
-                            cy - np.float32(iy), kn, kg, kc)
+        ax = cx - np.float32(ix)
+        ay = cy - np.float32(iy)
+        base = o + iy * stride + ix
+        dst[k] += wt * (kn * _bilinear(grey, base, stride, ax, ay) + kg * _bilinear(gfrac, base, stride, ax, ay)
+                        + kc * _bilinear(cfrac, base, stride, ax, ay))
         x += sx
         y += sy
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _fine_grain(acc, fx, fy, sx, sy, gain, fine, amp):
+    """acc[col] += gain · amp[acc[col]] · the fine tile's value under the pixel, the tile coordinates of column 0
+    being (fx, fy) and stepping by (sx, sy) per column (in 16.16 fixed point, the cheapest way to wrap them).
+    `fine` is the square tile flattened, its side a power of two."""
+    side = np.int64(round(math.sqrt(fine.shape[0])))
+    mask = side - 1
+    bits = np.int64(round(math.log2(side)))
+    gx = np.int64((fx + 1048576.0) * 65536.0)
+    gy = np.int64((fy + 1048576.0) * 65536.0)
+    dgx = np.int64(sx * 65536.0)
+    dgy = np.int64(sy * 65536.0)
+    top = np.float32(255.0)
+    for col in range(acc.shape[0]):
+        v = acc[col]
+        t = fine[(((gy >> 16) & mask) << bits) | ((gx >> 16) & mask)]
+        acc[col] = v + gain * amp[np.int32(min(max(v, np.float32(0.0)), top))] * np.float32(t)
+        gx += dgx
+        gy += dgy
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -114,16 +141,16 @@ def _sky_row(pano, el_row, az_row, yaw_bins, share, acc):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_plain(acc, dst):
+def _finish_plain(acc, bias, dst):
     lo = np.float32(0.0)
     hi = np.float32(255.0)
     for col in range(acc.shape[0]):
-        dst[col] = np.uint8(np.int32(min(max(acc[col], lo), hi)))
+        dst[col] = np.uint8(np.int32(min(max(acc[col] + bias, lo), hi)))
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, dst):
-    """Tone curve, brightness gradient and noise, then truncation to uint8 into dst."""
+def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, bias, dst):
+    """Tone curve, brightness gradient and noise, then truncation (after adding `bias`) to uint8 into dst."""
     w = acc.shape[0]
     gv = gain + grad_v * (2.0 * r / height - 1.0)
     gu = grad_u * 2.0 / w
@@ -131,23 +158,139 @@ def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, ds
         v = min(max(acc[col], 0.0), 254.999)
         lo = int(v)
         t = tone[lo] + (v - lo) * (tone[lo + 1] - tone[lo])
-        t = t * (gv + gu * (col - 0.5 * w)) + amp * noise[base + col]
+        t = t * (gv + gu * (col - 0.5 * w)) + amp * noise[base + col] + bias
         dst[col] = np.uint8(min(max(t, 0.0), 255.0))
 
 
+@njit(cache=True, fastmath=True, inline="always")
+def _finish_row(acc, r, i, eye, plain, tone, light, noise_amp, noise, noise_off, bias, out):
+    """Row r of car i's eye `eye` into `out`: as it is, or through the car's randomized light (`_finish_lit`)."""
+    if plain[i]:
+        _finish_plain(acc, bias, out[i, r, :, eye])
+    else:
+        _finish_lit(acc, r, out.shape[1], tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
+                    noise_off[i, eye] + r * out.shape[2], bias, out[i, r, :, eye])
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
+    """out[k]: the height at which the ray of one image-row edge through column min(k · WALL_STEP, W - 1) (car
+    frame, `rays` (W, 3)) meets the walls `box` (x min, y min, x max, y max) around the eye at (ex, ey, cam_z)
+    looking along (c, s): below 0 where the ray meets the ground first, above the wall's height where it passes
+    over. The columns between are interpolated (`_expand`): the heights change smoothly along a row, but at a
+    corner of the walls."""
+    w = rays.shape[0]
+    for k in range(out.shape[0]):
+        q = min(k * WALL_STEP, w - 1)
+        fx = rays[q, 0]
+        fy = rays[q, 1]
+        dx = c * fx - s * fy
+        dy = s * fx + c * fy
+        tx = FAR
+        ty = FAR
+        if dx > 1e-9:
+            tx = (box[2] - ex) / dx
+        elif dx < -1e-9:
+            tx = (box[0] - ex) / dx
+        if dy > 1e-9:
+            ty = (box[3] - ey) / dy
+        elif dy < -1e-9:
+            ty = (box[1] - ey) / dy
+        out[k] = cam_z + max(min(tx, ty), 0.0) * rays[q, 2]
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _expand(samples, out):
+    """out[col]: `samples` (one every WALL_STEP columns, and the last column) interpolated linearly."""
+    w = out.shape[0]
+    for col in range(w):
+        k = col // WALL_STEP
+        q0 = k * WALL_STEP
+        q1 = min(q0 + WALL_STEP, w - 1)
+        if q1 == q0:
+            out[col] = samples[k]
+        else:
+            out[col] = samples[k] + (samples[k + 1] - samples[k]) * (col - q0) / (q1 - q0)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _blend_walls(acc, z_top, z_bot, height, wall, sky):
+    """acc[col] = its ground grey, the wall's and the sky's, each by the share of the pixel's height that sees it
+    (the height at the walls taken linear between the pixel's top and bottom edges)."""
+    for col in range(acc.shape[0]):
+        zt = z_top[col]
+        zb = z_bot[col]
+        span = max(zt - zb, 1e-9)
+        ground = min(max(-zb / span, 0.0), 1.0)
+        above = min(max((zt - height) / span, 0.0), 1.0)
+        acc[col] = acc[col] * ground + sky * above + wall * max(1.0 - ground - above, 0.0)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _ground(j0, j1, ex, ey, c, s, plain, kn, kg, kc, plan, raster, world, acc, tmp):
+    """acc[col] += the ground lines j0..j1 of one image row (their share of each pixel), seen from the eye at
+    (ex, ey) looking along (c, s): every step-th column read from the raster, the others interpolated."""
+    sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sub_fine = (plan[3], plan[4], plan[5], plan[6], plan[7],
+                                                                         plan[8], plan[11])
+    grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
+    fine, fine_ratio, fine_amp = world[3], world[4], world[5]
+    width = acc.shape[0]
+    step = sub_step[j0] if j1 > j0 else 1
+    n = width if step == 1 else width // step + 1
+    dst = acc if step == 1 else tmp
+    if step > 1:
+        dst[:n] = 0.0
+    for j in range(j0, j1):
+        # the ground line in texel coordinates of its level
+        lv = sub_level[j]
+        ic = inv_cell[lv]
+        fx0 = (ex + c * sub_x[j] - s * sub_y0[j] - x0) * ic - 0.5
+        fy0 = (ey + s * sub_x[j] + c * sub_y0[j] - y0) * ic - 0.5
+        sd = sub_dy[j] * ic * step
+        sx = -s * sd
+        sy = c * sd
+        wm = wmax[lv]
+        hm = hmax[lv]
+        fx1 = fx0 + (n - 1) * sx
+        fy1 = fy0 + (n - 1) * sy
+        clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0 and max(fy0, fy1) <= hm)
+        if not plain:
+            _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
+                         np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]),
+                         kn, kg, kc, dst, n)
+        else:
+            _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
+                          np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]), dst, n)
+    if step > 1 and j1 > j0:
+        _spread(tmp, step, acc)
+    if j1 > j0 and sub_fine[j0] > 0.0:
+        # the fine grain, on the rows that read the finest level (one ground line each), added per column
+        ic = inv_cell[0] * fine_ratio
+        gx = (ex + c * sub_x[j0] - s * sub_y0[j0] - x0) * ic
+        gy = (ey + s * sub_x[j0] + c * sub_y0[j0] - y0) * ic
+        _fine_grain(acc, gx, gy, -s * sub_dy[j0] * ic, c * sub_dy[j0] * ic, np.float32(sub_fine[j0]), fine, fine_amp)
+
+
 @njit(cache=True, fastmath=True)
-def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids, out):
+def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids, world, out):
     """Render cars `cars` into out[car, H, W, eye] (uint8) from base poses (x, y, yaw per car).
 
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
     """
-    row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az = plan
-    grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
+    row_first, row_haze, row_sky, sky_el, sky_az, edge_dir = plan[0], plan[1], plan[2], plan[9], plan[10], plan[12]
     plain, coef, tone, light, noise_amp, noise, noise_off = lit
     spose, sdims, sgrey, cam = solids
+    walls, box, wall_h = world[0], world[1], world[2]
+    bias = np.float32(world[6])
+    hazy = world[7]
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
+    z_top = np.empty(width)
+    z_bot = np.empty(width)
+    nz = (width - 1 + WALL_STEP - 1) // WALL_STEP + 1
+    zs_top = np.empty(nz)
+    zs_bot = np.empty(nz)
     m = sgrey.shape[1]
     bounds = np.empty((m, 4), dtype=np.int64)
     seen = np.empty(m, dtype=np.int64)
@@ -156,6 +299,7 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
     zbuf = np.empty(width)
     val = np.empty(width)
     nb = pano.shape[1] - 1
+    cam_z = cam[0]
     for k in range(cars.shape[0]):
         i = cars[k]
         c = math.cos(pose_yaw[i])
@@ -168,58 +312,51 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
         for eye in range(eyes.shape[0]):
             ex = pose_x[i] + c * eyes[eye, 0] - s * eyes[eye, 1]
             ey = pose_y[i] + s * eyes[eye, 0] + c * eyes[eye, 1]
-            nseen = _see_objects(i, ex, ey, c, s, pose_yaw[i], spose, sdims, sgrey, cam, coef[i, 0], coef[i, 3],
-                                 width, height, bounds, seen, shades, local)
+            nseen = _see_objects(i, ex, ey, c, s, pose_yaw[i], spose, sdims, sgrey, cam, coef[i, 0],
+                                 coef[i, 3] if hazy else -1.0, width, height, bounds, seen, shades, local)
+            in_walls = walls
+            if walls:
+                _wall_z(edge_dir[0], c, s, ex, ey, cam_z, box, zs_bot)
             for r in range(height):
-                acc[:] = row_haze[r] * coef[i, 3]
-                if row_sky[r] > 0.0:
-                    _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
-                j0 = row_first[r]
-                j1 = row_first[r + 1]
-                step = sub_step[j0] if j1 > j0 else 1
-                n = width if step == 1 else width // step + 1
-                dst = acc if step == 1 else tmp
-                if step > 1:
-                    dst[:n] = 0.0
-                for j in range(j0, j1):
-                    # the ground line in texel coordinates of its level
-                    lv = sub_level[j]
-                    ic = inv_cell[lv]
-                    fx0 = (ex + c * sub_x[j] - s * sub_y0[j] - x0) * ic - 0.5
-                    fy0 = (ey + s * sub_x[j] + c * sub_y0[j] - y0) * ic - 0.5
-                    sd = sub_dy[j] * ic * step
-                    sx = -s * sd
-                    sy = c * sd
-                    wm = wmax[lv]
-                    hm = hmax[lv]
-                    fx1 = fx0 + (n - 1) * sx
-                    fy1 = fy0 + (n - 1) * sy
-                    clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0
-                                 and max(fy0, fy1) <= hm)
-                    if plain[i]:
-                        _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
-                                      np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy),
-                                      np.float32(sub_weight[j]), dst, n)
-                    else:
-                        _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
-                                     np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy),
-                                     np.float32(sub_weight[j]), kn, kg, kc, dst, n)
-                if step > 1 and j1 > j0:
-                    _spread(tmp, step, acc)
+                ground = True
+                blend = False
+                flat = False
+                hi = 0.0
+                if in_walls:
+                    zs_top[:] = zs_bot
+                    _wall_z(edge_dir[r + 1], c, s, ex, ey, cam_z, box, zs_bot)
+                    lo = zs_bot.min()
+                    hi = zs_top.max()
+                    in_walls = hi > 0.0  # once every pixel's top edge sees the ground, so do all rows below
+                    ground = lo < 0.0
+                    flat = not ground and (hi <= wall_h or lo >= wall_h)  # all wall, or all sky above it
+                    blend = in_walls and not flat
+                if flat:
+                    acc[:] = coef[i, 5] if hi <= wall_h else coef[i, 6]
+                else:
+                    acc[:] = row_haze[r] * coef[i, 3]
+                    if row_sky[r] > 0.0 and not walls:
+                        _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
+                    j0 = row_first[r]
+                    _ground(j0, row_first[r + 1] if ground else j0, ex, ey, c, s, plain[i], kn, kg, kc, plan, raster,
+                            world, acc, tmp)
+                if blend:
+                    if 0.0 < row_sky[r] < 1.0:
+                        acc *= np.float32(1.0 / (1.0 - row_sky[r]))  # the ground lines cover only the part below
+                    _expand(zs_top, z_top)
+                    _expand(zs_bot, z_bot)
+                    _blend_walls(acc, z_top, z_bot, wall_h, coef[i, 5], coef[i, 6])
                 if nseen:
                     _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, height, zbuf, val, acc)
-                if plain[i]:
-                    _finish_plain(acc, out[i, r, :, eye])
-                else:
-                    _finish_lit(acc, r, height, tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
-                                noise_off[i, eye] + r * width, out[i, r, :, eye])
+                _finish_row(acc, r, i, eye, plain, tone, light, noise_amp, noise, noise_off, bias, out)
 
 
 @njit(cache=True, fastmath=True)
 def _see_objects(i, ex, ey, c, s, yaw, spose, sdims, sgrey, cam, gain, haze, width, height, bounds, seen, shades,
                  local):
     """Car i's objects in view of the eye at (ex, ey): their indices into `seen`, pixel bounds, face greys (lit
-    by the car's neutral light `gain`, faded into `haze` with distance) and the camera in each one's frame."""
+    by the car's neutral light `gain`, faded into `haze` with distance as the ground is, unless `haze` < 0: a look
+    without haze) and the camera in each one's frame."""
     cam_z, f, cp, sp = cam
     n = 0
     for q in range(sgrey.shape[1]):
@@ -230,7 +367,7 @@ def _see_objects(i, ex, ey, c, s, yaw, spose, sdims, sgrey, cam, gain, haze, wid
                              cp, sp, f, width, height, bounds[n]):
             continue
         face_greys(oyaw, sgrey[i, q] * gain, shades[n])
-        fade = haze_fade(c * (ox - ex) + s * (oy - ey))
+        fade = haze_fade(c * (ox - ex) + s * (oy - ey)) if haze >= 0.0 else 0.0
         for k in range(FACES):
             shades[n, k] = shades[n, k] * (1.0 - fade) + haze * fade
         co = math.cos(oyaw)

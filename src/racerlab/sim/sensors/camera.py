@@ -5,9 +5,10 @@ Y = 0.2989 R + 0.587 G + 0.114 B, truncated), from a pinhole camera 0.145 m ahea
 above the base origin, pitched 15° down, 64.7° horizontal field of view; stereo renders two such
 cameras 6 cm apart into the two channels (left eye first, as AWS stacks LEFT then RIGHT).
 
-With a `DomainRandomization`, each car draws a new look (light colour and brightness, tone curve,
-gradient, noise strength) whenever the camera sees it at step 0 of an episode, from the
-simulator's seeded generator; without one every frame has the default look and no noise.
+The world looks as `look` (a `TrackLook`) says: by default the AWS simulator's (walls, field, grainy
+asphalt), `look.LOOKS["classic"]` racerlab's earlier one. With a `DomainRandomization`, each car draws a new
+look (light colour and brightness, tone curve, gradient, noise strength) whenever the camera sees it at step 0
+of an episode, from the simulator's seeded generator; without one every frame has the default look and no noise.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from racerlab.sim.sensors.geometry import (
 )
 from racerlab.sim.sensors.look import DomainRandomization, Lighting, TrackLook
 from racerlab.sim.sensors.solids import Solids
-from racerlab.sim.sensors.texture import track_raster
+from racerlab.sim.sensors.texture import FINE_CELL_M, FINE_SCALE, fine_grain, track_raster
 
 NOISE_TILES = 4  # the noise tile holds this many frames' worth of values; each frame starts at a random offset
 NOISE_SEED = 15
@@ -53,6 +54,7 @@ class Camera:
         self.solids = Solids(sim, self.look)
         self.raster = track_raster(sim.track, self.look)
         self._raster_args = self._pack_raster()
+        self._world_args = self._pack_world(stereo)
         self.replan()
         n, e = sim.num_cars, len(sides)
         self.lighting = Lighting.default(n, self.look)
@@ -72,16 +74,28 @@ class Camera:
         return (g.data, gf.data, cf.data, g.off, g.stride, (g.w - 1).astype(np.float64),
                 (g.h - 1).astype(np.float64), r.level_inv_cell, float(r.x0), float(r.y0))
 
+    def _pack_world(self, stereo: bool):
+        look = self.look
+        box = np.array(look.wall_box(self.sim.track) if look.walls else (0.0, 0.0, 0.0, 0.0))
+        grainy = look.grainy
+        fine = (fine_grain(look) if grainy else np.zeros((1, 1), dtype=np.int8)).ravel()
+        amp = look.fine_grain_table() * np.float32(FINE_SCALE) if grainy else np.zeros(257, dtype=np.float32)
+        # AWS's camera filter truncates its float grey; the stereo pair goes through PIL's convert('L'), which rounds
+        return (look.walls, box, float(look.wall_height_m), fine, self.raster.cell / FINE_CELL_M, amp,
+                0.5 if stereo else 0.0, look.haze_m is not None)
+
     def replan(self, **options) -> None:
         """Rebuild the row plan with `RowPlan` keyword options (anisotropy, max_subrows, level_bias):
         the trade between speed, blur and shimmer of distant ground."""
         cam_z = camera_position()[1]
+        options.setdefault("haze_m", self.look.haze_m)
+        options.setdefault("fine_cell_m", FINE_CELL_M if self.look.grainy else 0.0)
         p = self.plan = RowPlan(self.model, cam_z, self.raster.cell, self.raster.num_levels, self.look.filter_px,
                                 **options)
         self.panorama = self.look.panorama(SKY_EL_STEP_RAD, p.sky_el_bins, SKY_AZ_BINS)
         self._cam_args = (cam_z, self.model.focal_px, math.cos(self.model.pitch_rad), math.sin(self.model.pitch_rad))
         self._plan_args = (p.row_first, p.row_haze, p.row_sky, p.sub_x, p.sub_y0, p.sub_dy, p.sub_level,
-                           p.sub_step, p.sub_weight, p.sky_el, p.sky_az)
+                           p.sub_step, p.sub_weight, p.sky_el, p.sky_az, p.sub_fine, p.edge_dir)
 
     @property
     def channels(self) -> int:
@@ -98,7 +112,7 @@ class Camera:
         sol.update()
         x, y, yaw = self._viewpoints()
         _render.render(idx, x, y, yaw, self.eyes, self._plan_args, self._raster_args, self.panorama, lit,
-                       (sol.pose, sol.dims, sol.grey, self._cam_args), self.frames)
+                       (sol.pose, sol.dims, sol.grey, self._cam_args), self._world_args, self.frames)
         return self.frames
 
     def _viewpoints(self):

@@ -41,6 +41,7 @@ ANISOTROPY = 4.0  # a sample may stretch this much more along the view than acro
 MAX_SUBROWS = 3
 LEVEL_BIAS = -0.5  # + blurrier, - sharper (more shimmer): the raster level is floor(log2(footprint / texel) + bias)
 COLUMN_STEP_TEXELS = 0.75  # read every 2nd / 4th column where that many columns span less than this
+FINE_MIN_GAIN = 0.3  # the fine grain is left out of rows that would show less than this share of it
 SKY_EL_STEP_RAD = math.radians(0.25)
 SKY_AZ_BINS = 1024
 
@@ -129,13 +130,18 @@ class RowPlan:
     pixels; the same for all lines of a row), `sub_weight` its share of the pixel after haze.
     Per row: `row_haze` the share of haze colour, `row_sky` the share above the horizon, whose
     pixels read the background panorama at `sky_el` (row index) and `sky_az` (azimuth in
-    panorama columns, car frame, + left).
+    panorama columns, car frame, + left). For a grainy look, `sub_fine`: the share of the fine grain
+    each ground line shows; for walls, `edge_dir`: the rays through the rows' pixel edges.
     """
 
     def __init__(self, model: CameraModel, cam_z: float, cell_m: float, num_levels: int, filter_px: float, *,
-                 anisotropy: float = ANISOTROPY, max_subrows: int = MAX_SUBROWS, level_bias: float = LEVEL_BIAS):
+                 anisotropy: float = ANISOTROPY, max_subrows: int = MAX_SUBROWS, level_bias: float = LEVEL_BIAS,
+                 haze_m: tuple | None = (HAZE_NEAR_M, HAZE_FAR_M), fine_cell_m: float = 0.0):
         self.model = model
         self.cam_z = float(cam_z)
+        self.haze_m = haze_m
+        self.filter_px = float(filter_px)
+        self.fine_cell_m = float(fine_cell_m)
         self.anisotropy, self.max_subrows, self.level_bias = float(anisotropy), int(max_subrows), float(level_bias)
         h = model.height
         subs: list[tuple[int, float, float, float, int, int, float]] = []
@@ -163,6 +169,8 @@ class RowPlan:
                 self.sub_step[a:b] = self.sub_step[a:b].min()
         self.sub_weight = arr[:, 6].copy()
         self._sky_tables()
+        self._fine_gains()
+        self.edge_dir = self._edge_rays()
 
     def _ground_row(self, r, top, cell_m, num_levels, filter_px, subs) -> float:
         """Append row r's ground lines (covering image rows top..r+1) to `subs`; return its haze share."""
@@ -184,13 +192,46 @@ class RowPlan:
             along = float(m.ground_line(v0, cz)[0] - m.ground_line(v1, cz)[0])
             foot = max(filter_px * abs(dy), min(along, GROUND_MAX_M))
             level = int(np.clip(math.floor(math.log2(max(foot / cell_m, 1e-9)) + self.level_bias), 0, num_levels - 1))
-            fade = float(np.clip((x - HAZE_NEAR_M) / (HAZE_FAR_M - HAZE_NEAR_M), 0.0, 1.0)) ** 0.7
+            fade = 0.0 if self.haze_m is None else \
+                float(np.clip((x - self.haze_m[0]) / (self.haze_m[1] - self.haze_m[0]), 0.0, 1.0)) ** 0.7
             y0 = dy * (0.5 - 0.5 * m.width)
             texels = abs(dy) / (cell_m * 2.0 ** level)
             step = 4 if 4 * texels <= COLUMN_STEP_TEXELS else 2 if 2 * texels <= COLUMN_STEP_TEXELS else 1
             subs.append((r, x, y0, dy, level, step, share / n * (1.0 - fade)))
             haze += share / n * fade
         return haze
+
+    def _fine_gains(self) -> None:
+        """`sub_fine`: how much of the fine grain (values `fine_cell_m` apart on the ground) each ground line shows.
+        A pixel averages the grain over its footprint, which leaves 1 / sqrt(values covered) of it; lines read
+        from coarser raster levels, or that would keep under FINE_MIN_GAIN of it, show none (the raster's texel
+        noise stands in for it there, at no cost)."""
+        self.sub_fine = np.zeros(self.sub_x.size)
+        if self.fine_cell_m <= 0.0:
+            return
+        for j, r in enumerate(self.sub_row):
+            if self.sub_level[j] == 0:
+                across, along = self.footprint(int(r))
+                gain = min(1.0, self.fine_cell_m / math.sqrt(across * along))
+                self.sub_fine[j] = gain if gain >= FINE_MIN_GAIN else 0.0
+
+    def footprint(self, r: int) -> tuple[float, float]:
+        """Ground footprint of a pixel of image row r (below the horizon): across (filter width) and along, m."""
+        m, cz = self.model, self.cam_z
+        _, dy = m.ground_line(r + 0.5, cz)
+        along = float(m.ground_line(r, cz)[0] - m.ground_line(r + 1.0, cz)[0])
+        return self.filter_px * abs(float(dy)), max(along, 1e-9)
+
+    def _edge_rays(self) -> np.ndarray:
+        """(H + 1, W, 3) car-frame ray directions through the top edge of each image row (and the bottom edge of
+        the last), at column centres: what the renderer intersects with the walls."""
+        m = self.model
+        f = m.focal_px
+        uu = (np.arange(m.width) + 0.5 - 0.5 * m.width) / f
+        vv = (np.arange(m.height + 1) - 0.5 * m.height) / f
+        uu, vv = np.broadcast_arrays(uu[None, :], vv[:, None])
+        c, s = math.cos(m.pitch_rad), math.sin(m.pitch_rad)
+        return np.ascontiguousarray(np.stack([c - vv * s, -uu, -s - vv * c], axis=-1))
 
     def _sky_tables(self) -> None:
         """Panorama row and azimuth of each pixel, seen through the middle of its row's part above the horizon."""

@@ -1,63 +1,132 @@
-"""How the world looks to the camera: paint and colours of the track, ground and background, and the
-per-episode domain randomization of that look.
+"""How the world looks to the camera: paint and colours of the track, ground, walls and background, the grain
+of their textures, and the per-episode domain randomization of that look.
 
-AWS does not publish its track textures (facts §13), so these are racerlab's choices, made to
-give greyscale frames with the contrast of AWS's: a dark road, 5 cm white border lines painted
-just inside each border, a dashed orange-yellow centre line that turns mid grey, green-grey ground,
-a darker skyline band (walls, trees, buildings) and a light sky. Colours are RGB in [0, 255];
-`grey()` turns them into the AWS camera's Y = 0.2989 R + 0.587 G + 0.114 B.
+The default look (`TrackLook()`, also `LOOKS["aws"]`) is the AWS simulator's, worked out from its real camera
+frames (`../shared/reference/gazebo_frames`: what the simapp's 640×480 Gazebo camera gives after the resize to
+160×120 and the greyscale filter) and from its reInvent track model (simapp `bundle/meshes/reinvent/`):
+
+- geometry from the track mesh: white border lines 3 in (7.62 cm) wide painted inside each border, a dashed
+  centre line 1 in (2.54 cm) wide of 2 in (5.08 cm) dashes and 2 in gaps, a field around the track and a wall
+  1 m high around the field, 0.91 m beyond the track's bounding box (the field and wall meshes);
+- the grey of each material as the real frames show it under the simulator's lights: asphalt 85, field 166,
+  white lines 254 (the texture saturates), centre line 190, walls 84; above the walls Gazebo's default
+  background grey (0.7: 178). The colours keep the hue of the simapp's textures (dark blue asphalt, green
+  field, orange centre line, dark teal walls), scaled to those greys, so that a coloured light in domain
+  randomization changes each material as it would;
+- a grain fixed to the ground, as the textures have (`grain_*`): a fine pixel-scale part that near rows show,
+  and a coarser blotchy part that survives to the distance. Its strength per material is fitted to the real
+  frames (asphalt σ ≈ 5, field up to σ ≈ 17 grey levels near the car); no haze (Gazebo draws none).
+
+`LOOKS["classic"]` is racerlab's earlier look (a dark road with 5 cm lines, a light sky with a skyline, haze),
+kept for models trained with it. Colours are RGB in [0, 255]; `grey()` turns them into the AWS camera's
+Y = 0.2989 R + 0.587 G + 0.114 B.
 
 Domain randomization (`DomainRandomization`) follows what DRfC's `ENABLE_DOMAIN_RANDOMIZATION`
 does (facts §11: every light gets a random colour and attenuation before each episode) in the
 terms a greyscale camera can tell apart: a light colour and brightness (which change the grey of
-each material differently: a blue-ish light darkens the yellow centre line and the green ground
+each material differently: a blue-ish light darkens the orange centre line and the green field
 more than the white lines), a tone curve (contrast and gamma), a brightness gradient across the
-image (a light off to one side) and sensor noise.
+image (a light off to one side) and sensor noise. Every range is centred on the default look.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 LUMA = np.array([0.2989, 0.5870, 0.1140])
 
 # material order in TrackLook.colors()
-ROAD, LINE, CENTER, GROUND, SKY, SKYLINE, HAZE = range(7)
-N_MATERIALS = 7
+ROAD, LINE, CENTER, GROUND, SKY, SKYLINE, HAZE, WALL = range(8)
+N_MATERIALS = 8
+
+
+def _tint(rgb, grey: float) -> tuple:
+    """The colour of hue `rgb` whose grey is `grey`, channels kept within 255 (the others make up the rest)."""
+    c = np.asarray(rgb, dtype=np.float64) * grey / (np.asarray(rgb, dtype=np.float64) @ LUMA)
+    for _ in range(3):
+        over = c > 255.0
+        if not over.any():
+            break
+        c[over] = 255.0
+        free = ~over
+        c[free] *= (grey - c[over] @ LUMA[over]) / (c[free] @ LUMA[free])
+    return tuple(round(float(v), 2) for v in c)
+
+
+# the simapp's reInvent textures' mean colours (road, field, centre line, wall), for their hues
+ASPHALT_HUE, FIELD_HUE, CENTER_HUE, WALL_HUE = (36.1, 48.5, 64.0), (95.2, 135.6, 104.3), (194.4, 116.5, 0.0), \
+    (36.0, 70.0, 81.0)
+INCH_M = 0.0254
 
 
 @dataclass(frozen=True)
 class TrackLook:
-    """Paint geometry and material colours (RGB 0-255) of the rendered world."""
+    """Paint geometry, material colours (RGB 0-255), grain, walls and haze of the rendered world (see the module
+    docstring; the defaults are the AWS simulator's)."""
 
-    line_width_m: float = 0.05
-    center_width_m: float = 0.05
-    dash_m: float = 0.15
-    gap_m: float = 0.15
-    road: tuple = (42, 42, 46)
-    line: tuple = (236, 236, 236)
-    center: tuple = (235, 170, 40)
-    ground: tuple = (96, 142, 82)
-    sky: tuple = (200, 210, 222)
+    line_width_m: float = 3 * INCH_M
+    center_width_m: float = 1 * INCH_M
+    dash_m: float = 2 * INCH_M
+    gap_m: float = 2 * INCH_M
+    road: tuple = _tint(ASPHALT_HUE, 85.0)
+    line: tuple = (254.0, 254.0, 254.0)
+    center: tuple = _tint(CENTER_HUE, 190.0)
+    ground: tuple = _tint(FIELD_HUE, 166.0)
+    sky: tuple = (179, 179, 179)  # Gazebo's default background, 0.7 grey (178.5, a uint8 179), above the walls
     skyline: tuple = (84, 90, 96)
     haze: tuple = (165, 175, 180)
+    wall: tuple = _tint(WALL_HUE, 84.0)
     box: tuple = (200, 160, 110)  # obstacles: cardboard, light against the road
     bot_car: tuple = (90, 100, 190)  # bot cars: blue, between the road and the box in grey
     tyre: tuple = (30, 30, 34)  # a bot car's wheels
     skyline_seed: int = 2018
     # effective width of AWS's 640×480 → 160×120 PIL bilinear resize filter, in output pixels
     filter_px: float = 1.4
+    # walls around the field: this far beyond the track's bounding box, this high; None: an open horizon with
+    # the skyline panorama
+    wall_margin_m: float | None = 0.91
+    wall_height_m: float = 1.0
+    # the ground fades into the haze colour from haze_m[0] to haze_m[1] ahead; None: no haze
+    haze_m: tuple | None = None
+    # grain, as a fraction of each material's grey (road, line, centre, ground): the fine part's standard
+    # deviation at the pixel scale of the nearest rows, the blotchy part's over a few centimetres
+    grain_fine: tuple = (0.06, 0.0, 0.02, 0.17)
+    grain_blotch: tuple = (0.045, 0.0, 0.01, 0.04)
+    grain_seed: int = 2019
 
     def colors(self) -> np.ndarray:
         """(N_MATERIALS, 3) RGB in material order."""
-        return np.array([self.road, self.line, self.center, self.ground, self.sky, self.skyline, self.haze],
-                        dtype=np.float64)
+        return np.array([self.road, self.line, self.center, self.ground, self.sky, self.skyline, self.haze,
+                         self.wall], dtype=np.float64)
 
     def grey(self) -> np.ndarray:
         """(N_MATERIALS,) greyscale value of each material under white light."""
         return self.colors() @ LUMA
+
+    @property
+    def walls(self) -> bool:
+        return self.wall_margin_m is not None
+
+    @property
+    def grainy(self) -> bool:
+        return any(self.grain_fine) or any(self.grain_blotch)
+
+    def wall_box(self, track) -> tuple[float, float, float, float]:
+        """(x min, y min, x max, y max) of the walls around `track`, m."""
+        pts = np.vstack([track.inner, track.outer])
+        lo, hi = pts.min(axis=0) - self.wall_margin_m, pts.max(axis=0) + self.wall_margin_m
+        return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+    def fine_grain_table(self) -> np.ndarray:
+        """(257,) float32: the fine grain's standard deviation, grey levels, over the grey read from the raster
+        (0..256): each material's fraction of its grey, interpolated between the materials' greys."""
+        g = self.grey()[[ROAD, CENTER, GROUND, LINE]]
+        amp = np.array(self.grain_fine)[[0, 2, 3, 1]] * g
+        order = np.argsort(g)
+        v = np.minimum(np.arange(257), 255).astype(np.float64)
+        return np.interp(v, g[order], amp[order]).astype(np.float32)
 
     def object_grey(self, bot_car: bool = False) -> float:
         """Grey under white light of an obstacle box, or of a bot car's body."""
@@ -99,28 +168,40 @@ class TrackLook:
         return np.ascontiguousarray(np.hstack([pano, pano[:, :1]]), dtype=np.float32)
 
 
+
+CLASSIC = dict(line_width_m=0.05, center_width_m=0.05, dash_m=0.15, gap_m=0.15, road=(42, 42, 46),
+               line=(236, 236, 236), center=(235, 170, 40), ground=(96, 142, 82), sky=(200, 210, 222),
+               wall_margin_m=None, haze_m=(4.0, 30.0), grain_fine=(0.0, 0.0, 0.0, 0.0),
+               grain_blotch=(0.0, 0.0, 0.0, 0.0))
+LOOKS = {"aws": TrackLook(), "classic": replace(TrackLook(), **CLASSIC)}
+
+
 @dataclass(frozen=True)
 class DomainRandomization:
     """Ranges of the camera's per-episode look; each car draws its own at the start of every episode.
 
     - `brightness`: gain of the light (1 = the default look);
     - `tint`: each RGB channel of the light colour is scaled by a draw from this range (then the
-      colour is normalised to its brightest channel), so materials change grey by their colour;
+      colour is normalised to a neutral grey's gain of 1), so materials change grey by their colour;
     - `contrast`: slope of the tone curve around mid grey; `gamma`: its exponent;
     - `gradient`: the gain changes linearly by up to this fraction from the image centre to its
       left/right and top/bottom edges (a light off to one side);
     - `noise_sigma`: the standard deviation of per-pixel Gaussian noise, grey levels, drawn from
       [0, noise_sigma] per episode; fresh noise every frame.
 
-    The defaults are racerlab's choice (AWS gives lights a uniform random colour and attenuation
-    in [0, 1] but publishes no resulting image statistics); they keep the road darker than the
-    lines in almost every draw, as in AWS's randomized frames.
+    The ranges are racerlab's choice (AWS gives lights a uniform random colour and attenuation
+    in [0, 1] but publishes no resulting image statistics), centred on the default look: brightness
+    and contrast around 1, gamma from 0.8 to 1.2 (which leaves mid greys where they were on average),
+    a tint that keeps a neutral grey's level, a gradient either way. Averaged over draws, a frame's
+    greys are the default look's but for the white lines' light clipped at 255, about 3 grey levels
+    darker over a frame (`tests/sim/test_sensors.py`); the road stays darker than the lines in
+    almost every draw.
     """
 
-    brightness: tuple[float, float] = (0.55, 1.35)
-    tint: tuple[float, float] = (0.55, 1.0)
+    brightness: tuple[float, float] = (0.7, 1.3)
+    tint: tuple[float, float] = (0.6, 1.0)
     contrast: tuple[float, float] = (0.7, 1.3)
-    gamma: tuple[float, float] = (0.75, 1.35)
+    gamma: tuple[float, float] = (0.8, 1.2)
     gradient: float = 0.25
     noise_sigma: float = 6.0
 
@@ -138,7 +219,7 @@ class Lighting:
     """Per-car lighting arrays the renderer reads (B rows); `plain[i]` skips every per-pixel change."""
 
     plain: np.ndarray  # (B,) bool: the default look, no tone curve, gradient or noise
-    coef: np.ndarray  # (B, 5) neutral gain, ground and centre corrections, haze grey, sky gain
+    coef: np.ndarray  # (B, 7) neutral gain, ground and centre corrections, haze grey, sky gain, wall and sky greys
     tone: np.ndarray  # (B, 257) float32 tone curve over greys 0..256 (the last entry repeats 255's)
     light: np.ndarray  # (B, 3) gain at the image centre and its change to the right / bottom edge
     noise_amp: np.ndarray  # (B,) noise standard deviation, grey levels
@@ -146,10 +227,12 @@ class Lighting:
     @classmethod
     def default(cls, num_cars: int, look: TrackLook) -> Lighting:
         g = look.grey()
-        coef = np.zeros((num_cars, 5))
+        coef = np.zeros((num_cars, 7))
         coef[:, 0] = 1.0
         coef[:, 3] = g[HAZE]
         coef[:, 4] = 1.0
+        coef[:, 5] = g[WALL]
+        coef[:, 6] = g[SKY]
         tone = np.tile(np.minimum(np.arange(257), 255).astype(np.float32), (num_cars, 1))
         light = np.zeros((num_cars, 3))
         light[:, 0] = 1.0
@@ -162,7 +245,7 @@ class Lighting:
         if n == 0:
             return None
         tint = rng.uniform(*dr.tint, size=(n, 3))
-        tint /= tint.max(axis=1, keepdims=True)
+        tint /= (tint @ LUMA)[:, None]  # a neutral grey keeps its level: the tint changes colours only
         light_rgb = tint * rng.uniform(*dr.brightness, size=(n, 1))
         cols = look.colors()
         lit = (light_rgb[:, None, :] * cols[None, :, :]) @ LUMA  # (n, materials) grey under that light
@@ -173,6 +256,8 @@ class Lighting:
         self.coef[rows, 2] = lit[:, CENTER] - neutral * white[CENTER]
         self.coef[rows, 3] = lit[:, HAZE]
         self.coef[rows, 4] = lit[:, SKY] / white[SKY]
+        self.coef[rows, 5] = lit[:, WALL]
+        self.coef[rows, 6] = lit[:, SKY]
         self.tone[rows] = tone_curves(rng.uniform(*dr.contrast, size=n), rng.uniform(*dr.gamma, size=n))
         self.light[rows, 0] = 1.0
         self.light[rows, 1:] = rng.uniform(-dr.gradient, dr.gradient, size=(n, 2))

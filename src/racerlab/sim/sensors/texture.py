@@ -12,6 +12,11 @@ domain randomization, the fractions of ground and centre paint, whose grey depen
 colour. Coarser levels (2, 4, ... cm) average 2×2 texels; the renderer picks per image row the
 level that matches the pixel's footprint on the ground, which is what keeps distant lines from
 shimmering.
+
+A grainy look (`TrackLook.grain_*`) also puts its grain into the raster: blotches (noise on a 3 cm grid,
+interpolated) and texel noise, each a fraction of the material's grey, seeded by the look, so that the grain
+is fixed to the ground and the same on every run. The grain finer than a texel is a separate small tile
+(`fine_grain`) that the renderer adds on the nearest rows.
 """
 
 from __future__ import annotations
@@ -30,6 +35,11 @@ RASTER_CELL_M = 0.005  # paint raster, level 0
 BORDER_REACH_M = 0.25  # |e| is exact up to this distance from a border, clamped beyond
 FAR_M = 10.0  # `d` of cells no centre segment reached
 MAX_LEVELS = 9  # 5 mm ... 1.28 m
+BLOTCH_TEXELS = 6  # the grain's blotches: noise on a 3 cm grid
+COARSE_SHARE = 0.5  # the texel noise's share of the fine grain (a 5 mm texel averages the finer grain)
+FINE_CELL_M = RASTER_CELL_M / 4  # the fine grain tile: 1.25 mm per value, 256 values (0.32 m) before it repeats
+FINE_TILE = 256  # 64 KB of int8: it stays in the core's cache while a frame reads it all over
+FINE_SCALE = 1.0 / 32.0  # the tile's int8 values are unit noise × 32
 
 
 @njit(cache=True, inline="always")
@@ -250,7 +260,20 @@ class TrackRaster:
         g = self.look.grey()
         road, line, cen = frac[..., 0], frac[..., 1], frac[..., 2]
         bare = np.maximum(road - line - cen, 0.0)
-        grey = g[GROUND] * (1.0 - road) + g[ROAD] * bare + g[LINE] * line + g[CENTER] * cen
+        look = self.look
+        # grey = sum over materials of share · grey · (1 + blotch · B + texel noise · N): three weighted sums
+        parts = ((GROUND, 1.0 - road, 3), (ROAD, bare, 0), (LINE, line, 1), (CENTER, cen, 2))
+        grey = np.zeros((h, w), dtype=np.float32)
+        blotchy = np.zeros((h, w), dtype=np.float32) if look.grainy else None
+        noisy = np.zeros((h, w), dtype=np.float32) if look.grainy else None
+        for m, share, k in parts:
+            grey += np.float32(g[m]) * share
+            if look.grainy:
+                blotchy += np.float32(g[m] * look.grain_blotch[k]) * share
+                noisy += np.float32(g[m] * COARSE_SHARE * look.grain_fine[k]) * share
+        if look.grainy:
+            blotch, texel = coarse_grain(h, w, look)
+            grey += blotchy * blotch + noisy * texel
         # kept as bytes until domain randomization asks for their pyramids
         self._ground0 = np.rint(255.0 * (1.0 - road)).astype(np.uint8)
         self._center0 = np.rint(255.0 * cen).astype(np.uint8)
@@ -277,6 +300,26 @@ class TrackRaster:
     def nbytes(self) -> int:
         extra = sum(p.data.nbytes for p in self._fractions) if self._fractions else 0
         return int(self.grey.data.nbytes + extra)
+
+
+def coarse_grain(h: int, w: int, look: TrackLook) -> tuple[np.ndarray, np.ndarray]:
+    """Two (h, w) float32 fields of unit standard deviation over the raster's texels: blotches (noise on a grid of
+    BLOTCH_TEXELS, interpolated) and texel noise. Seeded by the look, so a track always has the same grain."""
+    from scipy.ndimage import zoom
+
+    rng = np.random.default_rng(look.grain_seed)
+    coarse = rng.standard_normal((h // BLOTCH_TEXELS + 2, w // BLOTCH_TEXELS + 2)).astype(np.float32)
+    blotch = zoom(coarse, BLOTCH_TEXELS, order=1)[:h, :w]
+    blotch /= max(float(blotch.std()), 1e-6)
+    return blotch, rng.standard_normal((h, w), dtype=np.float32)
+
+
+def fine_grain(look: TrackLook) -> np.ndarray:
+    """(FINE_TILE, FINE_TILE) int8 unit noise × 1 / FINE_SCALE: the grain finer than a raster texel, tiled over the
+    ground at FINE_CELL_M per value (the renderer adds it where a pixel sees less than a texel)."""
+    rng = np.random.default_rng([look.grain_seed, 1])
+    unit = rng.standard_normal((FINE_TILE, FINE_TILE))
+    return np.clip(np.rint(unit / FINE_SCALE), -127, 127).astype(np.int8)
 
 
 _CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
