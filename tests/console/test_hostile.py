@@ -7,7 +7,9 @@ import os
 import subprocess
 import sys
 
-SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
+import racerlab
+
+SRC = os.path.dirname(os.path.dirname(racerlab.__file__))  # the racerlab under test, in the child too
 
 
 def _terminal_trainer(folder) -> subprocess.Popen:

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from racerlab.errors import RacerlabError
+from racerlab.logs import pid_alive
 
 try:  # POSIX
     import fcntl
@@ -44,20 +45,6 @@ def process_start(pid: int) -> str | None:
         return None
     fields = stat.rsplit(")", 1)[-1].split()
     return fields[19] if len(fields) > 19 else None  # field 22 of stat; fields[0] is field 3
-
-
-def pid_alive(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # it exists, under another user
-        return True
-    except OSError:  # pragma: no cover - Windows: no such process
-        return False
-    return True
 
 
 def _same_process(pid: int, start: str | None) -> bool:
