@@ -217,3 +217,59 @@ def test_an_import_still_works_into_an_empty_folder(tmp_path, car):
     (tmp_path / "empty").mkdir()
     out = import_model(car[0], tmp_path / "empty")
     assert json.loads((out / "lineage.json").read_text())["imported"]["weights"] == "model.pb"
+
+
+# ---- 8, 12: S3 pull into a folder that has files; bad endpoints, profiles and keys ----------------------------------
+def _dead_pid() -> int:
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    return gone.pid
+
+
+def test_pull_refuses_a_folder_with_files_unless_forced(s3_server, tmp_path, capsys):
+    s3_server.put_object(Bucket="races", Key="m/reward_function.py", Body=b"def reward_function(p):\n    return 2.0\n")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "reward_function.py").write_text("my own reward\n")
+    assert main(["s3", "pull", "s3://races/m", str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert "not empty" in err and "--force" in err and err.count("\n") == 1
+    assert (mine / "reward_function.py").read_text() == "my own reward\n"
+    assert main(["s3", "pull", "s3://races/m", str(mine), "--force"]) == 0
+    assert "return 2.0" in (mine / "reward_function.py").read_text()
+
+
+def test_a_killed_pulls_part_files_are_removed_and_do_not_count_as_files(s3_server, tmp_path):
+    s3_server.put_object(Bucket="races", Key="m/model_metadata.json", Body=b"{}")
+    dest = tmp_path / "pulled"
+    (dest / "model").mkdir(parents=True)
+    stale = dest / "model" / f".model_3.pb.part-{_dead_pid()}-k2j4"
+    stale.write_bytes(bytes(1000))
+    assert main(["s3", "pull", "s3://races/m", str(dest)]) == 0
+    assert not stale.exists() and (dest / "model_metadata.json").read_bytes() == b"{}"
+
+
+@pytest.mark.parametrize("keys, message", [
+    (["m/a", "m/a/b"], "both an object and a folder"),
+    (["m/" + "x" * 300], "too long for a file name"),
+])
+def test_keys_that_cannot_be_files_are_one_line_before_any_write(s3_server, tmp_path, capsys, keys, message):
+    for k in keys:
+        s3_server.put_object(Bucket="races", Key=k, Body=b"1")
+    assert main(["s3", "pull", "s3://races/m", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not any((tmp_path / "p").rglob("*")) if (tmp_path / "p").exists() else True
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--endpoint-url", "localhost:9000"], "--endpoint-url localhost:9000: not an http(s) URL"),
+    (["--profile", "no-such-profile-here"], "--profile no-such-profile-here: no such profile"),
+])
+def test_bad_endpoint_or_profile_is_one_line(tmp_path, capsys, monkeypatch, flags, message):
+    pytest.importorskip("boto3")
+    monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "config"))
+    monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", str(tmp_path / "credentials"))
+    assert main(["s3", "pull", "s3://races/m", str(tmp_path / "p"), *flags]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1

@@ -103,7 +103,8 @@ class Workspace:
     def model_names(self) -> list[str]:
         out = []
         for p in sorted(self.root.iterdir()):
-            if p.is_dir() and not p.name.startswith(".") and (p / "model_metadata.json").is_file():
+            plain = p.is_dir() and not p.is_symlink()  # a linked folder is not listed (nor served)
+            if plain and not p.name.startswith(".") and (p / "model_metadata.json").is_file():
                 out.append(p.name)
         return out
 

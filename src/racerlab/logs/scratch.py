@@ -1,4 +1,4 @@
-"""racerlab's temporary folders, in one place: `<temp>/racerlab-<user>/<kind>-<pid>-<random>/`.
+"""racerlab's temporary folders, in one place: `<temp>/racerlab-<user>/<kind>-pid<pid>-<random>/`.
 
 `<temp>` is `RACERLAB_TMPDIR`, else the system's (`TMPDIR`, `/tmp`). A folder is removed when its `with` block
 ends, however it ends (an error, Ctrl-C); a process killed with -9 cannot clean up, so the next racerlab that
@@ -9,6 +9,7 @@ makes a temporary folder removes the folders of processes that are gone. Atomic 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -50,17 +51,18 @@ def scratch_root() -> Path:
     return root
 
 
+OWNER_RE = re.compile(r"(?:-pid|\.tmp-|\.part-)(\d+)-[A-Za-z0-9_]+$")
+
+
 def owner_pid(name: str) -> int | None:
-    """The PID written in a temporary name (`<kind>-<pid>-<random>` or an atomic write's `.x.tmp-<pid>-<r>`)."""
-    tail = name.rsplit(".tmp-", 1)[-1] if ".tmp-" in name else name.split("-", 1)[-1]
-    try:
-        return int(tail.split("-", 1)[0])
-    except ValueError:
-        return None
+    """The PID written in a temporary name: `<kind>-pid<pid>-<random>` (a scratch folder), `.<name>.tmp-<pid>-<r>`
+    (an atomic write), `.<name>.part-<pid>-<r>` (a download)."""
+    m = OWNER_RE.search(name)
+    return int(m.group(1)) if m else None
 
 
 def sweep(folder: Path, is_ours=lambda name: True) -> list[Path]:
-    """Remove the entries of `folder` (those `is_ours` accepts) whose owner process is gone."""
+    """Remove the entries of `folder` (those `is_ours` accepts) whose owner process (`owner_pid`) is gone."""
     removed = []
     try:
         entries = list(folder.iterdir())
@@ -83,7 +85,7 @@ def scratch_dir(kind: str) -> Iterator[Path]:
     """A fresh private temporary folder for the `with` block; it is removed when the block ends."""
     root = scratch_root()
     sweep(root)
-    path = Path(tempfile.mkdtemp(prefix=f"{kind}-{os.getpid()}-", dir=root))
+    path = Path(tempfile.mkdtemp(prefix=f"{kind}-pid{os.getpid()}-", dir=root))
     try:
         yield path
     finally:
