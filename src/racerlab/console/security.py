@@ -31,6 +31,7 @@ CSRF_HEADER = "X-CSRF-Token"
 MAX_UPLOAD_BYTES = 512 * 1024 * 1024
 MAX_ARCHIVE_MEMBERS = 100_000
 MAX_ARCHIVE_BYTES = 8 * 1024 * 1024 * 1024
+MIN_TOKEN_CHARS = 16  # a token guessed by anyone who can reach the port is no token
 SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 
 
@@ -119,6 +120,9 @@ class Guard:
     """The token (None on loopback) and the CSRF token of one console process."""
 
     def __init__(self, host: str, token: str | None = None):
+        if token is not None and (len(token) < MIN_TOKEN_CHARS or not token.isprintable() or " " in token):
+            raise ConsoleError(f"--token: {len(token)} characters; a token needs at least {MIN_TOKEN_CHARS} "
+                               "printable characters without spaces (leave --token out for a random one)")
         self.loopback = is_loopback(host)
         self.token = token or (None if self.loopback else secrets.token_urlsafe(24))
         self.csrf = secrets.token_urlsafe(24)

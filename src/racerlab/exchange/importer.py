@@ -178,7 +178,7 @@ def _pick_checkpoint(root: Path, files: list[Path]) -> Path | None:
 def _index_names(text: str) -> list[str]:
     try:
         data = json.loads(text)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         return []
     return [str(data.get(k, {}).get("name", "")) for k in ("best_checkpoint", "last_checkpoint")
             if isinstance(data.get(k), dict)]
