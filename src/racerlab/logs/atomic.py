@@ -64,6 +64,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, fsync: bool = True)
                 f.flush()
                 os.fsync(f.fileno())
         return commit_temp(tmp, path, fsync)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        if exc.filename is None:  # a failed write names no file: name the one being written
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
