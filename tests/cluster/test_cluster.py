@@ -293,3 +293,16 @@ def test_a_local_cluster_starts_with_token_authentication_and_old_ray_is_refused
     fake.__version__ = "2.9.3"
     with pytest.raises(RacerlabError, match=r"ray 2\.9\.3 .* ray >= 2\.52"):
         collector.connect()
+
+
+def test_an_error_inside_a_worker_is_racerlabs_message_not_rays_traceback(cluster, tmp_path):
+    from racerlab.errors import RewardFunctionError
+
+    model = _small_model(tmp_path / "m")
+    (model / "reward_function.py").write_text("def reward_function(params):\n    return params['no_such_key']\n")
+    trainer = ClusterTrainer(model, 2, cluster, progress=False, iterations=1)
+    with pytest.raises(RewardFunctionError) as err:
+        trainer.run()
+    msg = str(err.value)
+    assert "reward_function.py:2" in msg and "KeyError" in msg
+    assert "Traceback" not in msg and "ray" not in msg.lower() and len(msg.splitlines()) <= 2

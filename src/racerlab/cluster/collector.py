@@ -180,8 +180,8 @@ class RayCollector:
 def _remote_error(exc, where) -> RacerlabError:
     """One line for an exception raised inside a worker (Ray's own message carries the remote traceback)."""
     cause = getattr(exc, "cause", None) or exc
-    if isinstance(cause, RacerlabError):
-        return RacerlabError(str(cause).splitlines()[0] if str(cause) else type(cause).__name__)
+    if isinstance(cause, RacerlabError) and not isinstance(cause, type(exc)):
+        return cause  # racerlab's own message (a reward's error names its file, line and params)
     lines = [ln.strip() for ln in str(cause).splitlines() if ln.strip()]
     return RacerlabError(f"{where}: {type(cause).__name__}: {lines[-1] if lines else ''}; the worker's log under "
                          "the Ray session folder has the traceback")
