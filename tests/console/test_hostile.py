@@ -159,3 +159,10 @@ def test_a_linked_model_folder_or_file_is_neither_listed_nor_served(console, tmp
     assert r.status_code == 200 and [m["name"] for m in r.json()["models"]] == ["real"]
     r = c.get("/api/models/real/report")
     assert r.status_code == 404 and "secret" not in r.text
+
+
+def test_an_absurdly_nested_request_body_is_one_line(console):
+    body = "[" * 100_000 + "]" * 100_000
+    r = console.client.post("/api/models", content=body, headers={"Content-Type": "application/json"})
+    assert r.status_code in (400, 422), r.text[:200]
+    assert "Internal Server Error" not in r.text
