@@ -53,7 +53,7 @@ def one_run(size_mib: int) -> dict:
         return {"size_mib": size_mib, "rc": full.returncode, "stderr_lines": len(err.splitlines()),
                 "traceback": "Traceback" in full.stderr, "message": err[-300:],
                 "iterations_before_full": last.iteration if last else 0, "last_checkpoint_loads": loads,
-                "temp_files_left": len(temp_left), "lock_left": lock_left,
+                "temp_files_left": len(temp_left), "temp_names": temp_left[:3], "lock_left": lock_left,
                 "resume_rc": again.returncode, "resumed_at": int(resumed.group(1)) if resumed else None,
                 "seconds": round(time.perf_counter() - t0, 1)}
     finally:

@@ -68,3 +68,23 @@ def test_a_killed_writers_temporary_file_goes_when_the_folder_is_next_written(tm
                                        ("model-1.pb", None), ("notes.txt", None)])
 def test_owner_pids_are_read_from_the_names(name, pid):
     assert owner_pid(name) == pid
+
+
+def test_a_simtrace_that_meets_a_full_disk_leaves_no_temporary_file(tmp_path, monkeypatch):
+    import errno
+
+    from racerlab.logs import SimtraceWriter
+    from tests.logs.test_simtrace import as_columns, one_row
+
+    path = tmp_path / "training-simtrace" / "3-iteration.csv"
+    w = SimtraceWriter(path)
+    w.write(as_columns([one_row()] * 10))
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OSError) as err:
+        w.close()
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(path)
+    assert list(path.parent.iterdir()) == []
