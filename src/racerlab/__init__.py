@@ -10,6 +10,29 @@ import os as _os
 # so it is set here, before anything in racerlab imports torch; a value set by the user is kept.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+
+def _numba_cache_dir() -> None:
+    """numba's compiled-kernel cache goes to the user's cache folder, not into the package's source tree (a git
+    checkout's `src/racerlab/*/__pycache__`); a NUMBA_CACHE_DIR set by the user is kept. Set before numba loads."""
+    if "NUMBA_CACHE_DIR" in _os.environ:
+        return
+    if _os.name == "nt":
+        base = _os.environ.get("LOCALAPPDATA") or _os.path.expanduser("~\\AppData\\Local")
+    elif _os.uname().sysname == "Darwin":
+        base = _os.path.expanduser("~/Library/Caches")
+    else:
+        base = _os.environ.get("XDG_CACHE_HOME") or _os.path.expanduser("~/.cache")
+    path = _os.path.join(base, "racerlab", "numba")
+    try:
+        _os.makedirs(path, exist_ok=True)
+    except OSError:
+        return  # numba then picks its own place, as before
+    if _os.access(path, _os.W_OK):
+        _os.environ["NUMBA_CACHE_DIR"] = path
+
+
+_numba_cache_dir()
+
 from racerlab.errors import ConfigError, RacerlabError, RewardFunctionError, TrackError  # noqa: E402
 
 __all__ = ["ConfigError", "RacerlabError", "RewardFunctionError", "TrackError", "__version__"]

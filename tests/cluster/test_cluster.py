@@ -249,3 +249,60 @@ def broadcast_state_of(worker):
     from racerlab.cluster.worker import broadcast_state
 
     return broadcast_state(worker.agent)
+
+
+def test_a_stopped_worker_is_given_up_at_the_deadline_and_replaced(cluster, tmp_path, capsys):
+    """SIGSTOP, not death: the worker's process lives on, so only a deadline ends the wait."""
+    import threading
+
+    model = _small_model(tmp_path / "m")
+    trainer = ClusterTraining(model, 2, cluster, progress=True, iterations=1)
+    trainer.collector.worker_timeout_s = 15.0
+    pid = trainer.collector.info[1]["pid"]
+    os.kill(pid, signal.SIGSTOP)
+    result = {}
+    try:
+        run = threading.Thread(target=lambda: result.update(r=trainer.run()), daemon=True)
+        run.start()
+        run.join(150)
+        assert not run.is_alive(), "the driver still waits for the stopped worker"
+    finally:
+        for sig in (signal.SIGCONT, signal.SIGKILL):
+            try:
+                os.kill(pid, sig)
+            except ProcessLookupError:
+                pass
+    assert result["r"].iterations == 1 and result["r"].episodes == 2  # worker 0's two episodes
+    assert trainer.failures == [{"iteration": 1, "workers": [1]}]
+    assert "worker 1 (no answer within" in capsys.readouterr().out
+
+
+def test_a_local_cluster_starts_with_token_authentication_and_old_ray_is_refused(monkeypatch):
+    from types import SimpleNamespace
+
+    from racerlab.cluster import collector
+    from racerlab.errors import RacerlabError
+
+    seen = {}
+    fake = SimpleNamespace(__version__="2.60.0", is_initialized=lambda: False,
+                           init=lambda **kw: seen.update(kw, auth=os.environ.get("RAY_AUTH_MODE")))
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    collector.connect()
+    assert seen["auth"] == "token" and "address" not in seen
+    fake.__version__ = "2.9.3"
+    with pytest.raises(RacerlabError, match=r"ray 2\.9\.3 .* ray >= 2\.52"):
+        collector.connect()
+
+
+def test_an_error_inside_a_worker_is_racerlabs_message_not_rays_traceback(cluster, tmp_path):
+    from racerlab.errors import RewardFunctionError
+
+    model = _small_model(tmp_path / "m")
+    (model / "reward_function.py").write_text("def reward_function(params):\n    return params['no_such_key']\n")
+    trainer = ClusterTraining(model, 2, cluster, progress=False, iterations=1)
+    with pytest.raises(RewardFunctionError) as err:
+        trainer.run()
+    msg = str(err.value)
+    assert "reward_function.py:2" in msg and "KeyError" in msg
+    assert "Traceback" not in msg and "ray" not in msg.lower() and len(msg.splitlines()) <= 2

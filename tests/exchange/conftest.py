@@ -1,10 +1,12 @@
-"""Model folders with trained-looking weights for the exchange tests, and observation batches."""
+"""Model folders with trained-looking weights for the exchange tests, observation batches, and an S3 server."""
 
 from __future__ import annotations
 
 import json
+import socket
 
 import numpy as np
+import pytest
 import torch
 
 from racerlab.agent import PPO, SAC
@@ -64,3 +66,25 @@ def racerlab_policy_output(model, obs) -> np.ndarray:
         if model.metadata.action_space_type == "discrete":
             out = torch.softmax(out, dim=-1)
         return out.numpy()
+
+
+@pytest.fixture
+def s3_server(monkeypatch):
+    moto_server = pytest.importorskip("moto.server", reason="needs moto[server]: pip install -e '.[test]'")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    for k, v in {"AWS_ACCESS_KEY_ID": "racerlab", "AWS_SECRET_ACCESS_KEY": "racerlab-secret",
+                 "AWS_DEFAULT_REGION": "us-east-1", "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}"}.items():
+        monkeypatch.setenv(k, v)
+    monkeypatch.delenv("AWS_PROFILE", raising=False)
+    try:
+        import boto3
+
+        s3 = boto3.client("s3", endpoint_url=f"http://127.0.0.1:{port}")
+        s3.create_bucket(Bucket="races")
+        yield s3
+    finally:
+        server.stop()

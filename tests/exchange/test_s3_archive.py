@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import io
-import socket
 import tarfile
 
 import pytest
@@ -12,28 +11,6 @@ from racerlab.cli import main
 from racerlab.errors import ConfigError
 from racerlab.exchange import import_model
 from tests.exchange.conftest import make_model
-
-
-@pytest.fixture
-def s3_server(monkeypatch):
-    moto_server = pytest.importorskip("moto.server", reason="needs moto[server]: pip install -e '.[test]'")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    for k, v in {"AWS_ACCESS_KEY_ID": "racerlab", "AWS_SECRET_ACCESS_KEY": "racerlab-secret",
-                 "AWS_DEFAULT_REGION": "us-east-1", "AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}"}.items():
-        monkeypatch.setenv(k, v)
-    monkeypatch.delenv("AWS_PROFILE", raising=False)
-    try:
-        import boto3
-
-        s3 = boto3.client("s3", endpoint_url=f"http://127.0.0.1:{port}")
-        s3.create_bucket(Bucket="races")
-        yield s3
-    finally:
-        server.stop()
 
 
 def test_push_pull_round_trip_multipart_checksums_and_rerun(s3_server, tmp_path, capsys):

@@ -8,12 +8,20 @@ its parser and sets `func`; heavy imports happen inside the command functions so
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import sys
 from pathlib import Path
 
 from racerlab import __version__
 from racerlab.errors import RacerlabError
+
+DISK_ERRORS = {  # errors of the disk rather than of racerlab: one line, with what to do
+    errno.ENOSPC: "free some disk space and run the command again",
+    errno.EDQUOT: "your disk quota is used up; free some space and run the command again",
+    errno.EROFS: "the folder is on a read-only disk; choose a folder you can write",
+    errno.EACCES: "you may not write there; choose a folder you own",
+}
 
 # module names under racerlab.cli, in the order `racerlab --help` lists them
 COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "calibrate", "report", "reward", "sim",
@@ -64,6 +72,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("racerlab: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno not in DISK_ERRORS:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"racerlab: error: {where}{exc.strerror}; {DISK_ERRORS[exc.errno]} (files are written whole or not "
+              "at all: a training resumes from its last complete iteration)", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

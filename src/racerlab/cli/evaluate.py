@@ -45,7 +45,7 @@ RACE_FLAGS = (
     ("obstacle_type", str, "box_obstacle, deepracer_box_obstacle or amazon_box_obstacle"),
     ("randomize_obstacle_locations", bool, "re-draw the boxes between their neighbours, random lane"),
     ("object_positions", str, "fixed boxes as 'fraction,lane;...' (lane 1 inner, -1 outer), e.g. '0.25,1;0.5,-1'"),
-    ("min_distance_between_obstacles", float, "% of the lap"),
+    ("min_distance_between_obstacles", float, "%% of the lap"),
     ("number_of_bot_cars", int, "bot cars (head_to_bot)"),
     ("randomize_bot_car_locations", bool, "re-draw the bots between their neighbours, random lane"),
     ("bot_car_speed", float, "m/s"),

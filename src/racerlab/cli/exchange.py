@@ -38,6 +38,8 @@ def register(sub) -> None:
     pull = s3.add_parser("pull", help="download s3://bucket/prefix into DIR")
     pull.add_argument("url", metavar="s3://bucket/prefix")
     pull.add_argument("dir", type=Path)
+    pull.add_argument("--force", action="store_true", help="pull into a folder that is not empty, overwriting the "
+                                                           "files the pull brings")
     for q in (push, pull):
         q.add_argument("--profile", help="AWS CLI profile (default: AWS_PROFILE or the default profile)")
         q.add_argument("--region", help="AWS region (default: AWS_DEFAULT_REGION or the profile's)")
@@ -91,6 +93,6 @@ def run_push(args) -> int:
 def run_pull(args) -> int:
     from racerlab.exchange.s3 import pull
 
-    n = pull(args.url, args.dir, args.profile, args.region, args.endpoint_url)
+    n = pull(args.url, args.dir, args.profile, args.region, args.endpoint_url, force=args.force)
     print(f"pulled {n} files into {args.dir}; make a racerlab model of it with `racerlab import {args.dir}`")
     return 0

@@ -10,6 +10,8 @@ says so, and a fresh worker takes the dead one's place for the next iteration.
 from __future__ import annotations
 
 import math
+import os
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -19,6 +21,12 @@ from racerlab.cluster.worker import RolloutWorker, broadcast_state
 from racerlab.errors import RacerlabError
 from racerlab.train.rollout import Rollout, concat_obs
 
+RAY_MIN = (2, 52)  # the first Ray with token authentication
+WORKER_START_S = 600.0  # workers build their worlds (and compile) before they answer
+WORKER_TIMEOUT_S = 1800.0  # one iteration's collection on a worker, at most
+STRAGGLER_FACTOR = 3.0  # once a worker has answered, the others get this many times its time...
+STRAGGLER_MIN_S = 60.0  # ...plus this
+
 
 def split_episodes(target: int, workers: int) -> list[int]:
     """Episodes per worker when episode k is served by worker k mod `workers` (DRfC)."""
@@ -26,16 +34,27 @@ def split_episodes(target: int, workers: int) -> list[int]:
 
 
 def connect(address: str | None = None, num_cpus: int | None = None):
-    """`ray.init` once per process: an existing cluster at `address` (or RAY_ADDRESS), else a local one."""
+    """`ray.init` once per process: an existing cluster at `address` (or RAY_ADDRESS), else a local one.
+
+    Ray's nodes listen on every interface, so a local cluster is started with Ray's token authentication
+    (RAY_AUTH_MODE=token, Ray >= 2.52), unless RAY_AUTH_MODE says otherwise."""
     import ray
 
+    if _version(ray.__version__) < RAY_MIN:
+        raise RacerlabError(f"ray {ray.__version__} is installed; racerlab needs ray >= "
+                            f"{'.'.join(map(str, RAY_MIN))} (token authentication): pip install -U 'racerlab[cluster]'")
     if not ray.is_initialized():
         kwargs = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
         if address:
             ray.init(address=address, **kwargs)
         else:
+            os.environ.setdefault("RAY_AUTH_MODE", "token")
             ray.init(num_cpus=num_cpus, **kwargs)
     return ray
+
+
+def _version(text: str) -> tuple[int, ...]:
+    return tuple(int(p) for p in re.findall(r"\d+", text)[:2]) or (0,)
 
 
 @dataclass
@@ -60,8 +79,15 @@ class RayCollector:
         self.overrides = overrides
         self.note = note
         self.actor_class = self.ray.remote(num_cpus=1, max_restarts=0)(RolloutWorker)
+        self.worker_timeout_s = WORKER_TIMEOUT_S
         self.actors = [self._spawn(k) for k in range(workers)]
-        self.info = self.ray.get([a.describe.remote() for a in self.actors])
+        try:
+            self.info = self.ray.get([a.describe.remote() for a in self.actors], timeout=WORKER_START_S)
+        except self.ray.exceptions.GetTimeoutError:
+            raise RacerlabError(f"{self.model_dir}: the {workers} rollout workers did not start within "
+                                f"{WORKER_START_S:g} s; check `ray status` (free CPUs) and start again") from None
+        except self.ray.exceptions.RayTaskError as exc:
+            raise _remote_error(exc, self.model_dir) from None
         self.episodes = [0] * workers  # each worker counts its own episodes from 0, as the simulator does
         self.report = WorkerReport()
         self.starts: list[list[int]] = [[] for _ in range(workers)]
@@ -90,15 +116,22 @@ class RayCollector:
                 steps = max(1, math.ceil(max_steps * c / max(target_episodes, 1)))
                 left = None if deadline is None else deadline - time.perf_counter()
                 calls[k] = self.actors[k].collect.remote(ref, c, steps, self.episodes[k], left)
-        self._wait(calls, counts, t0, tick, tick_s)
+        stalled, waited = self._wait(calls, counts, t0, tick, tick_s)
         parts = []
         for k, fut in calls.items():
+            if fut in stalled:  # stopped, hung or cut off: given up, replaced by a fresh worker
+                report.failed[k] = f"no answer within {waited:.0f} s"
+                self.ray.kill(self.actors[k])
+                self._revive(k)
+                continue
             try:
                 ro, starts = self.ray.get(fut)
             except (self.ray.exceptions.RayActorError, self.ray.exceptions.WorkerCrashedError) as exc:
                 report.failed[k] = type(exc).__name__
                 self._revive(k)
                 continue
+            except self.ray.exceptions.RayTaskError as exc:
+                raise _remote_error(exc, f"{self.model_dir}: worker {k}") from None
             report.finished.append(k)
             report.rollout_bytes[k] = array_bytes(ro)
             self.starts[k] = starts
@@ -107,7 +140,7 @@ class RayCollector:
         self.report = report
         if report.failed:
             lost = ", ".join(f"worker {k} ({why})" for k, why in report.failed.items())
-            self.note(f"{lost} died during the iteration: it completes with {len(parts)} of {len(calls)} workers' "
+            self.note(f"{lost} failed during the iteration: it completes with {len(parts)} of {len(calls)} workers' "
                       "episodes; a fresh worker takes its place next iteration")
         if not parts:
             raise RacerlabError(f"{self.model_dir}: every rollout worker died in this iteration; check `ray status` "
@@ -117,21 +150,41 @@ class RayCollector:
         merged.cut = any(getattr(ro, "cut", False) for _, ro, _ in parts)
         return merged
 
-    def _wait(self, calls: dict, counts: list[int], t0: float, tick, tick_s: float) -> None:
-        """Block until every worker's call has finished (or failed), calling `tick` every `tick_s` seconds with
-        the episodes of the workers done so far (their steps are not known before their rollouts are read)."""
-        pending = list(calls.values())
+    def _wait(self, calls: dict, counts: list[int], t0: float, tick, tick_s: float) -> tuple[set, float]:
+        """Wait for every worker's call to finish (or fail), calling `tick` every `tick_s` seconds with the
+        episodes of the workers done so far. A worker gets `worker_timeout_s` at most, and once another has
+        answered, STRAGGLER_FACTOR times that one's time plus STRAGGLER_MIN_S; returns the calls still
+        pending then (a stopped or hung worker) and the seconds waited."""
+        pending, first = list(calls.values()), None
         while pending:
-            _, pending = self.ray.wait(pending, num_returns=len(pending), timeout=tick_s)
+            limit = self.worker_timeout_s if first is None else min(self.worker_timeout_s,
+                                                                   STRAGGLER_FACTOR * first + STRAGGLER_MIN_S)
+            left = limit - (time.perf_counter() - t0)
+            if left <= 0:
+                return set(pending), time.perf_counter() - t0
+            _, pending = self.ray.wait(pending, num_returns=len(pending), timeout=min(tick_s, left))
+            if first is None and len(pending) < len(calls):
+                first = time.perf_counter() - t0
             if pending and tick is not None:
                 waiting = set(pending)
                 done = sum(counts[k] for k, fut in calls.items() if fut not in waiting)
                 tick(done, sum(counts), None, time.perf_counter() - t0)
+        return set(), time.perf_counter() - t0
 
     def close(self) -> None:
         for a in self.actors:
             self.ray.kill(a)
         self.actors = []
+
+
+def _remote_error(exc, where) -> RacerlabError:
+    """One line for an exception raised inside a worker (Ray's own message carries the remote traceback)."""
+    cause = getattr(exc, "cause", None) or exc
+    if isinstance(cause, RacerlabError) and not isinstance(cause, type(exc)):
+        return cause  # racerlab's own message (a reward's error names its file, line and params)
+    lines = [ln.strip() for ln in str(cause).splitlines() if ln.strip()]
+    return RacerlabError(f"{where}: {type(cause).__name__}: {lines[-1] if lines else ''}; the worker's log under "
+                         "the Ray session folder has the traceback")
 
 
 def merge_rollouts(parts: list[Rollout], first_episode_number: int, seconds: float) -> Rollout:

@@ -8,6 +8,7 @@ name inside the workspace. Routes for runs (evaluation, races, reports, racing l
 
 from __future__ import annotations
 
+import math
 from importlib import resources
 from pathlib import Path
 from typing import Annotated
@@ -145,7 +146,7 @@ def _model_routes(app: FastAPI) -> None:
 
         w = ws(request)
         src = w.folder(name)
-        dst = w.folder(check_name(str(body.get("name", ""))), must_exist=False)
+        dst = w.folder(check_name(body.get("name")), must_exist=False)
         if dst.path.exists():
             raise ConsoleError(f"{dst.path.name}: already exists; choose another name", 409)
         clone_model(src.path, dst.path, str(body.get("checkpoint") or "best"))
@@ -183,8 +184,8 @@ def _positive(body: dict, key: str):
         x = float(value)
     except (TypeError, ValueError):
         raise ConsoleError(f"{key} must be a number, got {value!r}") from None
-    if not x > 0:
-        raise ConsoleError(f"{key} must be > 0, got {value!r}")
+    if not 0 < x < math.inf:
+        raise ConsoleError(f"{key} must be a finite number > 0, got {value!r}")
     return x if key == "minutes" else int(x)
 
 

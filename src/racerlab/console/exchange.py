@@ -12,8 +12,9 @@ from typing import Annotated
 
 from fastapi import FastAPI, File, Form, Request, UploadFile
 from fastapi.responses import FileResponse
+from starlette.concurrency import run_in_threadpool
 
-from racerlab.console.security import ConsoleError, check_archive, check_name, inside, save_upload
+from racerlab.console.security import ConsoleError, check_archive, check_name, inside, plain_file, save_upload
 
 EXPORTS = {"car": "Export for the car", "droa": "Export for DeepRacer-on-AWS", "drfc": "Export for DRfC"}
 IMPORT_SUFFIXES = (".tar.gz", ".tgz", ".tar")
@@ -85,7 +86,7 @@ def _export_routes(app: FastAPI) -> None:
         if file not in {_archive_name(name, k) for k in EXPORTS}:
             raise ConsoleError(f"{file!r}: not an export of {name}", 404)
         path = inside(_exports_dir(request, name), file)
-        if not path.is_file():
+        if not plain_file(path):
             raise ConsoleError(f"{name}: no {file} yet; export it first", 404)
         return FileResponse(path, media_type="application/gzip", filename=file)
 
@@ -108,7 +109,7 @@ def _import_routes(app: FastAPI) -> None:
         archive = d / (name + suffix)
         size = await save_upload(file, archive, request.app.state.upload_limit)
         try:
-            check_archive(archive)
+            await run_in_threadpool(check_archive, archive)  # reading a whole gzip stream: off the loop
         except ConsoleError:
             archive.unlink(missing_ok=True)
             raise

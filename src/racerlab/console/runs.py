@@ -14,14 +14,29 @@ from typing import Annotated
 
 from fastapi import Body, FastAPI, File, Request, UploadFile
 from fastapi.responses import FileResponse
+from starlette.concurrency import run_in_threadpool
 
 from racerlab import logs
-from racerlab.console.security import ConsoleError, check_archive, check_name, inside, save_upload
+from racerlab.console.isolate import run_isolated
+from racerlab.console.security import (
+    ConsoleError,
+    check_archive,
+    check_name,
+    flag,
+    inside,
+    number,
+    plain_file,
+    save_upload,
+)
 
 EVAL_RE = re.compile(r"^evaluation-\d{14}(-\d+)?$")
 UPLOAD_SUFFIXES = (".tar.gz", ".tgz", ".tar")
 # the report is racerlab's own HTML, but it is shown as a document of no origin: scripts in it (if any)
 # cannot reach the console
+MAX_TRIALS = 100
+MAX_RACE_MODELS = 32  # a race's cars share one world; more would run for hours with no way to stop it
+REWARD_CHECK_S = 60.0  # the whole reward check, the import of reward_function.py included
+REWARD_CALL_S = 3.0  # one reward call in the check: the training's default run.reward_budget_s
 SANDBOX = {"Content-Security-Policy": "sandbox allow-popups", "Cache-Control": "no-store"}
 
 
@@ -29,15 +44,19 @@ def ws(request: Request):
     return request.app.state.workspace
 
 
-_RULE_KEYS = {"trials": int, "continuous": bool, "off_track_penalty": float, "collision_penalty": float,
-              "max_resets": int, "reverse": bool}  # what the page may set; the rest are RaceRules' defaults
+_RULE_NUMBERS = {"trials": {"integer": True, "low": 1, "high": MAX_TRIALS},
+                 "off_track_penalty": {"low": 0, "high": 3600}, "collision_penalty": {"low": 0, "high": 3600},
+                 "max_resets": {"integer": True, "low": 0, "high": 10_000}}
+_RULE_FLAGS = ("continuous", "reverse")  # what the page may set; the rest (and what it leaves out) are RaceRules'
 
 
 def _rules(body: dict):
     from racerlab.evaluate import RaceRules
 
+    given = {k: number(body, k, **limits) for k, limits in _RULE_NUMBERS.items() if body.get(k) not in (None, "")}
+    given.update({k: flag(body, k, False) for k in _RULE_FLAGS if body.get(k) not in (None, "")})
     try:
-        return RaceRules(**{key: kind(body[key]) for key, kind in _RULE_KEYS.items() if key in body})
+        return RaceRules(**given)
     except (TypeError, ValueError) as exc:
         raise ConsoleError(f"race rules: {exc}") from None
 
@@ -82,7 +101,7 @@ def _evaluation_routes(app: FastAPI) -> None:
         if w.state(name) == "training":
             raise ConsoleError(f"{name}: training; stop it first (its checkpoints change under the evaluation)", 409)
         rules, track = _rules(body), _track_arg(body)
-        checkpoint, video = str(body.get("checkpoint") or "best"), bool(body.get("video", True))
+        checkpoint, video = str(body.get("checkpoint") or "best"), flag(body, "video", True)
 
         def job():
             res = run(folder.path, track=track, rules=rules, checkpoint=checkpoint, video=video, progress=False)
@@ -100,7 +119,7 @@ def _evaluation_routes(app: FastAPI) -> None:
         from racerlab.evaluate.api import VIDEO_NAME
 
         path = _eval_dir(request, name, ev) / VIDEO_NAME
-        if not path.is_file():
+        if not plain_file(path):
             raise ConsoleError(f"{name}/{ev}: no video (evaluate with video on)", 404)
         return FileResponse(path, media_type="video/mp4")
 
@@ -139,7 +158,9 @@ def _race_routes(app: FastAPI) -> None:
         names = body.get("models") or []
         if not isinstance(names, list) or len(names) < 1:
             raise ConsoleError("a race needs at least one model")
-        folders = [w.folder(str(n)).path for n in names]
+        if len(names) > MAX_RACE_MODELS:
+            raise ConsoleError(f"models: {len(names)} entries; a race takes at most {MAX_RACE_MODELS}")
+        folders = [w.folder(check_name(n)).path for n in names]
         rules, track = _rules(body), _track_arg(body)
         out = _races_dir(request) / f"race-{time.strftime('%Y%m%d%H%M%S')}.json"
 
@@ -175,7 +196,7 @@ def _analysis_routes(app: FastAPI) -> None:
     @app.api_route("/api/models/{name}/report", methods=["GET", "HEAD"])  # the page asks with HEAD if there is one
     def report(request: Request, name: str):
         path = ws(request).folder(name).path / "report.html"
-        if not path.is_file():
+        if not plain_file(path):
             raise ConsoleError(f"{name}: no report yet; make one first", 404)
         return FileResponse(path, media_type="text/html", headers=SANDBOX)
 
@@ -191,7 +212,7 @@ def _analysis_routes(app: FastAPI) -> None:
         method = body.get("method", "mincurv")
         if method not in ("mincurv", "shortest"):
             raise ConsoleError(f"method {method!r}: use mincurv or shortest")
-        margin = float(body.get("margin", DEFAULT_MARGIN_M))
+        margin = number(body, "margin", DEFAULT_MARGIN_M, low=0, high=1)
         out = ws(request).state_root / "lines" / f"{track}_{method}"
 
         def job():
@@ -207,26 +228,51 @@ def _analysis_routes(app: FastAPI) -> None:
         if method not in ("mincurv", "shortest"):
             raise ConsoleError(f"method {method!r}: use mincurv or shortest", 404)
         folder = inside(ws(request).state_root / "lines", f"{check_name(track, 'track')}_{method}")
-        pngs = sorted(folder.glob("*.png")) if folder.is_dir() else []
+        pngs = sorted(p for p in folder.glob("*.png") if plain_file(p)) if folder.is_dir() else []
         if not pngs:
             raise ConsoleError(f"{track}: no racing line yet", 404)
         return FileResponse(pngs[0], media_type="image/png")
 
     @app.post("/api/reward/check")
     def reward_check(request: Request, body: Annotated[dict, Body()]):
-        return _reward_check(body)
+        args = (body.get("reward", ""), _track_arg(body), number(body, "samples", 20, integer=True, low=1, high=200))
+        return run_isolated(_reward_check, *args, timeout_s=REWARD_CHECK_S, what="reward_function.py")
 
 
-def _reward_check(body: dict) -> dict:
+class _Cut(BaseException):
+    """A reward call the watchdog cut: ends the whole check (check_reward collects ordinary exceptions)."""
+
+
+class _Guarded:
+    def __init__(self, watchdog):
+        self.watchdog = watchdog
+        self.__racerlab_source__ = watchdog.__racerlab_source__
+
+    def __call__(self, params):
+        from racerlab.reward import RewardTimeout
+
+        try:
+            return self.watchdog(params)
+        except RewardTimeout as exc:
+            raise _Cut(str(exc)) from None
+
+
+def _reward_check(reward: str, track: str | None, samples: int) -> dict:
+    """The wizard's reward check, in a child process (`run_isolated`) whose main thread arms the watchdog."""
     from racerlab import track as tracks
     from racerlab.analysis.plots import reward_map_figure
     from racerlab.analysis.reward_tools import check_reward, reward_map
     from racerlab.console.wizard import check_reward_text
+    from racerlab.reward import RewardWatchdog
 
-    fn = check_reward_text(body.get("reward", ""))
-    t = tracks.load(_track_arg(body) or tracks.DEFAULT_TRACK)
-    rep = check_reward(fn, t, per_segment=int(body.get("samples", 20)))
-    rm = reward_map(fn, t, ds=0.1, across=15)
+    fn = check_reward_text(reward)
+    t = tracks.load(track or tracks.DEFAULT_TRACK)
+    try:
+        with RewardWatchdog(fn, REWARD_CALL_S) as watchdog:
+            rep = check_reward(_Guarded(watchdog), t, per_segment=samples)
+            rm = reward_map(_Guarded(watchdog), t, ds=0.1, across=15)
+    except _Cut as cut:
+        raise ConsoleError(f"reward_function.py: a call {cut}") from None
     buf = io.BytesIO()
     reward_map_figure(rm).savefig(buf, format="png", dpi=70)
     png = base64.b64encode(buf.getvalue()).decode()
@@ -262,7 +308,7 @@ def _upload_routes(app: FastAPI) -> None:
             raise ConsoleError(f"{name}: already uploaded; delete it or rename the file", 409)
         size = await save_upload(file, dest, request.app.state.upload_limit)
         try:
-            files = check_archive(dest)
+            files = await run_in_threadpool(check_archive, dest)  # reading a gzip stream: off the loop
         except ConsoleError:
             dest.unlink(missing_ok=True)
             raise
@@ -281,7 +327,7 @@ def _upload_routes(app: FastAPI) -> None:
     def upload_report(request: Request, name: str):
         d = _uploads_dir(request)
         path = inside(d, _stem(upload_name(name)) + "-report.html")
-        if not path.is_file():
+        if not plain_file(path):
             raise ConsoleError(f"{name}: no report (yet)", 404)
         return FileResponse(path, media_type="text/html", headers=SANDBOX)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+import math
 import re
 import secrets
 import tarfile
@@ -30,6 +31,7 @@ COOKIE = "racerlab_console"
 CSRF_HEADER = "X-CSRF-Token"
 MAX_UPLOAD_BYTES = 512 * 1024 * 1024
 MAX_ARCHIVE_MEMBERS = 100_000
+MIN_TOKEN_CHARS = 16  # a token guessed by anyone who can reach the port is no token
 SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 
 
@@ -52,10 +54,50 @@ def is_loopback(host: str) -> bool:
 
 def check_name(name: str, what: str = "model name") -> str:
     """A plain folder name: letters, digits, `.`, `_`, `-`, starting with a letter or digit, at most 64."""
-    if not isinstance(name, str) or not NAME_RE.match(name) or ".." in name:
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name) or ".." in name:
         raise ConsoleError(f"{what} {name!r}: use 1-64 letters, digits, '.', '_' or '-' starting with a letter "
                            "or digit (no '/', no '..')")
     return name
+
+
+def number(body: dict, key: str, default=None, *, integer: bool = False, low: float | None = None,
+           high: float | None = None):
+    """`body[key]` as a finite number (an int when `integer`) within [low, high]; `default` when absent or empty.
+    Numbers may come as JSON numbers or strings ("0.5"); anything else is one line naming the field."""
+    value = body.get(key)
+    if value is None or value == "":
+        return default
+    span = f" in [{low:g}, {high:g}]" if low is not None and high is not None else (
+        f" >= {low:g}" if low is not None else f" <= {high:g}" if high is not None else "")
+    what = f"{key} must be a finite {'whole ' if integer else ''}number{span}, got {value!r}"
+    if isinstance(value, bool) or not isinstance(value, int | float | str):
+        raise ConsoleError(what)
+    try:
+        x = float(value)
+    except (ValueError, OverflowError):
+        raise ConsoleError(what) from None
+    if not math.isfinite(x) or (low is not None and x < low) or (high is not None and x > high):
+        raise ConsoleError(what)
+    if integer:
+        if x != int(x):
+            raise ConsoleError(what)
+        return int(x)
+    return x
+
+
+def flag(body: dict, key: str, default: bool) -> bool:
+    """`body[key]` as a yes/no: true/false (JSON or the strings "true"/"false"), 1/0; else one line."""
+    value = body.get(key)
+    if value is None or value == "":
+        return default
+    if isinstance(value, bool):
+        return value
+    text = str(value).strip().lower()
+    if text in ("true", "1", "yes", "on"):
+        return True
+    if text in ("false", "0", "no", "off"):
+        return False
+    raise ConsoleError(f"{key} must be true or false, got {value!r}")
 
 
 def inside(root: Path, *names: str) -> Path:
@@ -69,10 +111,18 @@ def inside(root: Path, *names: str) -> Path:
     return path
 
 
+def plain_file(path: Path) -> bool:
+    """A regular file that is not a symbolic link (the console serves no link, wherever it points)."""
+    return path.is_file() and not path.is_symlink()
+
+
 class Guard:
     """The token (None on loopback) and the CSRF token of one console process."""
 
     def __init__(self, host: str, token: str | None = None):
+        if token is not None and (len(token) < MIN_TOKEN_CHARS or not token.isprintable() or " " in token):
+            raise ConsoleError(f"--token: {len(token)} characters; a token needs at least {MIN_TOKEN_CHARS} "
+                               "printable characters without spaces (leave --token out for a random one)")
         self.loopback = is_loopback(host)
         self.token = token or (None if self.loopback else secrets.token_urlsafe(24))
         self.csrf = secrets.token_urlsafe(24)
@@ -136,6 +186,9 @@ async def save_upload(upload, dest: Path, limit: int = MAX_UPLOAD_BYTES) -> int:
                     raise ConsoleError(f"{upload.filename}: larger than the upload limit of {limit} bytes", 413)
                 f.write(chunk)
         tmp.replace(dest)
+    except OSError as exc:
+        raise ConsoleError(f"{upload.filename}: cannot store the upload ({exc.strerror}); free some disk space "
+                           "and upload again", 507) from None
     finally:
         tmp.unlink(missing_ok=True)
     return size

@@ -14,11 +14,12 @@ from racerlab.console.modelapi import (
     parse_hyperparameters,
     parse_model_metadata,
 )
-from racerlab.console.security import ConsoleError, check_name
+from racerlab.console.security import ConsoleError, check_name, number
 from racerlab.errors import RacerlabError
 from racerlab.reward import EXAMPLE_REWARD, load_reward_function
 
 MAX_REWARD_BYTES = 256 * 1024
+MAX_CARS = 4096  # cars of one training world
 
 
 def check_reward_text(text: str, where: str = "reward_function.py"):
@@ -36,7 +37,7 @@ def check_reward_text(text: str, where: str = "reward_function.py"):
 
 def _metadata(body: dict):
     meta = make_metadata(str(body.get("sensor", "features")), str(body.get("action_space", "discrete")),
-                         str(body.get("algorithm", "clipped_ppo")), float(body.get("max_speed", 1.0)))
+                         str(body.get("algorithm", "clipped_ppo")), number(body, "max_speed", 1.0))
     data = meta.to_json()
     if body.get("actions") is not None:
         data["action_space"] = body["actions"]
@@ -54,7 +55,7 @@ def create_model(workspace, body: dict) -> str:
     """Create the model folder the wizard describes; returns its name."""
     from racerlab.track import registry
 
-    name = check_name(str(body.get("name", "")))
+    name = check_name(body.get("name"))
     path = workspace.folder(name, must_exist=False).path
     if path.exists():
         raise ConsoleError(f"{name}: already exists in the workspace; choose another name", 409)
@@ -65,11 +66,11 @@ def create_model(workspace, body: dict) -> str:
     hp = _hyperparameters(body)
     reward = body.get("reward") or EXAMPLE_REWARD.read_text(encoding="utf-8")
     check_reward_text(reward)
-    cars = body.get("cars")
+    cars = number(body, "cars", None, integer=True, low=1, high=MAX_CARS)
     try:
         folder = init_model(path, track=track, sensor=str(body.get("sensor", "features")),
                             action_space=meta.action_space_type, algorithm=meta.training_algorithm,
-                            max_speed=float(body.get("max_speed", 1.0)), num_cars=int(cars) if cars else None)
+                            max_speed=number(body, "max_speed", 1.0), num_cars=cars)
         folder.write_metadata(meta)
         folder.write_hyperparameters(hp)
         folder.write_reward(reward)

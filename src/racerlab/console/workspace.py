@@ -15,6 +15,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -99,12 +100,13 @@ class Workspace:
         return ModelFolder(path)
 
     def model_names(self) -> list[str]:
-        """Model folders in the workspace and in its racerlab-out/ (a name in both is the workspace's)."""
+        """Model folders in the workspace and in its racerlab-out/ (a name in both is the workspace's); a linked
+        folder is not listed (nor served)."""
         names = set()
         for parent in (self.root, self.root / OUTPUT_DIR):
             if parent.is_dir():
                 names.update(p.name for p in parent.iterdir()
-                             if p.is_dir() and not p.name.startswith(".") and is_model_folder(p))
+                             if p.is_dir() and not p.is_symlink() and not p.name.startswith(".") and is_model_folder(p))
         return sorted(names)
 
     def summary(self, name: str) -> dict:
@@ -132,10 +134,24 @@ class Workspace:
         return out
 
     def delete(self, name: str) -> None:
+        """Remove a model folder, holding its training lock meanwhile (a trainer started from a terminal or the
+        cluster holds it too, so its folder is refused, not half-removed); the folder is first moved aside in
+        one rename, so it is either whole or gone."""
         if self.state(name) != "idle":
             raise ConsoleError(f"{name}: stop its {self.state(name)} first", 409)
         folder = self.folder(name)
-        shutil.rmtree(folder.path)
+        lock = folder.lock()
+        try:
+            lock.acquire()
+        except RacerlabError as exc:
+            raise ConsoleError(f"{name}: training in another process; stop it first ({exc})", 409) from None
+        try:
+            self.state_root.mkdir(parents=True, exist_ok=True)
+            trash = Path(tempfile.mkdtemp(prefix=f"deleting-{name}-", dir=self.state_root))
+            os.replace(folder.path, trash / name)
+        finally:
+            lock.release()
+        shutil.rmtree(trash, ignore_errors=True)
         shutil.rmtree(self.state_root / name, ignore_errors=True)
 
     # ---- state -------------------------------------------------------------------------------
@@ -159,10 +175,12 @@ class Workspace:
             self._children.pop(name, None)  # reaped: an exited child is no longer training
         try:
             info = json.loads(self._training_file(name).read_text())
-        except (OSError, json.JSONDecodeError):
-            return None
-        pid = int(info.get("pid", 0))
-        return pid if pid > 0 and _pid_alive(pid, self.model_path(name)) else None
+            pid = int(info.get("pid", 0))
+        except (OSError, ValueError, TypeError, AttributeError):
+            pid = 0
+        if pid > 0 and _pid_alive(pid, self.model_path(name)):
+            return pid
+        return self.folder(name, must_exist=False).lock().holder()  # a trainer started elsewhere (CLI, cluster)
 
     # ---- training ----------------------------------------------------------------------------
     def start_training(self, name: str, minutes=None, episodes=None, iterations=None) -> int:

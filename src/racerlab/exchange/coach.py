@@ -186,6 +186,9 @@ def load_into_torch(net, variables: Callable[[str], np.ndarray | None], network:
         value = np.asarray(value, dtype=np.float32)
         if value.shape != like.shape:
             _raise_shape(where, name, value.shape, like.shape, metadata)
+        if not np.isfinite(value).all():
+            raise ConfigError(f"{where}: variable {name} holds NaN or infinite values (the training diverged); "
+                              "import an earlier checkpoint of the model")
         got[name] = value
     state = _torch_state(net, template, got, network, prefix)
     net.load_state_dict({k: torch.as_tensor(v) for k, v in state.items()}, strict=True)

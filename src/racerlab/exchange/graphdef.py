@@ -10,6 +10,8 @@ graphs alike.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from racerlab.errors import ConfigError, RacerlabError
@@ -17,6 +19,8 @@ from racerlab.exchange.coach import Tower
 
 EXTRA_HINT = "pip install 'racerlab[export]'"
 PRODUCER = 26  # GraphDef version of TensorFlow 1.1x, which the car's converters read
+MAX_CONST_VALUES = 1 << 26  # 256 MiB of float32; the largest AWS layer (FC 512 of a 5-layer CNN) is far smaller
+MAX_RANK = 8
 
 
 def _protos():
@@ -164,13 +168,20 @@ class FrozenGraph:
         t = node.attr["value"].tensor
         if t.dtype != self._types.DT_FLOAT:
             raise ConfigError(f"{self.path}: constant {name} is not float32; only float32 models are supported")
-        shape = [d.size for d in t.tensor_shape.dim]
+        shape = [int(d.size) for d in t.tensor_shape.dim]
+        if len(shape) > MAX_RANK or any(d < 0 for d in shape):
+            raise ConfigError(f"{self.path}: constant {name} has shape {shape}; a weight has 0-{MAX_RANK} "
+                              "dimensions of size >= 0. Export the frozen model.pb again")
+        size = math.prod(shape)  # Python integers: no overflow, checked before anything is allocated
+        if size > MAX_CONST_VALUES:
+            raise ConfigError(f"{self.path}: constant {name} claims shape {shape} ({size} values), more than any "
+                              f"DeepRacer network's layer (<= {MAX_CONST_VALUES}); not reading it")
         if t.tensor_content:
-            a = np.frombuffer(t.tensor_content, dtype="<f4")
+            a = np.frombuffer(t.tensor_content, dtype="<f4", count=len(t.tensor_content) // 4)
         else:
             a = np.asarray(t.float_val, dtype=np.float32)
-            a = np.full(int(np.prod(shape)), a[0] if a.size else 0.0, np.float32) if a.size <= 1 else a
-        if a.size != int(np.prod(shape)):
+            a = np.full(size, a[0] if a.size else 0.0, np.float32) if a.size <= 1 else a
+        if a.size != size:
             raise ConfigError(f"{self.path}: constant {name} holds {a.size} values for shape {shape}")
         return a.reshape(shape).copy()
 

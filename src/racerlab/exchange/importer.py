@@ -9,7 +9,9 @@ tensors from the checkpoint bundle, the graph is parsed as a protobuf and never 
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import re
 import shutil
 import tarfile
@@ -25,13 +27,29 @@ from racerlab.exchange.local import (
     parse_hyperparameters_text,
     write_imported_model,
 )
+from racerlab.logs import scratch_dir
 from racerlab.spec import MAX_ARCHIVE_BYTES
 
 CKPT_RE = re.compile(r"^(\d+)_Step-(\d+)\.ckpt\.index$")
 KEPT = ("reward_function.py", "hyperparameters.json", "training_params.yaml", "model_metadata.json")
 
 
-def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool) -> None:
+MAX_MEMBERS = 100_000  # a DeepRacer model archive holds a few dozen
+MAX_TEXT_BYTES = 1 << 20  # reward_function.py, the JSON and YAML files, the checkpoint markers
+MARKERS = (".coach_checkpoint", "deepracer_checkpoints.json")
+WEIGHTS_RE = re.compile(r"^(model(_\d+)?\.pb|\d+_Step-\d+\.ckpt\.(index|meta|data-\d+-of-\d+))$")
+
+
+def wanted(name: str) -> bool:
+    """Whether the importer reads a file of this base name (everything else in an archive is never written)."""
+    return name in KEPT or name in MARKERS or bool(WEIGHTS_RE.match(name))
+
+
+def _member_limit(name: str) -> int:
+    return MAX_ARCHIVE_BYTES if WEIGHTS_RE.match(name) else MAX_TEXT_BYTES
+
+
+def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool, size: int = 0, sparse: bool = False) -> None:
     p = PurePosixPath(name.replace("\\", "/"))
     if p.is_absolute() or name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in p.parts:
         raise ConfigError(f"{archive}: member {name!r} would be written outside the model folder (absolute path or "
@@ -39,32 +57,53 @@ def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool) -> None
     if not (is_file or is_dir):
         raise ConfigError(f"{archive}: member {name!r} is a link or device, not a file; refusing to extract it. "
                           "Re-create the archive with plain files")
+    if sparse:
+        raise ConfigError(f"{archive}: member {name!r} is a sparse file (its {size} bytes would be written in "
+                          "full); refusing to extract it. Re-create the archive without --sparse")
+    if is_file and wanted(p.name) and size > _member_limit(p.name):
+        raise ConfigError(f"{archive}: member {name!r} unpacks to {size} bytes, more than a DeepRacer model's "
+                          f"{p.name} (<= {_member_limit(p.name)} bytes); refusing to extract it")
 
 
 def safe_extract(archive: Path, dest: Path) -> None:
-    """Extract a .tar(.gz) or .zip into `dest` after checking every member (no absolute paths, no '..',
-    no links or devices, bounded total size); a bad member refuses the whole archive before any write."""
+    """Extract the files the importer reads from a .tar(.gz) or .zip into `dest`, after checking every member
+    (no absolute paths, no '..', no links, devices or sparse files, bounded member count, member sizes and
+    total size); a bad member refuses the whole archive before any write. Other members are never written."""
     try:
         if zipfile.is_zipfile(archive):
             with zipfile.ZipFile(archive) as z:
                 infos = z.infolist()
+                _check_count(archive, len(infos))
                 for i in infos:
-                    _check_member(archive, i.filename, not i.is_dir(), i.is_dir())
-                _check_size(archive, sum(i.file_size for i in infos))
-                z.extractall(dest)
+                    _check_member(archive, i.filename, not i.is_dir(), i.is_dir(), i.file_size)
+                keep = [i for i in infos if not i.is_dir() and wanted(PurePosixPath(i.filename).name)]
+                _check_size(archive, sum(i.file_size for i in keep))
+                z.extractall(dest, members=keep)
             return
         with tarfile.open(archive) as tar:
-            members = tar.getmembers()
-            for m in members:
-                _check_member(archive, m.name, m.isfile(), m.isdir())
-            _check_size(archive, sum(m.size for m in members))
+            members = []
+            for m in tar:
+                members.append(m)
+                _check_count(archive, len(members))
+                _check_member(archive, m.name, m.isfile(), m.isdir(), m.size, m.issparse())
+            keep = [m for m in members if m.isfile() and wanted(PurePosixPath(m.name).name)]
+            _check_size(archive, sum(m.size for m in keep))
             if hasattr(tarfile, "data_filter"):
-                tar.extractall(dest, filter="data")
+                tar.extractall(dest, members=keep, filter="data")
             else:  # pragma: no cover - Python < 3.11.4; the members were checked above
-                tar.extractall(dest)
+                tar.extractall(dest, members=keep)
     except (tarfile.TarError, zipfile.BadZipFile, EOFError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno is not None:
+            raise RacerlabError(f"{dest}: cannot unpack {archive.name} ({exc.strerror}); free some disk space "
+                                "or set TMPDIR to a folder with room") from None
         raise ConfigError(f"{archive}: not a readable .tar.gz or .zip ({type(exc).__name__}: {exc}); download "
                           "the model again") from None
+
+
+def _check_count(archive: Path, n: int) -> None:
+    if n > MAX_MEMBERS:
+        raise ConfigError(f"{archive}: more than {MAX_MEMBERS} members, far more than a DeepRacer model holds; "
+                          "not extracting it")
 
 
 def _check_size(archive: Path, total: int) -> None:
@@ -73,12 +112,27 @@ def _check_size(archive: Path, total: int) -> None:
                           f"(<= {MAX_ARCHIVE_BYTES / 2**30:g} GiB); not extracting it")
 
 
+def plain_files(root: Path) -> list[Path]:
+    """The regular files under `root`, never following a symbolic link; a link in place of a file the importer
+    reads is refused (it could point at any file of this machine)."""
+    found = []
+    for folder, dirs, names in os.walk(root):
+        for n in dirs + names:
+            p = Path(folder) / n
+            if p.is_symlink() and (wanted(n) or n in dirs):
+                raise ConfigError(f"{p}: a symbolic link; racerlab imports plain files and folders only. Copy what "
+                                  "it points to into the model folder")
+            if n in names and not p.is_symlink() and p.is_file():
+                found.append(p)
+    return found
+
+
 class ModelFiles:
     """Where the pieces of an AWS model are in an unpacked tree."""
 
     def __init__(self, root: Path):
         self.root = root
-        files = [p for p in root.rglob("*") if p.is_file()]
+        files = plain_files(root)
         self.metadata = _pick(files, "model_metadata.json")
         self.pb = _pick_pb(files)
         self.checkpoint = _pick_checkpoint(root, files)
@@ -124,7 +178,7 @@ def _pick_checkpoint(root: Path, files: list[Path]) -> Path | None:
 def _index_names(text: str) -> list[str]:
     try:
         data = json.loads(text)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         return []
     return [str(data.get(k, {}).get("name", "")) for k in ("best_checkpoint", "last_checkpoint")
             if isinstance(data.get(k), dict)]
@@ -141,20 +195,44 @@ def read_training_params(text: str) -> dict[str, str]:
 
 
 def import_model(path, dst=None) -> Path:
-    """Make a racerlab model folder (default: `<name>-imported` here) from an AWS model folder or archive."""
+    """Make a racerlab model folder (default: `<name>-imported` here) from an AWS model folder or archive.
+
+    The folder is built in a private temporary folder beside the destination and renamed into place at the
+    end, only while the name is still free: a failed or interrupted import leaves nothing at the name, and two
+    imports into one name never touch each other's files."""
     src = Path(path)
     if not src.exists():
         raise RacerlabError(f"{src}: no such file or folder")
-    with tempfile.TemporaryDirectory(prefix="racerlab-import-") as tmp:
+    name = re.sub(r"(\.tar\.gz|\.tgz|\.tar|\.zip)$", "", src.name) or "model"
+    out = Path(dst) if dst else Path(f"{name}-imported")
+    check_destination(out)
+    with scratch_dir("import") as tmp:
         root = src
         if src.is_file():
-            root = Path(tmp) / "unpacked"
+            root = tmp / "unpacked"
             safe_extract(src, root)
         files = ModelFiles(root)
         files.require(src)
-        name = re.sub(r"(\.tar\.gz|\.tgz|\.tar|\.zip)$", "", src.name) or "model"
-        out = Path(dst) if dst else Path(f"{name}-imported")
         return _import_tree(src, files, out)
+
+
+def check_destination(out: Path) -> None:
+    """A new model folder's name must be free (or an empty folder)."""
+    if out.exists() and not out.is_dir():
+        raise RacerlabError(f"{out}: a file of that name exists; import into a new folder name")
+    if out.is_dir() and any(out.iterdir()):
+        raise RacerlabError(f"{out}: already exists and is not empty; import into a new folder")
+
+
+def _claim(staged: Path, out: Path) -> None:
+    """Rename the finished folder onto `out` while that name is free or an empty folder (one atomic rename)."""
+    try:
+        os.rename(staged, out)
+    except OSError as exc:
+        if out.exists() or exc.errno in (errno.EEXIST, errno.ENOTEMPTY, errno.ENOTDIR):
+            raise RacerlabError(f"{out}: created meanwhile by another import or program; nothing was written "
+                                "there. Import again into a new folder name") from None
+        raise
 
 
 def _import_tree(src: Path, files: ModelFiles, out: Path) -> Path:
@@ -186,13 +264,22 @@ def _import_tree(src: Path, files: ModelFiles, out: Path) -> Path:
     track = _known_track(params.get("WORLD_NAME"))
     note = {"from": str(src.resolve()), **source, "hyperparameters": "imported" if hp else "racerlab defaults",
             "track": track or "racerlab default", "reward_function": "kept as imported/reward_function.py.txt"}
-    existed = out.exists()
+    parent = out.absolute().parent
     try:
-        return write_imported_model(out, meta, {"policy": policy, "value": value}, hp, kept, track, note).path
-    except BaseException:
-        if not existed:  # leave no half-written folder behind
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+        parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.importing-", dir=parent))
+    except OSError as exc:
+        raise RacerlabError(f"{out}: cannot create the model folder there ({exc.strerror}); choose another "
+                            "place") from None
+    try:
+        write_imported_model(stage / "model", meta, {"policy": policy, "value": value}, hp, kept, track, note)
+        _claim(stage / "model", out)
+    except OSError as exc:
+        raise RacerlabError(f"{out}: cannot write the imported model ({exc.strerror}); free some disk space and "
+                            "import again") from None
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)  # the staging folder, never the destination
+    return out
 
 
 def _known_track(name: str | None) -> str | None:

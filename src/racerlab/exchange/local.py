@@ -100,7 +100,7 @@ def parse_hyperparameters_text(text: str, source: str) -> Hyperparameters | None
     """Hyperparameters from an imported hyperparameters.json, or None when racerlab cannot use them."""
     try:
         return parse_hyperparameters(json.loads(text), source)
-    except (json.JSONDecodeError, ConfigError):
+    except (json.JSONDecodeError, RecursionError, ConfigError):
         return None
 
 

@@ -16,15 +16,21 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from racerlab.errors import ConfigError, RacerlabError
+from racerlab.logs import scratch_dir
+from racerlab.logs.scratch import sweep
 
 S3_HINT = "pip install 'racerlab[s3]'"
 SHA_KEY = "racerlab-sha256"
 PART_BYTES = 8 << 20
+PART_MARK = ".part-"  # `.<name>.part-<pid>-<random>`: a download in progress
+MAX_NAME_BYTES = 255  # a file name on the common file systems
+MAX_PATH_BYTES = 1024  # a key below the prefix, written as a path under the folder
 
 
 @dataclass(frozen=True)
@@ -48,9 +54,21 @@ def client(profile: str | None = None, region: str | None = None, endpoint_url: 
         import boto3
     except ImportError:
         raise RacerlabError(f"S3 transfers need boto3; {S3_HINT}") from None
-    session = boto3.Session(profile_name=profile, region_name=region)
+    from botocore.exceptions import BotoCoreError
+
     endpoint = endpoint_url or os.environ.get("AWS_ENDPOINT_URL") or None
-    return session.client("s3", endpoint_url=endpoint)
+    if endpoint and not re.match(r"^https?://[^/\s]+", endpoint):
+        what = "--endpoint-url" if endpoint_url else "AWS_ENDPOINT_URL"
+        raise ConfigError(f"{what} {endpoint}: not an http(s) URL; write it with its scheme, e.g. "
+                          "http://localhost:9000 for MinIO or https://s3.eu-west-1.amazonaws.com")
+    try:
+        session = boto3.Session(profile_name=profile, region_name=region)
+        return session.client("s3", endpoint_url=endpoint)
+    except BotoCoreError as exc:
+        name = profile or os.environ.get("AWS_PROFILE")
+        hint = (f"--profile {name}: no such profile in ~/.aws/config or ~/.aws/credentials; list them with `aws "
+                "configure list-profiles`") if type(exc).__name__ == "ProfileNotFound" else f"{exc}"
+        raise RacerlabError(f"S3: {hint}") from None
 
 
 def _transfer_config():
@@ -121,35 +139,73 @@ def upload_tree(s3, root: Path, url: S3Url, progress=print) -> dict[str, int]:
     return counts
 
 
-def download_tree(s3, url: S3Url, dest: Path, progress=print) -> int:
-    """Download every object under `url` into `dest` (keys relative to the prefix), hash-checked."""
-    base = url.key("")
-    paginator = s3.get_paginator("list_objects_v2")
-    config, n = _transfer_config(), 0
-    for page in paginator.paginate(Bucket=url.bucket, Prefix=base):
+def _listing(s3, url: S3Url) -> list[tuple[str, tuple[str, ...]]]:
+    """(key, relative path parts) of every object under `url` that can be written as a file below the folder,
+    checked whole before anything is written: over-long names and a key that is both a file and a folder
+    (`a` and `a/b`) are refused in one line."""
+    base, out = url.key(""), []
+    for page in s3.get_paginator("list_objects_v2").paginate(Bucket=url.bucket, Prefix=base):
         for obj in page.get("Contents", []):
             rel = obj["Key"][len(base):]
             parts = PurePosixPath(rel).parts
             if not rel or rel.endswith("/") or ".." in parts or rel.startswith("/"):
                 continue  # folder markers; keys that would leave the folder are never written
-            target = dest.joinpath(*parts)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.part-")
-            os.close(fd)
-            try:
-                s3.download_file(url.bucket, obj["Key"], tmp, Config=config)
-                want = (_remote(s3, url.bucket, obj["Key"]) or {}).get("Metadata", {}).get(SHA_KEY)
-                if want and sha256_file(Path(tmp)) != want:
-                    raise RacerlabError(f"s3://{url.bucket}/{obj['Key']}: the download does not match the object's "
-                                        "SHA-256; run the pull again")
-                os.replace(tmp, target)
-            finally:
-                Path(tmp).unlink(missing_ok=True)
-            n += 1
-            progress(f"  {rel}")
-    if n == 0:
-        raise RacerlabError(f"s3://{url.bucket}/{base}: no objects under this prefix; check the bucket and prefix")
+            too_long = [p for p in parts if len(p.encode()) > MAX_NAME_BYTES - 16]  # room for `.part-` names
+            if too_long or len(rel.encode()) > MAX_PATH_BYTES:
+                raise RacerlabError(f"s3://{url.bucket}/{obj['Key']}: a key too long for a file name here (at most "
+                                    f"{MAX_NAME_BYTES - 16} bytes a part, {MAX_PATH_BYTES} in all); rename the "
+                                    "object or pull a narrower prefix")
+            out.append((obj["Key"], parts))
+    files = {parts for _, parts in out}
+    for key, parts in out:
+        for k in range(1, len(parts)):
+            if parts[:k] in files:
+                raise RacerlabError(f"s3://{url.bucket}/{key}: {'/'.join(parts[:k])} is both an object and a "
+                                    "folder under this prefix; a folder cannot hold both. Remove one of them")
+    return out
+
+
+def download_tree(s3, url: S3Url, dest: Path, progress=print) -> int:
+    """Download every object under `url` into `dest` (keys relative to the prefix), hash-checked."""
+    config, n, listing = _transfer_config(), 0, _listing(s3, url)
+    if not listing:
+        raise RacerlabError(f"s3://{url.bucket}/{url.key('')}: no objects under this prefix; check the bucket "
+                            "and prefix")
+    for key, parts in listing:
+        target = dest.joinpath(*parts)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if target.is_dir():
+            raise RacerlabError(f"{target}: a folder where s3://{url.bucket}/{key} goes; pull into a new folder")
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}{PART_MARK}{os.getpid()}-")
+        os.close(fd)
+        try:
+            s3.download_file(url.bucket, key, tmp, Config=config)
+            want = (_remote(s3, url.bucket, key) or {}).get("Metadata", {}).get(SHA_KEY)
+            if want and sha256_file(Path(tmp)) != want:
+                raise RacerlabError(f"s3://{url.bucket}/{key}: the download does not match the object's "
+                                    "SHA-256; run the pull again")
+            os.replace(tmp, target)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+        n += 1
+        progress(f"  {'/'.join(parts)}")
     return n
+
+
+def _remove_dead_parts(dest: Path) -> None:
+    """Remove the `.part` files that killed pulls left under `dest`."""
+    for folder, _, _ in os.walk(dest):
+        sweep(Path(folder), lambda name: name.startswith(".") and PART_MARK in name)
+
+
+def check_pull_destination(dest: Path, force: bool) -> None:
+    if dest.exists() and not dest.is_dir():
+        raise RacerlabError(f"{dest}: a file of that name exists; pull into a folder")
+    if dest.is_dir():
+        _remove_dead_parts(dest)
+        if not force and any(p.is_file() or p.is_symlink() for p in dest.rglob("*")):
+            raise RacerlabError(f"{dest}: not empty; pull into a new folder, or add --force to overwrite the files "
+                                "the pull brings")
 
 
 def push(model_dir, url: str, checkpoint: str | int = "best", profile=None, region=None, endpoint_url=None,
@@ -161,19 +217,28 @@ def push(model_dir, url: str, checkpoint: str | int = "best", profile=None, regi
     target = S3Url.parse(url)
     model = load_local_model(model_dir, checkpoint)
     s3 = client(profile, region, endpoint_url)
-    with tempfile.TemporaryDirectory(prefix="racerlab-s3-") as tmp:
-        write_virtual_tree(model, Path(tmp))
+    with scratch_dir("s3-push") as tmp:
         try:
-            return upload_tree(s3, Path(tmp), target, progress)
+            write_virtual_tree(model, tmp)
+            return upload_tree(s3, tmp, target, progress)
         except _errors() as exc:
             raise _describe(exc, url) from None
+        except OSError as exc:
+            raise RacerlabError(f"{tmp}: cannot write the DRfC tree to push ({exc.strerror}); free some disk "
+                                "space or set RACERLAB_TMPDIR to a folder with room") from None
 
 
-def pull(url: str, dest, profile=None, region=None, endpoint_url=None, progress=print) -> int:
-    """Download everything under `url` into `dest`; returns the number of files."""
+def pull(url: str, dest, profile=None, region=None, endpoint_url=None, progress=print, force: bool = False) -> int:
+    """Download everything under `url` into `dest` (a new or empty folder, or any with `force`); returns the
+    number of files."""
     source = S3Url.parse(url)
+    dest = Path(dest)
+    check_pull_destination(dest, force)
     s3 = client(profile, region, endpoint_url)
     try:
-        return download_tree(s3, source, Path(dest), progress)
+        return download_tree(s3, source, dest, progress)
     except _errors() as exc:
         raise _describe(exc, url) from None
+    except OSError as exc:
+        raise RacerlabError(f"{dest}: cannot write the download ({exc.strerror}); free some disk space and pull "
+                            "again") from None

@@ -27,6 +27,7 @@ Writers:
 - `TrainingMetrics(path, best_model_metric="progress")`, `EvalMetrics(path)`: `.add(entries)`, `.save()`.
 - `MetricsLog(path, fsync=False)`: `.append(entry)` one JSON line, flushed.
 - `atomic_write_text`, `atomic_write_bytes`, `atomic_write_json`: temp name + rename.
+- `scratch_dir(kind)`: a private temporary folder for a `with` block, in racerlab's one place (`logs.scratch`).
 """
 
 from racerlab.logs.atomic import (
@@ -68,6 +69,7 @@ from racerlab.logs.metrics import (
     read_metrics_jsonl,
 )
 from racerlab.logs.retention import SimtraceRetention, thin_simtrace
+from racerlab.logs.scratch import pid_alive, scratch_dir
 from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
 
 __all__ = [
@@ -78,7 +80,7 @@ __all__ = [
     "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
     "finite_json", "follow_metrics_jsonl", "format_rows", "last_metrics_entry", "metrics_jsonl_path",
-    "new_evaluation_dir", "read_metrics_jsonl", "remove_stale_temps",
-    "remove_training_simtrace_after", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
+    "new_evaluation_dir", "pid_alive", "read_metrics_jsonl", "remove_stale_temps",
+    "remove_training_simtrace_after", "scratch_dir", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
     "training_simtrace_path", "thin_simtrace", "write_simtrace",
 ]

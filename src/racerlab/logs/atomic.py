@@ -13,12 +13,19 @@ import os
 import secrets
 from pathlib import Path
 
+from racerlab.logs.scratch import sweep
+
 TEMP_MARK = ".tmp-"
+_swept: set[str] = set()  # folders this process has cleaned of dead writers' temporary files
 
 
 def temp_path_for(path: str | os.PathLike) -> Path:
-    """A fresh hidden temporary name next to `path` (same folder, so the rename is atomic)."""
+    """A fresh hidden temporary name next to `path` (same folder, so the rename is atomic). The first time a
+    process writes in a folder, it removes the temporary files that killed writers left there."""
     path = Path(path)
+    if str(path.parent) not in _swept:
+        _swept.add(str(path.parent))
+        remove_stale_temps(path.parent)
     return path.with_name(f".{path.name}{TEMP_MARK}{os.getpid()}-{secrets.token_hex(4)}")
 
 
@@ -57,6 +64,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, fsync: bool = True)
                 f.flush()
                 os.fsync(f.fileno())
         return commit_temp(tmp, path, fsync)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        if exc.filename is None:  # a failed write names no file: name the one being written
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -73,13 +85,5 @@ def atomic_write_json(path: str | os.PathLike, obj, indent: int | None = None, f
 
 
 def remove_stale_temps(folder: str | os.PathLike) -> list[Path]:
-    """Delete temporary files left in `folder` by killed writers; returns what was removed."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        return []
-    removed = []
-    for p in folder.iterdir():
-        if p.name.startswith(".") and TEMP_MARK in p.name and p.is_file():
-            p.unlink(missing_ok=True)
-            removed.append(p)
-    return removed
+    """Delete the temporary files left in `folder` by writers that are gone (killed); a live writer's stay."""
+    return sweep(Path(folder), lambda name: name.startswith(".") and TEMP_MARK in name)

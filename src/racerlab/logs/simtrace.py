@@ -281,7 +281,11 @@ class SimtraceWriter:
             keep = np.asarray(columns["episode"]) % self.sample_episodes == 0
             columns = {c: np.asarray(v)[keep] for c, v in columns.items()}
         data = format_rows(columns)
-        self._out.write(data)
+        try:
+            self._out.write(data)
+        except OSError as exc:  # a full disk: no half file stays behind, and the error names the file
+            self.abort()
+            raise _named(exc, self.path) from exc
         written = len(columns["episode"])
         self.rows += written
         return written
@@ -290,21 +294,29 @@ class SimtraceWriter:
         """Finish the file and move it to its final name; returns that path."""
         if self._closed:
             return self.path
-        if self._out is not self._raw:
-            self._out.close()
-        self._raw.flush()
-        os.fsync(self._raw.fileno())
-        self._raw.close()
-        self._closed = True
-        return commit_temp(self._tmp, self.path)
+        try:
+            if self._out is not self._raw:
+                self._out.close()
+            self._raw.flush()
+            os.fsync(self._raw.fileno())
+            self._raw.close()
+            self._closed = True
+            return commit_temp(self._tmp, self.path)
+        except OSError as exc:  # a full disk: no half file stays behind, and the error names the file
+            self._closed = False
+            self.abort()
+            raise _named(exc, self.path) from exc
 
     def abort(self) -> None:
         """Discard what was written; the final file is not created (or left as it was)."""
         if not self._closed:
             self._closed = True
             try:
-                self._out.close()
-                self._raw.close()
+                for f in (self._out, self._raw):
+                    try:
+                        f.close()
+                    except OSError:  # the disk that is full cannot take the last buffered bytes either
+                        pass
             finally:
                 self._tmp.unlink(missing_ok=True)
 
@@ -316,6 +328,10 @@ class SimtraceWriter:
             self.close()
         else:
             self.abort()
+
+
+def _named(exc: OSError, path: Path) -> OSError:
+    return exc if exc.filename else OSError(exc.errno, exc.strerror, str(path))
 
 
 def write_simtrace(path: str | os.PathLike, columns: Mapping[str, np.ndarray | list], compress: bool = False) -> Path:

@@ -346,7 +346,11 @@ def load_training_config(path) -> TrainingConfig:
     if not p.is_file():
         return TrainingConfig(source=str(p))
     try:
-        data = tomllib.loads(p.read_text())
+        data = tomllib.loads(p.read_text(encoding="utf-8-sig"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start}); save the file as UTF-8") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: nested too deeply to be racerlab's training.toml; check its brackets") from None
     return parse_training_config(data, str(p))

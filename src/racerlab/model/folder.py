@@ -9,7 +9,6 @@ then rename), so a kill at any moment leaves the previous complete state.
 from __future__ import annotations
 
 import json
-import os
 import pickle
 import shlex
 import time
@@ -20,6 +19,7 @@ from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_te
 from racerlab.model.checkpoint import CheckpointInfo, TrainingState
 from racerlab.model.config import TrainingConfig, load_training_config
 from racerlab.model.hyperparameters import Hyperparameters, load_hyperparameters
+from racerlab.model.lock import TrainingLock
 from racerlab.model.metadata import ModelMetadata, load_model_metadata
 from racerlab.reward import load_reward_function
 
@@ -254,63 +254,6 @@ def nonfinite_tensors(state, prefix: str = "") -> list[str]:
         return [prefix] if bad else []
     items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, list | tuple) else ()
     return [name for k, v in items for name in nonfinite_tensors(v, f"{prefix}.{k}" if prefix else str(k))]
-
-
-def _pid_alive(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # it exists, under another user
-        return True
-    return True
-
-
-class TrainingLock:
-    """`training.lock` holds the PID of the trainer using the folder. A second trainer is refused with that PID;
-    a lock whose process is gone (killed, machine restarted) is taken over without anyone removing it."""
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        self.held = False
-
-    def holder(self) -> int | None:
-        """The PID written in the lock file, or None (no lock, or an unreadable one)."""
-        try:
-            return int(self.path.read_text().split()[0])
-        except (OSError, ValueError, IndexError):
-            return None
-
-    def acquire(self) -> None:
-        for _ in range(3):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                pid = self.holder()
-                if pid is not None and _pid_alive(pid):
-                    raise RacerlabError(f"{self.path}: the model is being trained by process {pid}; stop it first "
-                                        f"(kill {pid}) or train a clone (`racerlab clone`)") from None
-                self.path.unlink(missing_ok=True)  # stale: its process is gone
-                continue
-            with os.fdopen(fd, "w") as f:
-                f.write(f"{os.getpid()}\n")
-            self.held = True
-            return
-        raise RacerlabError(f"{self.path}: could not take the training lock; another trainer keeps taking it")
-
-    def release(self) -> None:
-        if self.held and self.holder() == os.getpid():
-            self.path.unlink(missing_ok=True)
-        self.held = False
-
-    def __enter__(self) -> TrainingLock:
-        self.acquire()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.release()
 
 
 def _first_line(exc: Exception) -> str:

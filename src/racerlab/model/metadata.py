@@ -270,11 +270,18 @@ def read_json_file(path):
     """A JSON config file's content; a missing file or bad JSON is a one-line ConfigError."""
     p = Path(path)
     try:
-        return json.loads(p.read_text())
+        return json.loads(p.read_bytes())  # bytes: UTF-8 (with or without a BOM), UTF-16 and UTF-32 are all read
     except FileNotFoundError:
         raise ConfigError(f"{p}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{p}: a folder, not a JSON file") from None
     except json.JSONDecodeError as exc:
         raise ConfigError(f"{p}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); "
+                          "save the file as UTF-8") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: nested too deeply to be a DeepRacer file; check its brackets") from None
 
 
 def load_model_metadata(path) -> ModelMetadata:

@@ -1,0 +1,68 @@
+"""The command line against clumsy input and a full disk: one line each, never a traceback, nothing lost."""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import sys
+
+import pytest
+
+from racerlab.cli import main
+from racerlab.model import ModelFolder, init_model
+
+
+@pytest.mark.parametrize("command", ["evaluate", "race"])
+def test_help_of_commands_with_race_flags_prints(command, capsys):
+    with pytest.raises(SystemExit) as done:
+        main([command, "--help"])
+    assert done.value.code == 0
+    assert "% of the lap" in capsys.readouterr().out
+
+
+def test_a_full_disk_is_one_line_and_the_last_iteration_survives(tmp_path, capsys, monkeypatch):
+    model = init_model(tmp_path / "m", track="lab_oval", num_cars=4)
+    assert main(["train", str(model.path), "--iterations", "1"]) == 0
+    before = [c.name for c in model.checkpoints()]
+    capsys.readouterr()
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)  # every file racerlab makes durable now meets a full disk
+    assert main(["train", str(model.path), "--iterations", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and "free some disk space" in err and err.count("\n") == 1, err
+    monkeypatch.undo()
+    assert [c.name for c in model.checkpoints()] == before
+    assert not [p for p in model.path.rglob("*") if ".tmp-" in p.name]  # no half-written files left behind
+    state = ModelFolder(model.path).load_checkpoint(model.checkpoints()[-1])
+    assert state["iteration"] == 1
+    assert main(["train", str(model.path), "--iterations", "2"]) == 0  # space again: resumes
+    assert model.checkpoints()[-1].iteration == 3  # iteration 1 kept, two more on top
+
+
+def test_numba_compiles_into_the_users_cache_not_the_source_tree(tmp_path):
+    import racerlab
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env.update(XDG_CACHE_HOME=str(tmp_path / "cache"), PYTHONPATH=os.path.dirname(os.path.dirname(racerlab.__file__)))
+    code = "import os, racerlab, numba; print(os.environ['NUMBA_CACHE_DIR']); print(numba.config.CACHE_DIR)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
+    assert out.split() == [str(tmp_path / "cache" / "racerlab" / "numba")] * 2
+    env["NUMBA_CACHE_DIR"] = str(tmp_path / "mine")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
+    assert out.split() == [str(tmp_path / "mine")] * 2  # the user's choice is kept
+
+
+def test_a_short_console_token_is_refused(tmp_path, capsys, monkeypatch):
+    uvicorn = pytest.importorskip("uvicorn")
+
+    def serving(*a, **kw):
+        raise AssertionError("the console was served with a one-character token")
+
+    monkeypatch.setattr(uvicorn, "run", serving)
+    assert main(["console", "--dir", str(tmp_path), "--host", "0.0.0.0", "--token", "a", "--no-browser"]) == 2
+    err = capsys.readouterr().err
+    assert "--token" in err and "at least 16" in err and err.count("\n") == 1

@@ -1,0 +1,168 @@
+"""The console against clumsy and hostile input: a model trained from a terminal, requests that would block
+it, endless reward functions, bad numbers, symlinks."""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+
+import racerlab
+
+SRC = os.path.dirname(os.path.dirname(racerlab.__file__))  # the racerlab under test, in the child too
+
+
+def _terminal_trainer(folder) -> subprocess.Popen:
+    """A process holding the folder's training lock, as `racerlab train` started in a terminal does."""
+    code = ("import time\nfrom racerlab.model import ModelFolder\n"
+            f"ModelFolder({str(folder)!r}).lock().acquire()\nprint('held', flush=True)\ntime.sleep(60)\n")
+    env = {**os.environ, "PYTHONPATH": os.path.abspath(SRC)}
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_model_trained_from_a_terminal_shows_training_and_cannot_be_deleted(console):
+    c = console.client
+    assert c.post("/api/models", json={"name": "busy", "track": "lab_oval", "cars": 4}).status_code == 200
+    folder = console.app.state.workspace.root / "busy"
+    before = sorted(p.relative_to(folder) for p in folder.rglob("*"))
+    proc = _terminal_trainer(folder)
+    try:
+        assert c.get("/api/models/busy").json()["state"] == "training"
+        r = c.delete("/api/models/busy?confirm=busy")
+        assert r.status_code == 409, r.text
+        assert "stop its training first" in r.json()["error"]
+        assert c.post("/api/models/busy/evaluate", json={}).status_code == 409
+        assert c.post("/api/models/busy/train", json={"iterations": 1}).status_code == 409
+        assert sorted(p.relative_to(folder) for p in folder.rglob("*") if p.name != "training.lock") == before
+    finally:
+        proc.kill()
+        proc.wait()
+    assert c.get("/api/models/busy").json()["state"] == "idle"  # the trainer died: the lock is free again
+    assert c.delete("/api/models/busy?confirm=busy").status_code == 200
+    assert not folder.exists()
+    assert not [p for p in console.app.state.workspace.state_root.iterdir() if p.name.startswith("deleting-")]
+
+
+# ---- 4: blocking work runs off the event loop ----------------------------------------------------------------
+def _tar_gz(files: dict[str, bytes]) -> bytes:
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as tar:
+        for name, data in files.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("route, module", [("/api/imports", "racerlab.console.exchange"),
+                                           ("/api/uploads", "racerlab.console.runs")])
+def test_checking_an_upload_does_not_stall_other_requests(console, monkeypatch, route, module):
+    import importlib
+
+    mod = importlib.import_module(module)
+    real = mod.check_archive
+
+    def slow(path, *a, **kw):  # a gzip bomb takes this long to read through
+        time.sleep(4)
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(mod, "check_archive", slow)
+    data = _tar_gz({"logs/metrics.json": b"{}"})
+    c = console.client
+    with ThreadPoolExecutor(1) as pool:
+        upload = pool.submit(c.post, route, files={"file": ("big.tar.gz", data)}, data={"name": "up"})
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        assert c.get("/api/models").status_code == 200
+        waited = time.monotonic() - t0
+        upload.result()
+    assert waited < 1.5, f"GET /api/models waited {waited:.1f} s behind the upload's check"
+
+
+# ---- 5: an endless reward is cut ------------------------------------------------------------------------------
+def test_an_endless_reward_call_is_cut_by_the_watchdog(console):
+    reward = "def reward_function(params):\n    while True:\n        pass\n"
+    r = console.client.post("/api/reward/check", json={"reward": reward}, timeout=300)
+    assert r.status_code == 400, r.text
+    assert "reward time budget" in r.json()["error"] and "\n" not in r.json()["error"]  # cut by the watchdog
+    ok = "def reward_function(params):\n    return float(params['progress'])\n"
+    r = console.client.post("/api/reward/check", json={"reward": ok, "samples": 2}, timeout=300)
+    assert r.status_code == 200 and r.json()["map"].startswith("data:image/png"), r.text  # the console still works
+
+
+def test_an_endless_loop_at_import_is_stopped_at_the_deadline(console, monkeypatch):
+    from racerlab.console import runs
+
+    monkeypatch.setattr(runs, "REWARD_CHECK_S", 4.0)
+    reward = "while True:\n    pass\n\ndef reward_function(params):\n    return 1.0\n"
+    r = console.client.post("/api/reward/check", json={"reward": reward}, timeout=300)
+    assert r.status_code == 400 and "no answer within 4 s" in r.json()["error"], r.text
+
+
+# ---- 12, 13: bad values are one line, never a 500 or a silent default -------------------------------------------
+@pytest.mark.parametrize("method, url, body, field", [
+    ("post", "/api/lines", {"track": "lab_oval", "margin": "wide"}, "margin"),
+    ("post", "/api/lines", {"track": "lab_oval", "margin": "1e400"}, "margin"),
+    ("post", "/api/reward/check", {"reward": "def reward_function(p):\n    return 1.0\n", "samples": "x"}, "samples"),
+    ("post", "/api/models", {"name": "a", "max_speed": "fast"}, "max_speed"),
+    ("post", "/api/models", {"name": "a", "cars": "many"}, "cars"),
+    ("post", "/api/models", {"name": "a", "cars": -3}, "cars"),
+    ("post", "/api/models", {"name": "a", "cars": "1e400"}, "cars"),
+    ("post", "/api/models", {"name": None}, "model name None"),
+    ("post", "/api/models", {"name": "a\n"}, "model name 'a\\n'"),
+    ("post", "/api/models/m/train", {"minutes": "inf"}, "minutes"),
+    ("post", "/api/models/m/train", {"episodes": "1e400"}, "episodes"),
+    ("post", "/api/models/m/evaluate", {"trials": "1e400"}, "trials"),
+    ("post", "/api/models/m/evaluate", {"continuous": "maybe"}, "continuous"),
+    ("post", "/api/races", {"models": ["m"] * 1000}, "at most"),
+])
+def test_bad_values_are_one_line_naming_the_field(console, method, url, body, field):
+    c = console.client
+    if "/m/" in url:
+        assert c.post("/api/models", json={"name": "m", "track": "lab_oval", "cars": 4}).status_code == 200
+    r = getattr(c, method)(url, json=body)
+    assert r.status_code == 400, r.text
+    assert field in r.json()["error"] and "\n" not in r.json()["error"]
+    assert not (console.app.state.workspace.root / "a").exists()
+    assert not (console.app.state.workspace.root / "None").exists()
+
+
+def test_race_rules_read_yes_and_no_as_written():
+    from racerlab.console.runs import _rules
+
+    assert _rules({"continuous": "false", "reverse": "true"}).continuous is False
+    assert _rules({"continuous": "false", "reverse": "true"}).reverse is True
+    assert _rules({}).continuous is True
+
+
+# ---- 10: symbolic links -----------------------------------------------------------------------------------------
+def test_a_linked_model_folder_or_file_is_neither_listed_nor_served(console, tmp_path):
+    c = console.client
+    root = console.app.state.workspace.root
+    assert c.post("/api/models", json={"name": "real", "track": "lab_oval", "cars": 4}).status_code == 200
+    outside = tmp_path / "elsewhere"
+    shutil.copytree(root / "real", outside)
+    (root / "linked").symlink_to(outside)
+    secret = tmp_path / "secret.html"
+    secret.write_text("<p>secret</p>")
+    (root / "real" / "report.html").symlink_to(secret)
+    r = c.get("/api/models")
+    assert r.status_code == 200 and [m["name"] for m in r.json()["models"]] == ["real"]
+    r = c.get("/api/models/real/report")
+    assert r.status_code == 404 and "secret" not in r.text
+
+
+def test_an_absurdly_nested_request_body_is_one_line(console):
+    body = "[" * 100_000 + "]" * 100_000
+    r = console.client.post("/api/models", content=body, headers={"Content-Type": "application/json"})
+    assert r.status_code in (400, 422), r.text[:200]
+    assert "Internal Server Error" not in r.text
