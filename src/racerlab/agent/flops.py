@@ -50,6 +50,8 @@ def forward_flops(module: nn.Module, inputs) -> tuple[Flops, list[tuple[nn.Conv2
         counts["conv"] += 2.0 * out.numel() * k
         convs.append((mod, args[0].shape))
 
+    device = next(module.parameters()).device  # a network on CUDA counts on CUDA inputs
+    inputs = {k: v.to(device) for k, v in inputs.items()} if isinstance(inputs, dict) else inputs.to(device)
     hooks = []
     for m in module.modules():
         if isinstance(m, nn.Linear):
@@ -65,8 +67,15 @@ def forward_flops(module: nn.Module, inputs) -> tuple[Flops, list[tuple[nn.Conv2
     return Flops(counts["linear"], counts["conv"]), convs
 
 
-def _best_seconds(fn, repeats: int, min_seconds: float) -> float:
-    """The fastest of `repeats` timed calls after one warm-up, each call repeated for `min_seconds`."""
+def _best_seconds(fn, repeats: int, min_seconds: float, sync=None) -> float:
+    """The fastest of `repeats` timed calls after one warm-up, each call repeated for `min_seconds`; `sync` waits
+    for the device's queued work (CUDA runs asynchronously: without it the timer reads the queueing)."""
+    if sync is not None:
+        inner = fn
+
+        def fn():
+            inner()
+            sync()
     fn()
     best = float("inf")
     for _ in range(repeats):
@@ -98,7 +107,8 @@ def conv_rate(convs: list[tuple[nn.Conv2d, torch.Size]], repeats: int = 3, min_s
             out = mod(x)
             k = mod.kernel_size[0] * mod.kernel_size[1] * mod.in_channels // mod.groups
             flops += 2.0 * out.numel() * k
-            seconds += _best_seconds(lambda m=mod, x=x: m(x), repeats, min_seconds)
+            sync = torch.cuda.synchronize if x.is_cuda else None
+            seconds += _best_seconds(lambda m=mod, x=x: m(x), repeats, min_seconds, sync)
     return flops / seconds
 
 
