@@ -30,6 +30,10 @@ STEPS = 450
 #   track_width) by about as much, and steering_angle by up to 0.005°;
 # - a position that close to a waypoint's arc position or to the centre line can land on the other side of
 #   it once rounded: closest_waypoints and is_left_of_center may then differ (allowed only there, and rare);
+# - on the inside of a bend the nearest point of the centre line's polyline jumps from one segment to the next:
+#   a position that close to the bisector can project a few millimetres apart once rounded, across the waypoint
+#   at the kink (projection_distance, progress and closest_waypoints; allowed only there, and rare; the AWS car's
+#   wider, lagging turns of issue 24 drove one row of this test onto such a bisector);
 # - tstamp is the clock when the row is written, 1 ms resolution; the live sim_time is the clock of the pose
 #   the rules judged, one step earlier in AWS order (the log does not say which order ran), so the rebuilt
 #   sim_time (= tstamp) is the live one plus one step.
@@ -90,6 +94,15 @@ def _boundary_case(key, want, got, waypoint_s, length) -> bool:
     return False
 
 
+def _kink_case(want, got, waypoint_s) -> bool:
+    """A projection that jumped across a waypoint at a kink of the centre line, by a few millimetres at most."""
+    lo, hi = sorted((want["projection_distance"], got["projection_distance"]))
+    return ROUNDED_M < hi - lo < KINK_JUMP_M and bool(np.any((waypoint_s >= lo - ROUNDED_M) & (waypoint_s <= hi + ROUNDED_M)))
+
+
+KINK_JUMP_M = 5e-3
+
+
 def test_logged_params_equal_the_live_params_key_by_key(driven):
     track, live, df = driven
     rebuilt = log_params(df, track)  # directions inferred from the logged headings, as for an AWS log
@@ -102,13 +115,17 @@ def test_logged_params_equal_the_live_params_key_by_key(driven):
             continue
         got = rebuilt.dict_at(i)
         assert list(got) == list(want) == list(REWARD_PARAM_NAMES)
+        wps = waypoint_s[want["is_reversed"]]
+        kink = _kink_case(want, got, wps)
+        flips += kink
         for key, value in want.items():
+            if kink and key in ("projection_distance", "progress", "closest_waypoints"):
+                continue
             if key == "sim_time":
                 assert got[key] == pytest.approx(value + STEP_S, abs=6e-4), (ep, step, key)
             elif key in TOLERANCE:
                 assert got[key] == pytest.approx(value, abs=TOLERANCE[key]), (ep, step, key)
             elif got[key] != value:
-                wps = waypoint_s[want["is_reversed"]]
                 assert _boundary_case(key, want, got, wps, track.length), (ep, step, key, got[key], value)
                 flips += 1
         compared += 1
