@@ -31,15 +31,16 @@ def test_show_writes_a_png_and_prints_the_facts(home, tmp_path, capsys):
 
 def test_show_reverse_and_a_path(home, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    out = tmp_path / "racerlab-out" / "tracks"  # not the current folder itself (issue 27)
     assert main(["tracks", "show", "lab_oval", "--reverse"]) == 0
-    assert (tmp_path / "lab_oval_reversed.png").is_file()
+    assert (out / "lab_oval_reversed.png").is_file() and not (tmp_path / "lab_oval_reversed.png").exists()
     text = capsys.readouterr().out
-    assert "direction: clockwise" in text and f"picture: {tmp_path / 'lab_oval_reversed.png'}" in text
+    assert "direction: clockwise" in text and f"picture: {out / 'lab_oval_reversed.png'}" in text
     path = aws_track_path("reInvent2019_track")
     assert main(["tracks", "show", str(path), "--out", str(tmp_path / "r.png")]) == 0
     assert "length: 23.1" in capsys.readouterr().out
     assert main(["tracks", "show"]) == 0  # the default track
-    assert (tmp_path / "lab_technical.png").is_file()
+    assert (out / "lab_technical.png").is_file()
 
 
 def test_list_shows_bundled_and_user_tracks(home, capsys):
