@@ -97,7 +97,8 @@ def _boundary_case(key, want, got, waypoint_s, length) -> bool:
 def _kink_case(want, got, waypoint_s) -> bool:
     """A projection that jumped across a waypoint at a kink of the centre line, by a few millimetres at most."""
     lo, hi = sorted((want["projection_distance"], got["projection_distance"]))
-    return ROUNDED_M < hi - lo < KINK_JUMP_M and bool(np.any((waypoint_s >= lo - ROUNDED_M) & (waypoint_s <= hi + ROUNDED_M)))
+    near = (waypoint_s >= lo - ROUNDED_M) & (waypoint_s <= hi + ROUNDED_M)
+    return ROUNDED_M < hi - lo < KINK_JUMP_M and bool(np.any(near))
 
 
 KINK_JUMP_M = 5e-3
