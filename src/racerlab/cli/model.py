@@ -79,13 +79,13 @@ def run_init(args) -> int:
         from racerlab.reward.templates import NEEDS_LINE
 
         line = None
+        metadata = folder.metadata()
         if args.reward in NEEDS_LINE:
             from racerlab.line import racing_line
 
-            metadata = folder.metadata()
-            car = folder.config().car.params(f"{float(metadata.version):g}", training=False)  # the [car] it trains
+            car = folder.config().car.params(metadata.version, training=False)  # the [car] it trains
             line = racing_line(folder.config().track.names[0], car=car)
-        folder.write_reward(reward_source(args.reward, line, folder.metadata().actions.top_speed))
+        folder.write_reward(reward_source(args.reward, line, metadata.actions.top_speed))
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     print(speed_note(args.max_speed))

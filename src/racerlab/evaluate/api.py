@@ -208,7 +208,7 @@ def car_config(model: LoadedModel, car=None):
     from racerlab.sim import car_for
 
     if car is None:
-        return model.folder.config().car.params(f"{float(model.metadata.version):g}", training=False)
+        return model.folder.config().car.params(model.metadata.version, training=False)
     return car_for(car, model.metadata)
 
 

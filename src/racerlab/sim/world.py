@@ -38,7 +38,7 @@ def car_for(car, metadata=None) -> CarParams:
     within the simulator (`spec.car_params`)."""
     if isinstance(car, CarParams):
         return car
-    version = _version(metadata)
+    version = "5" if metadata is None else as_model_metadata(metadata).version  # spec.control_of reads any number
     if car is None:
         return car_params(DEFAULT_SIMULATOR, version)
     if isinstance(car, str):
@@ -47,13 +47,6 @@ def car_for(car, metadata=None) -> CarParams:
         return car.params(version)
     table = dict(car)
     return car_params(table.pop("simulator", DEFAULT_SIMULATOR), table.pop("version", version), **table)
-
-
-def _version(metadata) -> str:
-    if metadata is None:
-        return "5"
-    v = as_model_metadata(metadata).version
-    return f"{float(v):g}"
 
 
 class World:
