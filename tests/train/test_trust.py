@@ -224,12 +224,15 @@ def test_collection_stops_at_the_deadline_with_a_heartbeat(model):
 
     _small(model)
     t = Trainer(model.path, progress=False, num_cars=2)
+    # two whole episodes first, so that every kernel on the way is compiled: on a cold numba cache the first
+    # step takes tens of seconds, and the deadline is checked between steps
+    t.collector.collect(t.agent, 2, 10**9)
     ticks = []
     t0 = time.perf_counter()
     ro = t.collector.collect(t.agent, 10_000, 10**9, deadline=t0 + 3.0, tick=lambda *a: ticks.append(a),
                              tick_s=0.5)
     took = time.perf_counter() - t0
-    assert ro.cut and 3.0 <= took < 3.5  # stops at the deadline, not when 10 000 episodes have ended
+    assert ro.cut and 3.0 <= took < 4.0  # stops at the deadline, not when 10 000 episodes have ended
     assert len(ticks) >= 4 and ticks[-1][0] <= len(ro.episodes) and ticks[-1][1] == 10_000
     # the cut keeps only whole episodes: every kept one has an end status, the running ones are dropped
     assert ro.episodes and all(ep.status for ep in ro.episodes)
