@@ -29,6 +29,7 @@ from racerlab.track import Track
 
 METHODS = ("mincurv", "shortest")
 CUSHION_M = 5e-3  # extra clearance in the bounds for the spline's bulge between points
+GROWN_CLEARANCE_M = 0.02  # a negative clearance keeps this much to borders grown by it and the overhang
 
 
 class Solution(NamedTuple):
@@ -142,6 +143,10 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
     The bounds carry a small cushion (`CUSHION_M`) because the spline through the new points
     bulges a few millimetres past them in tight corners; where it still falls short, the clearance
     there grows and the solve goes on from the line it has.
+
+    A negative `clearance` lets the point leave the road by up to -clearance (the limit under the simulator's
+    off-track rule, `line.core.OFFTRACK_CLEARANCE_M`): the borders are grown by that much
+    (`geometry.grown_border_segments`).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -149,8 +154,13 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
     centre = track.center[:-1] if closed else track.center
     m = max(int(round(track.length / step_m)), 8)
     ref = G.resample_polyline(centre, m, closed)
-    segs = G.border_segments(track)
-    reach = float(track.widths.max())
+    overhang = max(-clearance, 0.0)
+    if overhang > 0:  # the point may leave the road by up to -clearance: keep a small clearance to grown borders
+        segs = G.grown_border_segments(track, GROWN_CLEARANCE_M + overhang)
+        clearance = GROWN_CLEARANCE_M
+    else:
+        segs = G.border_segments(track)
+    reach = float(track.widths.max()) + 2.0 * overhang
     extra = np.full(m, CUSHION_M)  # clearance added to what the car needs
     best, damping, move, it = np.inf, 0.0, np.inf, 0  # best = inf: the next step is taken whatever it gives
     for it in range(1, max_iter + 1):
