@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 
 from racerlab.line import car_clearance, min_margin, offtrack_overhang, racing_line, theoretical_limit
+from racerlab.line import geometry as G
 from racerlab.line.profile import max_curvature
 from racerlab.sim import Simulator
 from racerlab.sim import _kernels as K
 from racerlab.sim.pursuit import PurePursuit, drive_lap
 from racerlab.spec import car_params
+from racerlab.track.kernels import point_in_road
 from tests.line.test_solve import ring
 
 BIG = 50.0  # a ring this large is straight to 0.1 mm over a car's length
@@ -74,7 +76,13 @@ def test_no_lap_the_simulator_accepts_beats_the_limit(aws_track):
     status, steps, lap, _ = drive_lap(sim, PurePursuit(edge.xy, edge.speed, closed=True, car=car, lookahead_m=0.25))
     assert status == "lap_complete"
     assert lap < racing_line(t, car=car).lap_time
-    assert theoretical_limit(t, car=car).lap_time <= lap
+    limit = theoretical_limit(t, car=car)
+    assert limit.lap_time <= lap
+    # and the limit's path stays where the rule allows: on the road or at most the overhang (+ 2 mm) beyond it
+    bs, be, y0, bh = t.road_index
+    on_road = np.array([point_in_road(x, y, t.road_edges, bs, be, float(y0), bh) for x, y in limit.xy])
+    beyond = G.border_distance(limit.xy, *G.border_segments(t))[~on_road]
+    assert (~on_road).sum() > 10 and beyond.max() <= offtrack_overhang(car) + 2e-3
 
 
 @pytest.mark.parametrize("simulator,version", [("droa", "5"), ("console", "5"), ("console", "4")])
@@ -95,3 +103,13 @@ def test_the_simulated_car_corners_no_harder_than_the_profile_allows(aws_track, 
         v = float(np.mean(speeds[30:]))
         assert kappa == pytest.approx(float(max_curvature(v, car)), rel=0.01), command
         assert v * v * kappa <= car.grip_mps2 * 1.01
+
+
+def test_a_blend_runs_from_the_minimum_curvature_line_to_the_shortest(aws_track):
+    t = aws_track("reinvent_base")
+    ends = {w: racing_line(t, blend=w) for w in (0.0, 1.0)}
+    pure = {m: racing_line(t, method=m) for m in ("mincurv", "shortest")}
+    assert np.abs(ends[0.0].xy - pure["mincurv"].xy).max() < 0.01 and ends[0.0].method == "blend 0"
+    assert np.abs(ends[1.0].xy - pure["shortest"].xy).max() < 0.01
+    middle = racing_line(t, blend=1e-3)
+    assert pure["shortest"].length < middle.length < pure["mincurv"].length
