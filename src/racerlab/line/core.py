@@ -11,8 +11,8 @@ kinematic bicycle). Two kinds, for two uses:
   calls a car off track only when none of its four wheel centres is on the road (facts §2), so a car whose
   base point is up to `offtrack_overhang` (the half-diagonal of the wheel centres, 0.115 m) outside a border
   can still be on track, whatever its heading: the limit lets the base point go that far out, and is the
-  faster of the minimum-curvature and the shortest line there. No lap the simulator accepts (exact 1/15 s
-  steps) is faster.
+  fastest of the minimum-curvature line, the shortest line and mixes of the two there: a lower bound for laps
+  on exact 1/15 s steps (up to the path, which is not an exact minimum-time one).
 
 Its speed is the fastest the simulator's car (`racerlab.spec.CarParams`) can drive it: grip and the steering's
 tightest bend in the corners, acceleration and braking in between (see `racerlab.line.profile`).
