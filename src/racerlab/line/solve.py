@@ -29,8 +29,8 @@ from racerlab.track import Track
 
 METHODS = ("mincurv", "shortest")
 CUSHION_M = 5e-3  # extra clearance in the bounds for the spline's bulge between points
-GROWN_CLEARANCE_M = 0.1  # a negative clearance keeps this much to borders grown by it and the overhang (a thin
-# band would let a line that bulges between its points slip through a border in one step)
+GROWN_CLEARANCE_M = 0.1  # a negative clearance keeps this much to borders grown by it and the overhang (as the
+# line's own clearance does: a band only a few cm thick could be crossed by one step's bulge between points)
 
 
 class Solution(NamedTuple):
