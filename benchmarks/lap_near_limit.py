@@ -2,9 +2,10 @@
 
 For each observation kind it creates a fresh model on reInvent2019_track (continuous actions, top speed
 4 m/s, AWS default hyperparameters, the reward template given), trains for `--minutes`, and prints one
-JSON line: the best greedy evaluation lap, the theoretical lap of `racerlab line` for the same car (the
-limit), their ratio next to the target (features <= 1.05x, camera <= 1.25x), the all-time record in the
-AWS simulator (7.198 s), when the best lap was reached and the load average, since the machine may be
+JSON line: the best greedy evaluation lap (exact 1/15 s steps), the theoretical limit of `racerlab line` for the
+same car (the fastest lap the simulator's off-track rule allows), their ratio next to the target (features <= 1.05x,
+camera <= 1.25x), the racing line's own lap (the line the reward follows, the whole car 0.1 m inside), the all-time
+record in the AWS simulator (7.198 s), when the best lap was reached and the load average, since the machine may be
 shared (read the ratio, and compare runs taken at a similar load).
 
 Usage: python benchmarks/lap_near_limit.py [--kinds features camera] [--minutes 30] [--reward racing_line]
@@ -20,7 +21,7 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from racerlab.line import racing_line
+from racerlab.line import racing_line, theoretical_limit
 from racerlab.model import init_model
 from racerlab.model.config import CarSettings
 from racerlab.reward import TEMPLATES, reward_source
@@ -35,7 +36,7 @@ AWS_RECORD_S = 7.198  # all-time best lap on reInvent2019_track in the AWS simul
 TARGET_RATIO = {"features": 1.05, "camera": 1.25}
 
 
-def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, car) -> dict:
+def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, line_s: float, car) -> dict:
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = init_model(Path(tmp) / "m", track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
@@ -51,6 +52,7 @@ def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float
             "reward": reward, "iterations": r.iterations, "env_steps": r.env_steps,
             "best_eval_lap_s": round(best[0], 3), "best_at_iteration": best[1], "best_at_env_steps": best[2],
             "theoretical_limit_s": round(limit_s, 3), "ratio_to_limit": round(best[0] / limit_s, 3),
+            "racing_line_lap_s": round(line_s, 3),
             "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S, "car": car.name,
             "first_lap": r.first_lap, "loadavg_1min_before_after": [round(load_before, 2),
                                                                     round(os.getloadavg()[0], 2)]}
@@ -65,9 +67,10 @@ def main():
     ap.add_argument("--simulator", choices=["droa", "console"], default="droa", help="whose car (default droa)")
     args = ap.parse_args()
     car = car_params(args.simulator, "5")  # a new continuous model is version 5
-    limit = racing_line(str(args.track), car=car).lap_time
+    limit = theoretical_limit(str(args.track), car=car).lap_time
+    line = racing_line(str(args.track), car=car).lap_time
     for kind in args.kinds:
-        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit, car)), flush=True)
+        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit, line, car)), flush=True)
 
 
 if __name__ == "__main__":

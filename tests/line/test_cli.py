@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from racerlab.cli import main
-from racerlab.line import racing_line
+from racerlab.line import racing_line, theoretical_limit
 from racerlab.line.export import action_space, grip_speed
 from racerlab.model import parse_model_metadata
 from racerlab.spec import MAX_SPEED, MIN_SPEED
@@ -22,8 +22,9 @@ def test_cli_prints_the_lap_and_writes_every_file(tmp_path, capsys):
     out = tmp_path / "line"
     assert main(["line", str(track), "--margin", "0.1", "--method", "mincurv", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    line = racing_line(str(track))
-    assert f"theoretical best lap {line.lap_time:.3f} s" in text
+    line, limit = racing_line(str(track)), theoretical_limit(str(track))
+    assert f"line:  lap {line.lap_time:.3f} s" in text and "the whole car 0.1 m inside" in text
+    assert f"limit: lap {limit.lap_time:.3f} s" in text and "0.115 m outside a border" in text
     stem = out / "reInvent2019_track_mincurv"
     assert f"wrote into {out}:" in text and f"py              {stem}.py" in text
     png = stem.with_suffix(".png").read_bytes()
@@ -50,7 +51,7 @@ def test_shortest_method_and_default_folder(tmp_path, monkeypatch, capsys):
 
 @pytest.mark.parametrize("argv, words", [
     (["--margin", "0.3"], "too narrow"),
-    (["--margin", "-0.1"], "--margin must be >= 0"),
+    (["--margin", "-0.3"], "--margin must be >= -0.231 m"),
     (["--actions", "2"], "--actions must be at least 3"),
 ])
 def test_user_mistakes_are_one_line(tmp_path, capsys, argv, words):

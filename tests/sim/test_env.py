@@ -163,3 +163,17 @@ def test_render_modes_are_declared_so_make_vec_env_does_not_warn(aws_track):
     assert len(venv.render()) == 2
     with pytest.raises(ConfigError, match="render_mode"):
         DeepRacerEnv(aws_track("reInvent2019_track"), render_mode="human")
+
+
+def test_the_envs_say_which_car_they_drive(aws_track):
+    track = aws_track("reInvent2019_track")
+    env = DeepRacerEnv(track, centre_reward, {**CONTINUOUS, "version": "5"}, car="console")
+    _, info = env.reset(seed=0)
+    assert info["car"] == env.car.name == "console, velocity control (version >= 5)"
+    effort = DeepRacerEnv(track, centre_reward, {**CONTINUOUS, "version": "4"})  # the default simulator: droa
+    assert effort.reset(seed=0)[1]["car"] == "droa, effort control (version 3-4)"
+    venv = DeepRacerVectorEnv(3, track, centre_reward, {**CONTINUOUS, "version": "5.0"},
+                              car={"simulator": "console", "yaw_gain": 0.5})
+    _, info = venv.reset(seed=0)
+    assert list(info["car"]) == ["console, velocity control (version >= 5)"] * 3 and info["_car"].all()
+    assert venv.car.yaw_gain == 0.5

@@ -1,10 +1,21 @@
-"""`RacingLine` and `racing_line(track, ...)`: a solved line with its speed profile and lap times.
+"""`RacingLine`, `racing_line(track, ...)` and `theoretical_limit(track, ...)`: solved lines with their speed
+profile and lap times.
 
-The line is the path of the car's base point (midway between the axles, the point the simulator
-moves as a kinematic bicycle), kept `clearance_m` = half the wheel track + a wheel radius +
-`margin` from both borders, so the whole car stays on the road with `margin` to spare. Its speed
-is the fastest the simulator's car (`racerlab.spec.CarParams`) can drive it: grip in the corners,
-acceleration and braking in between (see `racerlab.line.profile`).
+A line is the path of the car's base point (midway between the axles, the point the simulator moves as a
+kinematic bicycle). Two kinds, for two uses:
+
+* the **racing line** (`racing_line`, kind "line"): kept `clearance_m` = half the wheel track + a wheel radius +
+  `margin` from both borders, so the whole car stays on the road with `margin` to spare: the line a reward
+  function should follow;
+* the **limit** (`theoretical_limit`, kind "limit"): the fastest lap the simulator's rules allow. The simulator
+  calls a car off track only when none of its four wheel centres is on the road (facts §2), so a car whose
+  base point is up to `offtrack_overhang` (the half-diagonal of the wheel centres, 0.115 m) outside a border
+  can still be on track, whatever its heading: the limit lets the base point go that far out, and is the
+  fastest of the minimum-curvature line, the shortest line and mixes of the two there: a lower bound for laps
+  on exact 1/15 s steps (up to the path, which is not an exact minimum-time one).
+
+Its speed is the fastest the simulator's car (`racerlab.spec.CarParams`) can drive it: grip and the steering's
+tightest bend in the corners, acceleration and braking in between (see `racerlab.line.profile`).
 """
 
 from __future__ import annotations
@@ -24,12 +35,26 @@ from racerlab.track import load as load_track
 
 WHEEL_RADIUS_M = 0.036  # a wheel reaches this far beyond its centre; the car's width is track_m + 2 × this
 DEFAULT_MARGIN_M = 0.1
+LIMIT_BLENDS = (1e-4, 1e-3, 3e-3, 1e-2)  # shortest-path weights of the mixed lines the limit tries too
 
 
 def car_clearance(car: CarParams | None = None, margin: float = DEFAULT_MARGIN_M) -> float:
     """How far the base point must stay from a border so the whole car keeps `margin` to it, m."""
     car = car or CarParams()
     return 0.5 * car.track_m + WHEEL_RADIUS_M + margin
+
+
+def offtrack_overhang(car: CarParams | None = None) -> float:
+    """How far outside a border the base point can be while a wheel centre is still on the road, m: the distance
+    from the base point to the farthest wheel centre (the car may stand at any angle to the border)."""
+    car = car or CarParams()
+    return float(np.hypot(0.5 * car.wheelbase_m, 0.5 * car.track_m))
+
+
+def min_margin(car: CarParams | None = None) -> float:
+    """The smallest `margin` the simulator's off-track rule allows (negative: the base point `offtrack_overhang`
+    outside a border), m."""
+    return -offtrack_overhang(car) - car_clearance(car, 0.0)
 
 
 def steering_for_curvature(curvature, wheelbase_m: float = WHEELBASE_M, gain=1.0) -> np.ndarray:
@@ -53,7 +78,9 @@ class RacingLine:
     first. `speed` and `time` are those of a flying lap (the car already at speed), which is what a
     reward function should aim at; `lap_time` is the lap as the simulator's timer shows it from a
     standing start at the start line (prepare step included), comparable with AWS lap times;
-    `flying_lap_time` is the lap once rolling.
+    `flying_lap_time` is the lap once rolling. `kind` is "line" (a racing line: the whole car `margin_m`
+    inside the borders) or "limit" (the theoretical limit: the base point may be `-clearance_m` outside them, as
+    far as the simulator's off-track rule allows; `margin_m` is then negative).
     """
 
     track_name: str
@@ -71,6 +98,7 @@ class RacingLine:
     iterations: int = 0
     converged: bool = True
     solve_s: float = 0.0
+    kind: str = "line"
 
     @property
     def s(self) -> np.ndarray:
@@ -99,7 +127,8 @@ class RacingLine:
 
     def summary(self) -> dict:
         """The headline numbers, JSON-ready."""
-        return {"track": self.track_name, "method": self.method, "margin_m": self.margin_m,
+        return {"track": self.track_name, "kind": self.kind, "method": self.method,
+                "margin_m": round(self.margin_m, 4), "clearance_m": round(self.clearance_m, 4),
                 "points": int(len(self.xy)), "length_m": round(self.length, 3),
                 "lap_time_s": round(self.lap_time, 3), "flying_lap_time_s": round(self.flying_lap_time, 3),
                 "min_speed_mps": round(float(self.speed.min()), 3),
@@ -107,33 +136,57 @@ class RacingLine:
                 "iterations": self.iterations, "converged": self.converged, "solve_s": round(self.solve_s, 3)}
 
     def __repr__(self) -> str:
-        return (f"RacingLine({self.track_name!r}, {self.method}, margin {self.margin_m} m, {len(self.xy)} points, "
+        return (f"RacingLine({self.track_name!r}, {self.kind}, {self.method}, margin {self.margin_m:g} m, "
+                f"{len(self.xy)} points, "
                 f"{self.length:.2f} m, lap {self.lap_time:.3f} s, flying {self.flying_lap_time:.3f} s)")
 
 
 def racing_line(track: Track | str, margin: float = DEFAULT_MARGIN_M, method: str = "mincurv",
-                car: CarParams | str | None = None, step_m: float = 0.1) -> RacingLine:
+                car: CarParams | str | None = None, step_m: float = 0.1, blend: float | None = None) -> RacingLine:
     """Solve the racing line of `track` (a `Track` or a track name/path) and its speed profile.
 
     `method` is "mincurv" (minimum curvature: the fastest line in practice) or "shortest"
-    (shortest path); `margin` (m) is kept between the car's wheels and each border; `car` sets
+    (shortest path); `margin` (m) is kept between the car's wheels and each border (negative: they may hang over
+    it, at most as far as the off-track rule allows, `min_margin`); `car` sets
     the limits: a `CarParams` or a simulator's name (its version-5 car, `spec.car_params`; default `CarParams()`,
-    the droa simulator's car). Raises `TrackError` for a loop-less
+    the droa simulator's car); `blend` (0-1), if given, solves for that mix of the two methods' objectives
+    instead (`line.solve`; the line's method reads e.g. "blend 0.001"). Raises `TrackError` for a loop-less
     (open) track or where the road is too narrow for the car and the margin.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    if margin < 0:
-        raise ValueError(f"margin must be >= 0 m, got {margin}")
+    car = car_params(car) if isinstance(car, str) else car or CarParams()
+    if margin < min_margin(car) - 1e-12:
+        raise ValueError(f"margin must be >= {min_margin(car):.4f} m (the off-track rule's overhang), got {margin}")
     t = track if isinstance(track, Track) else load_track(track)
     if not t.closed:
         raise TrackError(f"{t.name}: a racing line needs a closed loop; this track is open")
-    car = car_params(car) if isinstance(car, str) else car or CarParams()
     clearance = car_clearance(car, margin)
     t0 = time.perf_counter()
-    sol = solve(t, clearance, method, step_m=step_m)
-    line = _with_profile(t, sol, method, margin, car, clearance)
+    sol = solve(t, clearance, method, step_m=step_m, blend=blend)
+    line = _with_profile(t, sol, method if blend is None else f"blend {blend:g}", margin, car, clearance)
     return replace(line, solve_s=time.perf_counter() - t0)
+
+
+def theoretical_limit(track: Track | str, car: CarParams | str | None = None, step_m: float = 0.1) -> RacingLine:
+    """The fastest lap the simulator allows on `track` for `car` (as in `racing_line`), as a `RacingLine` of kind
+    "limit": the fastest of the minimum-curvature line, the shortest line and mixes of the two (`LIMIT_BLENDS`)
+    with the base point allowed `offtrack_overhang` outside the borders (a wheel centre still on the road), at the
+    profile's speed.
+
+    It is a lower bound under the simulator's rules with exact steps as far as the path goes: the profile holds
+    the car's own grip, steering, top speed and traction (`line.profile`) and ignores its delay and lags, and no
+    legal pose has the base point farther out. None of the lines is the exact minimum-time path, so a cleverer
+    path could still be a little faster (the mixes gained up to 0.13 s over the better pure method on
+    reInvent2019_track).
+    """
+    t = track if isinstance(track, Track) else load_track(track)
+    car = car_params(car) if isinstance(car, str) else car or CarParams()
+    t0 = time.perf_counter()
+    lines = [racing_line(t, min_margin(car), method, car, step_m) for method in METHODS]
+    lines += [racing_line(t, min_margin(car), "mincurv", car, step_m, blend=w) for w in LIMIT_BLENDS]
+    best = min(lines, key=lambda line: (line.lap_time, line.flying_lap_time))
+    return replace(best, kind="limit", solve_s=time.perf_counter() - t0)
 
 
 def _with_profile(t: Track, sol, method: str, margin: float, car: CarParams, clearance: float) -> RacingLine:

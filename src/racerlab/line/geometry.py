@@ -97,6 +97,27 @@ def border_segments(track: Track) -> tuple[np.ndarray, np.ndarray]:
     return (np.vstack([b[:-1] for b in lines]).copy(), np.vstack([np.diff(b, axis=0) for b in lines]))
 
 
+def grown_border_segments(track: Track, by: float) -> tuple[np.ndarray, np.ndarray]:
+    """`border_segments` of the road grown by `by` m on both sides: each border segment moved `by` away from the
+    road, consecutive ones joined by the chord across the gap at a bend that opens outward.
+
+    At a bend that opens toward the road the moved segments cross and their ends lie less than `by` from the
+    border: a few mm at the bends of a sampled border, on the side of a smaller road.
+    """
+    starts, vecs = [], []
+    for border, other in ((track.inner, track.outer), (track.outer, track.inner)):
+        d = np.diff(border, axis=0)
+        n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(np.hypot(*d.T), 1e-12)[:, None]
+        toward_road = 0.5 * (other[:-1] + other[1:]) - 0.5 * (border[:-1] + border[1:])
+        n *= np.where(np.einsum("ij,ij->i", n, toward_road) > 0, -1.0, 1.0)[:, None]  # away from the road
+        a, b = border[:-1] + by * n, border[1:] + by * n
+        nxt = np.roll(np.arange(len(a)), -1) if track.closed else np.arange(1, len(a))
+        ends = b[: len(nxt)]
+        starts += [a, ends]
+        vecs += [b - a, a[nxt] - ends]
+    return np.vstack(starts).copy(), np.vstack(vecs)
+
+
 def lateral_room(origin: np.ndarray, normal: np.ndarray, seg_a: np.ndarray, seg_d: np.ndarray,
                  clearance, reach: float, chunk: int = 32) -> tuple[np.ndarray, np.ndarray]:
     """How far each point may move along its normal (lo, hi in m) and keep `clearance` to every border.

@@ -27,6 +27,7 @@ import numpy as np
 from racerlab.spec import STEP_S, CarParams
 
 SUBSTEPS = 4  # integration steps per path segment in the passes
+BRAKE_FLOOR_MPS = 0.05  # braking near the slowest speed is counted as from this far above it (see `_brake`)
 
 
 class Profile(NamedTuple):
@@ -70,8 +71,12 @@ def _accel(v: float, car: CarParams) -> float:
 
 
 def _brake(v: float, car: CarParams) -> float:
+    """The braking rate at `v`: toward the slowest command's speed through the lag, but never slower than over the
+    last BRAKE_FLOOR_MPS above it (the lag only approaches that speed, so a bend that must be driven at it, a kink
+    tighter than a sliding car's full lock at any speed, would otherwise hold the whole lap there)."""
     low = car.min_speed_mps * car.ground_factor
-    return min(car.brake_mps2, (v - low) / car.speed_tau_s) if car.speed_tau_s > 0 else car.brake_mps2
+    return (min(car.brake_mps2, max(v - low, BRAKE_FLOOR_MPS) / car.speed_tau_s) if car.speed_tau_s > 0
+            else car.brake_mps2)
 
 
 def _gain(v: float, ds: float, rate, car: CarParams) -> float:

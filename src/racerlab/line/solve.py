@@ -29,6 +29,8 @@ from racerlab.track import Track
 
 METHODS = ("mincurv", "shortest")
 CUSHION_M = 5e-3  # extra clearance in the bounds for the spline's bulge between points
+GROWN_CLEARANCE_M = 0.1  # a negative clearance keeps this much to borders grown by it and the overhang (as the
+# line's own clearance does: a band only a few cm thick could be crossed by one step's bulge between points)
 
 
 class Solution(NamedTuple):
@@ -50,11 +52,23 @@ def _difference_matrix(m: int, order: int, closed: bool) -> sp.csr_matrix:
                     format="csr")
 
 
+def _weights(method: str, blend: float | None) -> dict[str, float]:
+    """What each method's objective weighs: one method alone, or with `blend` = w the minimum-curvature one
+    × (1 - w) and the shortest-path one × w, each scaled by its Hessian's typical diagonal (6/h⁴, 2/h²) so that w
+    runs from one line to the other."""
+    return {method: 1.0} if blend is None else {"mincurv": 1.0 - blend, "shortest": blend}
+
+
+def _scale(method: str, h: float) -> float:
+    return h**4 / 6.0 if method == "mincurv" else h**2 / 2.0
+
+
 def offsets(ref: np.ndarray, normal: np.ndarray, lo: np.ndarray, hi: np.ndarray, method: str,
-            closed: bool = True, damping: float = 0.0) -> np.ndarray:
+            closed: bool = True, damping: float = 0.0, blend: float | None = None) -> np.ndarray:
     """The bounded least-squares step: lateral offsets α (M,) for one linearisation.
 
-    `damping` adds damping × (mean diagonal) × |α|² to the objective (a Levenberg-Marquardt step).
+    `damping` adds damping × (mean diagonal) × |α|² to the objective (a Levenberg-Marquardt step); `blend`
+    mixes both methods' objectives (`_weights`).
 
     Minimum curvature keeps only the normal component of each second difference, n_i·(p_{i-1} -
     2 p_i + p_{i+1}) / h² (the signed curvature of evenly spaced points): the tangential component
@@ -68,21 +82,31 @@ def offsets(ref: np.ndarray, normal: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     """
     m = len(ref)
     h = float(G.arc_length(ref, closed)[-1]) / (m if closed else m - 1)
+    hess, grad = sp.csc_matrix((m, m)), np.zeros(m)
+    for name, weight in _weights(method, blend).items():
+        if weight <= 0:
+            continue
+        a, b = _least_squares(ref, normal, name, closed, h)
+        f = weight * (_scale(name, h) if blend is not None else 1.0)
+        hess, grad = hess + f * (a.T @ a), grad - f * (a.T @ b)
+    hess = hess.tocsc()
+    if damping > 0:
+        hess = hess + damping * float(hess.diagonal().mean()) * sp.identity(m, format="csc")
+    return box_qp(hess, grad, lo, hi)
+
+
+def _least_squares(ref, normal, method: str, closed: bool, h: float):
+    """(A, b) of one method's objective |A α - b|² over the offsets α."""
+    m = len(ref)
     nx, ny = sp.diags(normal[:, 0]), sp.diags(normal[:, 1])
     if method == "mincurv":
         d = _difference_matrix(m, 2, closed) / h**2
         rows = normal if closed else normal[1:-1]  # the point each second difference is centred on
         px, py = sp.diags(rows[:, 0]), sp.diags(rows[:, 1])
         a = (px @ d @ nx + py @ d @ ny).tocsr()
-        b = -(rows[:, 0] * (d @ ref[:, 0]) + rows[:, 1] * (d @ ref[:, 1]))
-    else:
-        d = _difference_matrix(m, 1, closed) / h
-        a = sp.vstack([d @ nx, d @ ny]).tocsr()
-        b = -np.concatenate([d @ ref[:, 0], d @ ref[:, 1]])
-    hess = (a.T @ a).tocsc()
-    if damping > 0:
-        hess = hess + damping * float(hess.diagonal().mean()) * sp.identity(m, format="csc")
-    return box_qp(hess, -(a.T @ b), lo, hi)
+        return a, -(rows[:, 0] * (d @ ref[:, 0]) + rows[:, 1] * (d @ ref[:, 1]))
+    d = _difference_matrix(m, 1, closed) / h
+    return sp.vstack([d @ nx, d @ ny]).tocsr(), -np.concatenate([d @ ref[:, 0], d @ ref[:, 1]])
 
 
 def box_qp(hess: sp.csc_matrix, grad0: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int = 200,
@@ -129,7 +153,7 @@ def _armijo(hess, grad0, x, g, d, lo, hi, sigma: float = 1e-4) -> np.ndarray:
 
 
 def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float = 0.1, tol_m: float = 5e-3,
-          max_iter: int = 40) -> Solution:
+          max_iter: int = 40, blend: float | None = None) -> Solution:
     """Re-linearised bounded least squares until no step larger than `tol_m` improves the line (moves
     that only bring a point back inside its bounds do not count) and every point keeps `clearance`
     to the borders. Raises `TrackError` where the road is narrower than
@@ -142,6 +166,10 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
     The bounds carry a small cushion (`CUSHION_M`) because the spline through the new points
     bulges a few millimetres past them in tight corners; where it still falls short, the clearance
     there grows and the solve goes on from the line it has.
+
+    A negative `clearance` lets the point leave the road by up to -clearance (the limit under the simulator's
+    off-track rule, `line.core.offtrack_overhang`): the borders are grown by that much
+    (`geometry.grown_border_segments`). `blend` (0-1) solves for a mix of both methods' objectives (`_weights`).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -149,14 +177,19 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
     centre = track.center[:-1] if closed else track.center
     m = max(int(round(track.length / step_m)), 8)
     ref = G.resample_polyline(centre, m, closed)
-    segs = G.border_segments(track)
-    reach = float(track.widths.max())
+    overhang = max(-clearance, 0.0)
+    if overhang > 0:  # the point may leave the road by up to -clearance: keep a small clearance to grown borders
+        segs = G.grown_border_segments(track, GROWN_CLEARANCE_M + overhang)
+        clearance = GROWN_CLEARANCE_M
+    else:
+        segs = G.border_segments(track)
+    reach = float(track.widths.max()) + 2.0 * overhang
     extra = np.full(m, CUSHION_M)  # clearance added to what the car needs
     best, damping, move, it = np.inf, 0.0, np.inf, 0  # best = inf: the next step is taken whatever it gives
     for it in range(1, max_iter + 1):
         normal = G.left_normals(ref, closed)
         lo, hi = _room(track, ref, normal, segs, clearance + extra, reach)
-        alpha = offsets(ref, normal, lo, hi, method, closed, damping)
+        alpha = offsets(ref, normal, lo, hi, method, closed, damping, blend)
         move = float(np.abs(alpha - np.clip(0.0, lo, hi)).max())  # beyond what the bounds force
         if move < tol_m:
             short = _shortfall(ref, segs, clearance, closed)
@@ -166,7 +199,7 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
             best, damping = np.inf, 0.0
             continue
         cand = _resample(track, ref + alpha[:, None] * normal, m, closed)
-        value = objective(cand, method, closed)
+        value = objective(cand, method, closed, blend)
         if value <= best:
             ref, best, damping = cand, value, damping / 4.0
         else:
@@ -174,12 +207,17 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
     return Solution(ref, it, False, move)
 
 
-def objective(xy: np.ndarray, method: str, closed: bool = True) -> float:
-    """What a method minimises: ∫κ² ds (1/m) for minimum curvature, the length (m) for the shortest path."""
+def objective(xy: np.ndarray, method: str, closed: bool = True, blend: float | None = None) -> float:
+    """What a method minimises: ∫κ² ds (1/m) for minimum curvature, the length (m) for the shortest path; with
+    `blend` the mix the steps minimise, (1 - w)·h⁴/6·Σκ² + w/2·Σ|p_{i+1} - p_i|²."""
     s = G.arc_length(xy, closed)
+    h = float(s[-1]) / (len(xy) if closed else len(xy) - 1)
+    if blend is not None:
+        k2 = float(np.sum(G.menger_curvature(xy, closed) ** 2))
+        steps = np.diff(np.vstack([xy, xy[:1]]) if closed else xy, axis=0)
+        return (1.0 - blend) * _scale("mincurv", h) * k2 + blend * 0.5 * float(np.sum(steps**2))
     if method == "shortest":
         return float(s[-1])
-    h = float(s[-1]) / (len(xy) if closed else len(xy) - 1)
     return float(np.sum(G.menger_curvature(xy, closed) ** 2) * h)
 
 

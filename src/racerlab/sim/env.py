@@ -21,6 +21,9 @@ AWS names); `truncated` at `max_episode_steps`. Rewards and termination are judg
 the observation was taken in, as AWS does, unless `reward_order="after_action"`.
 
 `reset(seed=...)` reseeds and restarts the round-robin start sequence, so seeded runs repeat.
+The env's `car` is the car it drives (`car=`: a simulator name, a `[car]` table or a `CarParams`; default the
+droa car for the model's version), and `reset`'s info names it (`info["car"]`, e.g. "droa, velocity control
+(version >= 5)").
 
 ## Races
 `race=` takes the `[race]` table (or a `RaceConfig`, or a type name): boxes and bot cars are the car's
@@ -85,6 +88,7 @@ class DeepRacerEnv(gym.Env):
                            start=start, max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
                            keep_params=True, race=race)
         self.sim = self.world.sim
+        self.car = self.sim.car_params  # the car it drives; `reset`'s info names it ("car")
         self._opponent = _Opponent(self.world, opponent, opponent_speed, opponent_gap) if pair else None
         self.action_space = self.world.action_space
         self.observation_space = self.world.observation.space
@@ -109,7 +113,7 @@ class DeepRacerEnv(gym.Env):
         self.sim.reset(mask, start_ndist=options.get("start_ndist"), reverse=options.get("reverse"))
         if self._opponent is not None:
             self._opponent.restart()
-        return self._obs(), self._info(None)
+        return self._obs(), {**self._info(None), "car": self.car.name}
 
     def step(self, action):
         if self._opponent is None:
@@ -193,6 +197,7 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
                            max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
                            keep_params=info_params, race=race)
         self.sim = self.world.sim
+        self.car = self.sim.car_params  # the car every env drives; `reset`'s info names it ("car", one per env)
         self.num_envs = num_envs
         self.single_action_space = self.world.action_space
         self.single_observation_space = self.world.observation.space
@@ -213,7 +218,12 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
         options = options or {}
         self.sim.reset(options.get("reset_mask"), start_ndist=options.get("start_ndist"),
                        reverse=options.get("reverse"))
-        return self.world.observation(), self._info(self.sim.status.copy(), None, self.sim.state.progress)
+        info = self._info(self.sim.status.copy(), None, self.sim.state.progress)
+        info["car"], info["_car"] = self._car_info(np.ones(self.num_envs, dtype=bool))
+        return self.world.observation(), info
+
+    def _car_info(self, rows):
+        return np.where(rows, self.car.name, None).astype(object), rows.copy()
 
     def step(self, actions):
         world = self.world
@@ -230,6 +240,7 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
             obs = world.observe(reset_rows)
             info["final_obs"], info["_final_obs"] = final_obs, done
             info["final_info"], info["_final_info"] = self._final_info(info, done), done
+            info["car"], info["_car"] = self._car_info(done)  # what a reset's info holds, for the reset envs
         return obs, rewards, term, trunc, info
 
     def _info(self, codes, params, progress):

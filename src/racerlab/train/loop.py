@@ -70,6 +70,7 @@ class TrainResult:
     best_rule: str = "progress"  # [evaluation] best_model_metric: what picked best_checkpoint
     stopped: str = ""
     interrupted: bool = False  # Ctrl-C (SIGINT) ended it: the command exits 130, so `train && evaluate` stops
+    car: str = ""  # which car drove (`CarParams.name`; also in every metrics.jsonl row)
     history: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
@@ -290,6 +291,7 @@ class Trainer:
         laps = [e.lap_time for e in eps if e.status == "lap_complete"]
         return {
             "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps, "train_steps": s.train_steps,
+            "car": self.eval_world.sim.car_params.name,
             "time": time.time(), "collect_seconds": round(ro.seconds, 4), "learn_seconds": round(learn_s, 4),
             "charts/env_steps_per_s": ro.env_steps / max(ro.seconds, 1e-9),
             "charts/mean_reward": float(np.mean([e.reward for e in eps])) if eps else 0.0,
@@ -335,7 +337,7 @@ class Trainer:
         s = self.state
         start_iteration, start_episodes = s.iteration, s.episodes
         self.progress.start(self, resumed)
-        result = TrainResult(self.folder.path)
+        result = TrainResult(self.folder.path, car=self.eval_world.sim.car_params.name)
         try:
             while not (reason := self._limit_reached(t_start, start_iteration, start_episodes)):
                 entry = self.iterate(t_start)

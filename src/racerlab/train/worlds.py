@@ -63,13 +63,15 @@ class WorldBuilder:
         for name in self.cfg.track.names:
             self.load_track(name)
 
-    def world(self, track, cars: int, seed: int, randomise=None) -> World:
+    def world(self, track, cars: int, seed: int, randomise=None, training: bool = True) -> World:
         run = self.cfg.run
         track = self.load_track(track) if isinstance(track, str) else track
+        # the [car] table's simulator car; its steps jitter in training, not in the evaluation (a lucky draw of
+        # short steps would otherwise count as a faster lap), unless the table says
+        car = self.cfg.car if training else {"step_jitter": False, **self.cfg.car.table()}
         return World(track, cars, self.metadata, self.reward, run.observation, start=start_rules(self.cfg.track),
                      max_episode_steps=run.max_episode_steps, reward_order=run.reward_order, seed=seed,
-                     race=self.cfg.race, randomise=randomise,
-                     car=self.cfg.car)  # the [car] table's simulator car (steps jitter in training)
+                     race=self.cfg.race, randomise=randomise, car=car)
 
     def car_counts(self, tracks: int) -> list[int]:
         """Cars per track: `run.num_cars` spread evenly; a head_to_model race gives every track whole pairs."""
@@ -101,7 +103,7 @@ class WorldBuilder:
         """The in-training evaluation's world, on the first named track (randomised only if `randomise.evaluation`)."""
         r = self.cfg.randomise
         return self.world(self.cfg.track.names[0], self.evaluation_cars(), EVAL_SEED,
-                          randomise=r if r.evaluation else None)
+                          randomise=r if r.evaluation else None, training=False)
 
 
 class LocalCollection:
