@@ -127,3 +127,60 @@ def test_the_classic_look_is_kept(straight):
     img = render(straight, 0.0, 0.0, 0.0, look=LOOKS["classic"])[:, :, 0]
     assert img[0].mean() > 180  # its light sky
     assert img[100:, 20:60].std() == 0  # flat paint, no grain
+
+
+CAMERA_META = {"action_space": {"steering_angle": {"low": -30.0, "high": 30.0}, "speed": {"low": 0.5, "high": 2.0}},
+               "action_space_type": "continuous", "sensor": ["FRONT_FACING_CAMERA"],
+               "neural_network": "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "training_algorithm": "clipped_ppo",
+               "version": "5"}
+
+
+def _frame(world):
+    world.sim.set_pose(0, 0.0, 0.0, 0.0)
+    return world.observe()[0, :, :, 0]
+
+
+def test_training_toml_look_classic_gives_training_evaluation_and_the_env_the_classic_frames(straight, tmp_path):
+    """run.look = "classic" reaches the camera of the training worlds, of an evaluation's world and of the env: each
+    renders what a camera built with LOOKS["classic"] renders, and not the AWS look."""
+    from racerlab.evaluate.api import LoadedModel, make_world
+    from racerlab.evaluate.rules import RaceRules
+    from racerlab.model import init_model, load_training_config
+    from racerlab.sim.env import DeepRacerEnv
+    from racerlab.train.worlds import WorldBuilder
+
+    want = {name: render(straight, 0.0, 0.0, 0.0, look=LOOKS[name])[:, :, 0] for name in LOOKS}
+    assert np.abs(want["classic"] - want["aws"]).mean() > 20  # the two looks differ a lot: a real check
+
+    folder = init_model(tmp_path / "m", sensor="camera")
+    folder.config_path.write_text('[run]\nlook = "classic"\nnum_cars = 1\n[evaluation]\nepisodes = 1\n')
+    cfg = load_training_config(folder.config_path)
+    assert cfg.run.look == "classic" and 'look = "classic"' in cfg.to_toml()
+    builder = WorldBuilder(cfg, CAMERA_META, None)
+    got = {"training": _frame(builder.world(straight, 1, seed=0))}  # evaluation_world() is a builder.world too
+    model = LoadedModel(folder, folder.metadata(), "best", None, cfg.run.observation, cfg.run.look)
+    got["evaluation"] = _frame(make_world(model, straight, RaceRules()))
+    env = DeepRacerEnv(straight, model_metadata=CAMERA_META, look="classic", render_mode="rgb_array")
+    got["env"] = _frame(env.world)
+    env.sim.set_pose(0, 0.0, 0.0, 0.0)
+    got["env render"] = env.render()[:, :, 0]
+    for where, frame in got.items():
+        assert np.array_equal(frame, want["classic"]), where
+    aws = WorldBuilder(load_training_config(tmp_path / "none.toml"), CAMERA_META, None).world(straight, 1, seed=0)
+    assert np.array_equal(_frame(aws), want["aws"])  # no file, no key: the AWS look
+
+
+def test_a_look_option_needs_a_camera_and_a_known_name(straight):
+    from racerlab.errors import ConfigError
+    from racerlab.model import config
+    from racerlab.sim import World
+
+    assert tuple(LOOKS) == config.LOOKS  # training.toml's choices are the looks the camera has
+    features = World(straight, 1, None, None, "features", look="classic")  # no camera: the look is moot
+    assert features.observation.space.shape == World(straight, 1).observation.space.shape
+    with pytest.raises(ConfigError, match="unknown option 'gazebo'"):
+        World(straight, 1, CAMERA_META, None, "camera", look="gazebo")
+    with pytest.raises(ConfigError, match="pick a camera's look; give at most one"):
+        World(straight, 1, CAMERA_META, None, "camera:aws,classic")
+    with pytest.raises(ConfigError, match="to an observation with a camera"):
+        World(straight, 1, CAMERA_META, None, "lidar:classic")

@@ -68,7 +68,7 @@ class WorldBuilder:
         track = self.load_track(track) if isinstance(track, str) else track
         return World(track, cars, self.metadata, self.reward, run.observation, start=start_rules(self.cfg.track),
                      max_episode_steps=run.max_episode_steps, reward_order=run.reward_order, seed=seed,
-                     race=self.cfg.race, randomise=randomise,
+                     race=self.cfg.race, randomise=randomise, look=run.look,
                      car=self.cfg.car)  # the [car] table's simulator car (steps jitter in training)
 
     def car_counts(self, tracks: int) -> list[int]:
