@@ -13,12 +13,20 @@ either side of the centre line, heading within ±30° of the track's) and prints
 - `grain`: the asphalt grain, the median |difference between horizontal neighbours| in the bottom third, over
   pairs of pixels both below the white level (200), for the real frames and for racerlab's (`grain_mean`: their
   mean, which moves in finer steps than the median of whole grey levels);
-- `region_means`: mean grey of each region, real and racerlab, to see which way a distance goes.
+- `region_means`: mean grey of each region, real and racerlab, to see which way a distance goes;
+- `chance`: what a perfect look would still score: the distances between racerlab's pool and as many frames
+  drawn from it as the real set holds (its views: a stereo pair counts once), median and 90th percentile over
+  200 draws. The real sets are four views each, so a pooled distance below the 90th percentile is within what
+  the mix of views alone gives;
+- stereo only, `disparity_px`: how far the right eye's view of the ground is shifted against the left eye's, in
+  whole pixels, on 8-row bands starting at rows 45, 60, 80, 100 and 112 (median over the frames): it grows as
+  B·cos 15°/h per row below the horizon, so it checks the eyes' baseline B against the camera's height h.
 
 `matched` gives the same measures between each distinct real frame and the racerlab frame most like it, picked
 from `--candidates` random poses (heading within ±45°, so that views across the field are among them) by the
 mean absolute difference of 4×4-pixel block means (the real poses are not recorded): the look at a similar pose,
-whatever the mix of views. `--png FILE` writes those pairs side by side. `--look NAME` renders a named look of
+whatever the mix of views (the stereo pairs: both eyes of the pose whose left eye matches). `--png FILE` writes
+those pairs side by side. `--look NAME` renders a named look of
 `racerlab.sim.sensors.look.LOOKS` instead of the default.
 
 Usage: python benchmarks/camera_look.py [--track reinvent_base] [--frames 256] [--png camera_look.png]
@@ -84,6 +92,35 @@ def grain(frames: np.ndarray, stat=np.median) -> float:
     return round(float(stat(np.abs(right - left)[keep])), 2) if keep.any() else float("nan")
 
 
+BANDS = (45, 60, 80, 100, 112)
+
+
+def eye_shift(left: np.ndarray, right: np.ndarray, r0: int) -> int:
+    """The whole-pixel shift of the right eye's rows r0..r0+7 that lines them up best with the left eye's."""
+    a, b = left[r0:r0 + 8].astype(np.float32), right[r0:r0 + 8].astype(np.float32)
+    return int(np.argmin([np.abs(a[:, s:] - b[:, :a.shape[1] - s]).mean() for s in range(60)]))
+
+
+def disparity(pairs: np.ndarray) -> list[float]:
+    """(N, 120, 160, 2) stereo frames -> the median eye shift per band (`BANDS`) over the frames."""
+    return [float(np.median([eye_shift(p[..., 0], p[..., 1], r0) for p in pairs])) for r0 in BANDS]
+
+
+def chance(ours: np.ndarray, views: int, eyes: int, rng, draws: int = 200) -> dict:
+    """Distances per region between racerlab's pooled frames (views × eyes of them, eyes stacked after each other)
+    and `views` of its own views drawn at random: the spread a real set of that size shows with a perfect look."""
+    n = len(ours) // eyes
+    pool = regions(ours)
+    d = []
+    for _ in range(draws):
+        k = rng.choice(n, views, replace=False)
+        drawn = regions(np.concatenate([ours[k + e * n] for e in range(eyes)]))
+        d.append([wasserstein(drawn[r], pool[r]) for r in pool])
+    d = np.array(d)
+    return {r: [round(float(np.median(d[:, j])), 1), round(float(np.percentile(d[:, j], 90)), 1)]
+            for j, r in enumerate(pool)}
+
+
 def random_poses(track, n: int, rng, yaw_deg: float = YAW_DEG) -> np.ndarray:
     """(n, 3) base poses x, y, yaw on the road: anywhere along the lap, near the centre line, roughly along it."""
     s = rng.uniform(0.0, track.length, n)
@@ -125,11 +162,11 @@ def blocks(frames: np.ndarray) -> np.ndarray:
     return frames.reshape(n, h // 4, 4, w // 4, 4).mean(axis=(2, 4))
 
 
-def nearest(real: dict[str, np.ndarray], candidates: np.ndarray) -> dict[str, np.ndarray]:
-    """For each real frame, the candidate frame (N, 120, 160) whose 4×4 block means differ least from it."""
+def nearest(real: dict[str, np.ndarray], candidates: np.ndarray) -> dict[str, int]:
+    """For each real frame, the index of the candidate frame (N, 120, 160) whose 4×4 block means differ least from
+    it."""
     cb = blocks(candidates.astype(np.float32))
-    return {k: candidates[int(np.abs(cb - blocks(f[None].astype(np.float32))).mean(axis=(1, 2)).argmin())]
-            for k, f in real.items()}
+    return {k: int(np.abs(cb - blocks(f[None].astype(np.float32))).mean(axis=(1, 2)).argmin()) for k, f in real.items()}
 
 
 def picture(pairs: list[tuple[str, np.ndarray, np.ndarray]], path: Path, scale: int = 2) -> None:
@@ -177,18 +214,28 @@ def main():
     pairs = []
     for stereo in (False, True):
         real = real_frames(stereo)
-        ours = render(track, random_poses(track, args.frames, rng), stereo, look)
-        ours = np.concatenate([ours[..., e] for e in range(ours.shape[-1])])
+        rendered = render(track, random_poses(track, args.frames, rng), stereo, look)
+        ours = np.concatenate([rendered[..., e] for e in range(rendered.shape[-1])])
         line = {"bench": "camera_look", "camera": "stereo" if stereo else "camera", "track": track.name,
                 "look": args.look or "default", "real_frames": len(real), "racerlab_frames": len(ours)}
         line.update(measure(np.stack(list(real.values())), ours))
-        cand = render(track, random_poses(track, args.candidates, rng, MATCH_YAW_DEG), stereo, look)[..., 0]
+        views = len(real) // rendered.shape[-1]
+        line["chance"] = chance(ours, views, rendered.shape[-1], rng)
+        cand = render(track, random_poses(track, args.candidates, rng, MATCH_YAW_DEG), stereo, look)
         eyes = {k: f for k, f in distinct(real).items() if not k.endswith("_right")}
-        match = nearest(eyes, cand)
-        line["matched"] = measure(np.stack(list(eyes.values())), np.stack(list(match.values())))
+        match = nearest(eyes, cand[..., 0])
+        line["matched"] = measure(np.stack(list(eyes.values())), np.stack([cand[i, ..., 0] for i in match.values()]))
+        if stereo:
+            pairs_real = np.stack([np.load(f) for f in sorted(REAL.glob("stereo*.npy"))])
+            line["disparity_px"] = {"bands_from_row": list(BANDS), "real": disparity(pairs_real),
+                                    "racerlab": disparity(rendered[:64])}
         line["load_avg"] = round(os.getloadavg()[0], 2)
         print(json.dumps(line), flush=True)
-        pairs += [(k, eyes[k], f) for k, f in match.items()]
+        for k, i in match.items():
+            pairs.append((k, eyes[k], cand[i, ..., 0]))
+            if stereo:  # the right eyes beside each other too
+                right = k.removesuffix("_left") + "_right"
+                pairs.append((right, real[right], cand[i, ..., 1]))
     if args.png:
         picture(pairs, args.png)
 

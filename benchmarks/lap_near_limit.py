@@ -9,7 +9,8 @@ record in the AWS simulator (7.198 s), when the best lap was reached and the loa
 shared (read the ratio, and compare runs taken at a similar load).
 
 Usage: python benchmarks/lap_near_limit.py [--kinds features camera] [--minutes 30] [--reward racing_line]
-       [--track PATH] [--simulator droa|console]
+       [--track PATH] [--simulator droa|console] [--look aws|classic]
+--look: the camera's world (training.toml's run.look; default aws), recorded in the JSON.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pathlib import Path
 
 from racerlab.line import racing_line, theoretical_limit
 from racerlab.model import init_model
-from racerlab.model.config import CarSettings
+from racerlab.model.config import LOOKS, CarSettings
 from racerlab.reward import TEMPLATES, reward_source
 from racerlab.spec import car_params
 from racerlab.train import train
@@ -36,19 +37,21 @@ AWS_RECORD_S = 7.198  # all-time best lap on reInvent2019_track in the AWS simul
 TARGET_RATIO = {"features": 1.05, "camera": 1.25}
 
 
-def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, line_s: float, car) -> dict:
+def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, line_s: float, car,
+             look: str = "aws") -> dict:
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         folder = init_model(Path(tmp) / "m", track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
                             best_model_metric="laptime")
         cfg = folder.config()  # the simulator's car drives (its [car] table)
+        cfg = replace(cfg, run=replace(cfg.run, look=look))  # the camera's look (--look)
         folder.config_path.write_text(replace(cfg, car=CarSettings(car.simulator)).to_toml())
         line = racing_line(str(track), car=car) if reward == "racing_line" else None
         folder.write_reward(reward_source(reward, line, folder.metadata().actions.top_speed))
         r = train(folder.path, minutes=minutes, progress=False)
     laps = [(h["eval/best_lap"], h["iteration"], h["env_steps"]) for h in r.history if h.get("eval/best_lap")]
     best = min(laps) if laps else (float("nan"), None, None)
-    return {"bench": "lap_near_limit", "observation": kind, "track": track.stem, "minutes": minutes,
+    return {"bench": "lap_near_limit", "observation": kind, "look": look, "track": track.stem, "minutes": minutes,
             "reward": reward, "iterations": r.iterations, "env_steps": r.env_steps,
             "best_eval_lap_s": round(best[0], 3), "best_at_iteration": best[1], "best_at_env_steps": best[2],
             "theoretical_limit_s": round(limit_s, 3), "ratio_to_limit": round(best[0] / limit_s, 3),
@@ -65,12 +68,14 @@ def main():
     ap.add_argument("--reward", choices=list(TEMPLATES), default="racing_line")
     ap.add_argument("--track", type=Path, default=REINVENT)
     ap.add_argument("--simulator", choices=["droa", "console"], default="droa", help="whose car (default droa)")
+    ap.add_argument("--look", choices=list(LOOKS), default="aws", help="the camera's world (default aws)")
     args = ap.parse_args()
     car = car_params(args.simulator, "5")  # a new continuous model is version 5
     limit = theoretical_limit(str(args.track), car=car).lap_time
     line = racing_line(str(args.track), car=car).lap_time
     for kind in args.kinds:
-        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit, line, car)), flush=True)
+        print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit, line, car, args.look)),
+              flush=True)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ def test_defaults_round_trip(tmp_path):
     ("[track]\nreverse = 1\n", "track.reverse must be true or false"),
     ("[evaluation]\nbest_model_metric = \"speed\"\n", "best_model_metric must be one of"),
     ("[run\n", "invalid TOML"),
+    ("[run]\nlook = \"gazebo\"\n", "run.look is 'gazebo'; use one of aws, classic"),
 ])
 def test_bad_training_toml(tmp_path, text, message):
     p = tmp_path / "training.toml"

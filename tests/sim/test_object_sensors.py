@@ -17,7 +17,7 @@ from racerlab.track import from_array
 
 H, W = 120, 160
 F_PX = 0.5 * W / math.tan(0.5 * CAMERA_HFOV_RAD)
-CAM_X, CAM_Z = camera_position()
+CAM_X, CAM_Z = camera_position()[0], TrackLook().camera_z  # the default (AWS) look's camera height, 0.163 m
 BOX_L, BOX_W, BOX_H = 0.40, 0.30, 0.25  # AWS box_obstacle model
 
 
@@ -58,8 +58,9 @@ def test_a_box_ahead_covers_the_rows_and_columns_the_camera_model_predicts(strai
     # the classic look's flat dark road: the AWS look's grainy asphalt comes within 20 grey levels of the box's face
     img = Camera(sim, look=LOOKS["classic"]).render()[0, :, :, 0].astype(float)
     d = ahead - 0.5 * BOX_L - CAM_X
-    top = row_of(math.atan2(BOX_H - CAM_Z, d))  # the face's top edge, above the camera (the top face is hidden)
-    bottom = row_of(math.atan2(-CAM_Z, d))
+    cz = LOOKS["classic"].camera_z  # the URDF's 0.130 m
+    top = row_of(math.atan2(BOX_H - cz, d))  # the face's top edge, above the camera (the top face is hidden)
+    bottom = row_of(math.atan2(-cz, d))
     assert 14 < top < 18 and 35 < bottom < 38  # 0.12 m above and 0.13 m below the camera, 1.65 m away
     face = face_grey(-1.0, 0.0)  # we look at the box's back (-x) face
     col = img[:, W // 2]
@@ -116,6 +117,17 @@ def test_box_sides_are_shaded_and_far_boxes_fade_into_haze_where_the_look_has_ha
     assert Camera(sim).render()[0, r, W // 2, 0] == pytest.approx(face_grey(-1.0, 0.0), abs=1.5)
 
 
+def _run_at_centre(mask):
+    """The columns of the unbroken run of `mask` through the image's middle column (a field ramp of the same grey
+    beside the box, where the wall meets the field, is left out)."""
+    lo = hi = W // 2
+    while lo > 0 and mask[lo - 1]:
+        lo -= 1
+    while hi < W - 1 and mask[hi + 1]:
+        hi += 1
+    return np.arange(lo, hi + 1)
+
+
 def test_stereo_disparity_matches_the_baseline(straight):
     ahead = 1.6
     sim = box_sim(straight, [(ahead, 0.0, 0.0)])
@@ -127,8 +139,7 @@ def test_stereo_disparity_matches_the_baseline(straight):
     elev = math.atan2(0.5 * H - (r + 0.5), F_PX) - CAMERA_PITCH_RAD
     depth = d * math.cos(CAMERA_PITCH_RAD + elev) / math.cos(elev)
     face = face_grey(-1.0, 0.0)
-    left = np.flatnonzero(np.abs(st[r, :, 0] - face) <= 1.0)
-    right = np.flatnonzero(np.abs(st[r, :, 1] - face) <= 1.0)
+    left, right = (_run_at_centre(np.abs(st[r, :, e] - face) <= 1.0) for e in range(2))
     disparity = F_PX * 0.06 / depth  # the left eye sees the box further right
     assert 0.5 * ((left.min() - right.min()) + (left.max() - right.max())) == pytest.approx(disparity, abs=1.0)
     assert left.min() > right.min()

@@ -106,6 +106,7 @@ class LoadedModel:
     checkpoint: str
     state: TrainingState
     observation: str
+    look: str = "aws"  # training.toml's run.look: the camera's world
 
 
 def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
@@ -124,7 +125,7 @@ def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
         raise RacerlabError(f"{where}: non-finite weights ({bad[0]}); the training diverged there: {hint}")
     if ck.metadata is not None:
         _check_same_model(ck.metadata, meta, where, folder.metadata_path)
-    return LoadedModel(folder, meta, info.name, ck, cfg.run.observation)
+    return LoadedModel(folder, meta, info.name, ck, cfg.run.observation, cfg.run.look)
 
 
 def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
@@ -225,7 +226,7 @@ def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = RACE_SEE
     start = StartRules(reverse=rules.reverse)
     return World(track, 1, model.metadata, reward, model.observation, start=start,
                  max_episode_steps=rules.max_episode_steps, seed=seed, race=race_config(model, race),
-                 randomise=randomise, car=car_config(model, car))
+                 randomise=randomise, car=car_config(model, car), look=model.look)
 
 
 def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=None, device: str = "cpu",
@@ -236,8 +237,10 @@ def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=Non
 
     first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
                   max_episode_steps=rules.max_episode_steps, seed=RACE_SEED,
-                  race=RaceConfig(type="head_to_model", where=where), car=car_config(models[0], car))
-    worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim)]
+                  race=RaceConfig(type="head_to_model", where=where), car=car_config(models[0], car),
+                  look=models[0].look)
+    worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim,
+                           look=models[1].look)]
     policies = [make_policy(m, w, device) for m, w in zip(models, worlds, strict=True)]
     image_of = None
     if video:

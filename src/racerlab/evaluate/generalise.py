@@ -156,7 +156,8 @@ def evaluate_tracks(model_dir, tracks, trials: int = 1, checkpoint: str | int = 
     for track in objs:
         for k, r in enumerate(runs):
             world = World(track, 1, model.metadata, None, model.observation, start=StartRules(),
-                          max_episode_steps=rules.max_episode_steps, seed=seed, randomise=r, car=car)
+                          max_episode_steps=rules.max_episode_steps, seed=seed, randomise=r, car=car,
+                          look=model.look)
             outcome = _outcome(run_evaluation(world, make_policy(model, world, device), rules).laps, track.name)
             results[k].append(outcome)
             if on_track is not None:

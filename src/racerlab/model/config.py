@@ -16,6 +16,7 @@ from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
 from racerlab.spec import CAR_KEYS, DEFAULT_SIMULATOR, SIMULATORS, CarParams, RaceConfig, car_params
 
 REWARD_ORDERS = ("aws", "after_action")
+LOOKS = ("aws", "classic")  # run.look: the camera's world (racerlab.sim.sensors.look.LOOKS holds each one)
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,7 @@ class RunSettings:
     device: str = "auto"  # auto | cpu | cuda | cuda:N
     threads: int = 0  # torch CPU threads; 0 = auto (agent.common.learner_threads)
     observation: str = ""  # "" follows model_metadata.json's sensor list
+    look: str = "aws"  # how the world looks to a camera: aws (the AWS simulator's) | classic (racerlab's earlier)
     reward_order: str = "aws"  # aws | after_action (see racerlab.sim)
     max_steps_per_iteration: int = 10_000  # AWS MAX_MEMORY_STEPS: whole episodes beyond it are dropped
     max_episode_steps: int = 10_000
@@ -306,6 +308,8 @@ def _validate(c: TrainingConfig) -> None:
     _check(base in ("", *OBSERVATION_NAMES), s,
            f"run.observation must be empty (follow model_metadata.json) or one of {', '.join(OBSERVATION_NAMES)}, "
            "optionally with options after a colon (camera:dr, lidar:walls)")
+    _check(c.run.look in LOOKS, s, f"run.look is {c.run.look!r}; use one of {', '.join(LOOKS)} "
+           "(aws: the AWS simulator's camera look, classic: racerlab's earlier one)")
     _check(c.run.reward_order in REWARD_ORDERS, s, f"run.reward_order must be one of {REWARD_ORDERS}")
     _check(c.run.max_steps_per_iteration >= 100, s, "run.max_steps_per_iteration must be >= 100")
     _check(c.run.max_episode_steps >= 10, s, "run.max_episode_steps must be >= 10")

@@ -112,7 +112,8 @@ _TOML_HEADER = """\
 #            reverse / alternate_direction / change_start / round_robin_advance / start_offset: as DRfC
 #   [run]    num_cars in parallel, seed, device (auto|cpu|cuda), threads (0 = auto: all cores for
 #            camera networks, 1 for vector ones),
-#            observation ("" follows model_metadata.json), reward_order (aws|after_action),
+#            observation ("" follows model_metadata.json), look: the camera's world (aws: the AWS
+#            simulator's | classic: racerlab's earlier one), reward_order (aws|after_action),
 #            max_steps_per_iteration (AWS: 10000), max_episode_steps, reward_budget_s (0 = no limit)
 #   [stop]   minutes, episodes, iterations (0 = no limit)
 #   [evaluation] episodes after each iteration, best_model_metric (progress|reward|laptime)

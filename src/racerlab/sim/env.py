@@ -7,7 +7,8 @@ AWS does). The simulator then clips steering to ±30° and speed to [0.1, 4] m/s
 
 ## Observation Space
 Chosen by `observation` ("features", or a sensor such as "camera" once registered), else by the
-model's `sensor` list; with neither, `features`.
+model's `sensor` list; with neither, `features`. `look` ("aws", the default, or "classic") is how the world
+looks to a camera, in the observation and in `render()`.
 
 ## Rewards
 `reward_function(params)` (a callable or a path to an AWS `reward_function.py`) gets the AWS
@@ -69,7 +70,9 @@ def _camera_frames(env, rows):
     """(len(rows), H, W, 3) uint8 front-camera images, the camera built on first use."""
     if env._camera is None:
         from racerlab.sim.sensors.camera import Camera  # the raster is built only when someone renders
-        env._camera = Camera(env.world.sim)
+        from racerlab.sim.sensors.look import LOOKS
+
+        env._camera = Camera(env.world.sim, look=LOOKS[env.look])
     grey = env._camera.render(rows)[rows, :, :, 0]
     return np.repeat(grey[..., None], 3, axis=-1)
 
@@ -81,12 +84,13 @@ class DeepRacerEnv(gym.Env):
 
     def __init__(self, track=DEFAULT_TRACK, reward_function=None, model_metadata=None, observation=None, *,
                  car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None, render_mode=None,
-                 race=None, opponent=None, opponent_speed: float = 1.0, opponent_gap: float = 0.1):
+                 race=None, opponent=None, opponent_speed: float = 1.0, opponent_gap: float = 0.1, look="aws"):
         race = as_race(race)
         pair = race is not None and race.head_to_model
         self.world = World(track, 2 if pair else 1, model_metadata, reward_function, observation, car=car,
                            start=start, max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
-                           keep_params=True, race=race)
+                           keep_params=True, race=race, look=look)
+        self.look = look
         self.sim = self.world.sim
         self.car = self.sim.car_params  # the car it drives; `reset`'s info names it ("car")
         self._opponent = _Opponent(self.world, opponent, opponent_speed, opponent_gap) if pair else None
@@ -192,10 +196,11 @@ class DeepRacerVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 1, track=DEFAULT_TRACK, reward_function=None, model_metadata=None,
                  observation=None, *, car=None, start=None, max_episode_steps=10_000, reward_order="aws", seed=None,
-                 info_params=False, render_mode=None, race=None):
+                 info_params=False, render_mode=None, race=None, look="aws"):
         self.world = World(track, num_envs, model_metadata, reward_function, observation, car=car, start=start,
                            max_episode_steps=max_episode_steps, reward_order=reward_order, seed=seed,
-                           keep_params=info_params, race=race)
+                           keep_params=info_params, race=race, look=look)
+        self.look = look
         self.sim = self.world.sim
         self.car = self.sim.car_params  # the car every env drives; `reset`'s info names it ("car", one per env)
         self.num_envs = num_envs

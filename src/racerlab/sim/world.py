@@ -22,7 +22,7 @@ from racerlab.sim import _kernels as K
 from racerlab.sim.core import Simulator, StartRules
 from racerlab.sim.observations import make_observation, observation_name_for
 from racerlab.sim.params import ParamsBuilder
-from racerlab.sim.randomise import Actuation, RandomisedObservation, as_settings, make_rng
+from racerlab.sim.randomise import CAMERA_KEYS, Actuation, RandomisedObservation, as_settings, make_rng
 from racerlab.spec import DEFAULT_SIMULATOR, CarParams, car_params
 
 
@@ -61,13 +61,15 @@ class World:
     ("object_avoidance": 6 evenly spaced boxes), None for a time trial. With `keep_params`, `params` holds
     each car's params dict of the last step (None where no reward was called). `randomise`
     (`RandomiseSettings` or its keyword dict) perturbs actions and observations as the physical car would
-    (`racerlab.sim.randomise`); None or all defaults leave the plain path untouched.
+    (`racerlab.sim.randomise`); None or all defaults leave the plain path untouched. `look` is how the world
+    looks to a camera (training.toml's `run.look`: "aws" or "classic", `sim.sensors.look.LOOKS`); observations
+    without a camera ignore it.
     """
 
     def __init__(self, track, num_cars: int = 1, metadata=None, reward=None, observation: str | None = None, *,
                  car=None, start=None, max_episode_steps: int = 10_000, reward_order: str = "aws",
                  seed: int | None = None, keep_params: bool = False, race=None, sim: Simulator | None = None,
-                 randomise=None):
+                 randomise=None, look: str = "aws"):
         # `sim`: drive an existing simulator (another model's cars in the same world); track, num_cars, car,
         # start, max_episode_steps, reward_order, seed and race are then its own
         self.sim = sim or Simulator(track, num_cars, car_for(car, metadata), start=_start_rules(start),
@@ -76,6 +78,8 @@ class World:
         self.metadata = as_model_metadata(metadata)
         if observation is None and metadata is None:
             observation = "features"
+        if look != "aws":
+            observation = with_look(observation or observation_name_for(self.metadata), look)
         self.randomise = as_settings(randomise)
         self.actuation = None
         if self.randomise is None:
@@ -177,3 +181,11 @@ def with_option(name: str, option: str) -> str:
     """An observation name with `option` added after its colon (``camera`` → ``camera:dr``)."""
     base, options = split_observation_name(name)
     return name if option in options else f"{base}:{','.join((*options, option))}"
+
+
+def with_look(name: str, look: str) -> str:
+    """An observation name with the camera look `look` as its option (``camera`` → ``camera:classic``); a name
+    without a camera is returned as it is."""
+    if split_observation_name(name)[0].split("+")[0] not in CAMERA_KEYS:
+        return name
+    return with_option(name, look)

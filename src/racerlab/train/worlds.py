@@ -71,7 +71,7 @@ class WorldBuilder:
         car = self.cfg.car if training else {"step_jitter": False, **self.cfg.car.table()}
         return World(track, cars, self.metadata, self.reward, run.observation, start=start_rules(self.cfg.track),
                      max_episode_steps=run.max_episode_steps, reward_order=run.reward_order, seed=seed,
-                     race=self.cfg.race, randomise=randomise, car=car)
+                     race=self.cfg.race, randomise=randomise, look=run.look, car=car)
 
     def car_counts(self, tracks: int) -> list[int]:
         """Cars per track: `run.num_cars` spread evenly; a head_to_model race gives every track whole pairs."""

@@ -9,8 +9,10 @@ camera with a lidar, as AWS combines them, is a dict of the two keyed by those n
 
 Options follow the name after a colon, comma-separated:
 - `dr`: domain randomization of the camera's look per episode (`look.DomainRandomization`);
-- `walls`: the lidar sees the track borders as walls (AWS's tracks have none; off by default).
-e.g. ``observation="camera:dr"`` or ``observation="stereo+lidar:dr,walls"``.
+- `walls`: the lidar sees the track borders as walls (AWS's tracks have none; off by default);
+- a look's name (`look.LOOKS`: `aws`, the default, or `classic`): how the world looks to the camera
+  (training.toml's `run.look` adds it through the `World`).
+e.g. ``observation="camera:dr"``, ``observation="stereo+lidar:dr,walls"`` or ``observation="camera:classic"``.
 
     >>> from racerlab.sim import Simulator
     >>> from racerlab.sim.sensors import build_observation
@@ -32,7 +34,8 @@ from racerlab.sim.sensors.look import LOOKS, DomainRandomization, TrackLook
 CAMERAS = ("camera", "stereo")
 LIDARS = ("lidar", "sector_lidar", "discretized_sector_lidar")
 SENSOR_OBSERVATIONS = CAMERAS + LIDARS + tuple(f"{c}+{li}" for c in CAMERAS for li in LIDARS)
-OPTIONS = {"dr": "domain randomization of the camera", "walls": "the lidar sees the track borders as walls"}
+OPTIONS = {"dr": "domain randomization of the camera", "walls": "the lidar sees the track borders as walls",
+           "aws": "the AWS simulator's camera look (the default)", "classic": "racerlab's earlier camera look"}
 
 __all__ = ["CAMERAS", "LIDARS", "LOOKS", "OPTIONS", "SENSOR_OBSERVATIONS", "Camera", "CameraObservation",
            "CombinedObservation", "DomainRandomization", "Lidar", "LidarObservation", "TrackLook",
@@ -70,10 +73,15 @@ def build_observation(name: str, sim, metadata=None, options=()):
         raise ConfigError(f"observation {name!r}: option 'dr' randomizes a camera, and {name!r} has none")
     if "walls" in opts and parts[-1] not in LIDARS:
         raise ConfigError(f"observation {name!r}: option 'walls' is for a lidar, and {name!r} has none")
+    looks = sorted(opts & set(LOOKS))
+    if len(looks) > 1 or (looks and parts[0] not in CAMERAS):
+        raise ConfigError(f"observation {name!r}: options {', '.join(looks)} pick a camera's look; give at most "
+                          f"one, to an observation with a camera")
+    look = LOOKS[looks[0] if looks else "aws"]
     built = []
     for p in parts:
         if p in CAMERAS:
-            built.append(CameraObservation(sim, stereo=p == "stereo",
+            built.append(CameraObservation(sim, stereo=p == "stereo", look=look,
                                            randomization=DomainRandomization() if "dr" in opts else None))
         else:
             built.append(LidarObservation(sim, walls="walls" in opts, kind=p,

@@ -1,9 +1,10 @@
 """The front camera and the stereo camera (facts §4) for every car of a simulator.
 
 `Camera` renders 160×120 greyscale frames, uint8, as AWS's camera pipeline delivers them (RGB
-Y = 0.2989 R + 0.587 G + 0.114 B, truncated), from a pinhole camera 0.145 m ahead of and 0.13 m
-above the base origin, pitched 15° down, 64.7° horizontal field of view; stereo renders two such
-cameras 6 cm apart into the two channels (left eye first, as AWS stacks LEFT then RIGHT).
+Y = 0.2989 R + 0.587 G + 0.114 B, truncated), from a pinhole camera 0.145 m ahead of the base origin and
+`look.camera_z` above the ground (the AWS look: 0.163 m, as the simulator's frames show; the URDF gives 0.130 m),
+pitched 15° down, 64.7° horizontal field of view; stereo renders two such cameras 6 cm apart into the two
+channels (left eye first, as AWS stacks LEFT then RIGHT).
 
 The world looks as `look` (a `TrackLook`) says: by default the AWS simulator's (walls, field, grainy
 asphalt), `look.LOOKS["classic"]` racerlab's earlier one. With a `DomainRandomization`, each car draws a new
@@ -87,7 +88,7 @@ class Camera:
     def replan(self, **options) -> None:
         """Rebuild the row plan with `RowPlan` keyword options (anisotropy, max_subrows, level_bias):
         the trade between speed, blur and shimmer of distant ground."""
-        cam_z = camera_position()[1]
+        cam_z = self.look.camera_z
         options.setdefault("haze_m", self.look.haze_m)
         options.setdefault("fine_cell_m", FINE_CELL_M if self.look.grainy else 0.0)
         p = self.plan = RowPlan(self.model, cam_z, self.raster.cell, self.raster.num_levels, self.look.filter_px,

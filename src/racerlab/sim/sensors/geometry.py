@@ -4,7 +4,9 @@ All numbers come from the AWS car description (`deepracer_single_cam.urdf`, `rac
 the chassis is 0.023249 m above `base_link`; the camera's `zed_camera_joint` is at chassis +
 (0.0917, 0, 0.08) pitched 0.2618 rad down, and the optical frame (`camera_joint`) sits a further
 (0.0448, 0, 0.04) along that tilted frame, which puts it 0.1453 m ahead of and 0.1303 m above the
-base origin. The lidar (`hokuyo_joint`) is at chassis + (0.029, 0, 0.161), turned by yaw π.
+base origin. The lidar (`hokuyo_joint`) is at chassis + (0.029, 0, 0.161), turned by yaw π. The AWS
+simulator's frames show the ground as from a camera 0.163 m up, though, and the AWS look renders from there
+(`look.TrackLook.camera_height_m`); the classic look keeps the URDF's height.
 
 Because the car neither rolls nor pitches in racerlab, every pixel looks at a fixed point of the
 ground *in the car's frame*, and, the camera having no roll, every image row looks at a straight

@@ -13,6 +13,11 @@ frames (`../shared/reference/gazebo_frames`: what the simapp's 640×480 Gazebo c
   background grey (0.7: 178). The colours keep the hue of the simapp's textures (dark blue asphalt, green
   field, orange centre line, dark teal walls), scaled to those greys, so that a coloured light in domain
   randomization changes each material as it would;
+- the camera 0.163 m above the ground, not the URDF's 0.130 m (`camera_height_m`): the real frames show the
+  ground as from that height, by three measures that agree (the stereo pairs' disparity grows 0.356 px per
+  row below the horizon, B·cos 15°/h with the 6 cm baseline, where 0.130 m gives 0.446; the centre line's 4 in
+  dash period and its 1 in width come out 0.79× and 0.8× what 0.130 m predicts). Why the simulator's camera
+  sits higher is not in the sources read (the car's suspension or wheels in Gazebo, perhaps); the frames rule;
 - a grain fixed to the ground, as the textures have (`grain_*`): a fine pixel-scale part that near rows show,
   and a coarser blotchy part that survives to the distance. Its strength per material is fitted to the real
   frames (asphalt σ ≈ 5, field up to σ ≈ 17 grey levels near the car); no haze (Gazebo draws none).
@@ -34,6 +39,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+
+from racerlab.sim.sensors.geometry import camera_position
 
 LUMA = np.array([0.2989, 0.5870, 0.1140])
 
@@ -95,6 +102,9 @@ class TrackLook:
     grain_fine: tuple = (0.06, 0.0, 0.02, 0.17)
     grain_blotch: tuple = (0.045, 0.0, 0.01, 0.04)
     grain_seed: int = 2019
+    # the camera's height above the ground, m, as the AWS simulator's frames show it (see the module docstring);
+    # None: the URDF's (`geometry.camera_position`, 0.130 m)
+    camera_height_m: float | None = 0.163
 
     def colors(self) -> np.ndarray:
         """(N_MATERIALS, 3) RGB in material order."""
@@ -104,6 +114,11 @@ class TrackLook:
     def grey(self) -> np.ndarray:
         """(N_MATERIALS,) greyscale value of each material under white light."""
         return self.colors() @ LUMA
+
+    @property
+    def camera_z(self) -> float:
+        """The camera's height above the ground, m."""
+        return camera_position()[1] if self.camera_height_m is None else float(self.camera_height_m)
 
     @property
     def walls(self) -> bool:
@@ -172,7 +187,7 @@ class TrackLook:
 CLASSIC = dict(line_width_m=0.05, center_width_m=0.05, dash_m=0.15, gap_m=0.15, road=(42, 42, 46),
                line=(236, 236, 236), center=(235, 170, 40), ground=(96, 142, 82), sky=(200, 210, 222),
                wall_margin_m=None, haze_m=(4.0, 30.0), grain_fine=(0.0, 0.0, 0.0, 0.0),
-               grain_blotch=(0.0, 0.0, 0.0, 0.0))
+               grain_blotch=(0.0, 0.0, 0.0, 0.0), camera_height_m=None)
 LOOKS = {"aws": TrackLook(), "classic": replace(TrackLook(), **CLASSIC)}
 
 
