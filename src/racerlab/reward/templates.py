@@ -42,6 +42,6 @@ def reward_source(name: str, line=None, max_speed: float | None = None) -> str:
     rows = ",\n".join(f"    [{x:.4f}, {y:.4f}, {v:.3f}]"
                       for (x, y), v in list(zip(line.xy, speeds, strict=True))[::step])
     return (text.replace("__TRACK__", line.track_name)
-            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method}, theoretical lap {line.lap_time:.3f} s "
+            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method} line, its lap {line.lap_time:.3f} s "
                                          f"({line.car.simulator} car)\n"
                                          f"{rows},\n]", 1))
