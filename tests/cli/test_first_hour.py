@@ -311,3 +311,38 @@ def test_the_quickstart_s_reward_pays_more_for_a_lap_driven_faster():
 
     scale = 18.0 / STEP_S
     assert [round(per_lap(v) / scale, 5) for v in (1.0, 2.0, 4.0)] == [0.501, 0.6255, 1.06275]
+
+
+def test_a_camera_training_on_the_cpu_says_what_to_expect(tmp_path, capsys, monkeypatch):
+    """Issue 27, 4: `racerlab train cam-model --minutes 2` drove no lap and said nothing about why. A camera model
+    trained on the CPU now says, before the first iteration, what racerlab measured (update seconds, the first
+    lap's iteration and minutes) and, when the run ends without a lap, that this is expected and how to go on."""
+    from types import SimpleNamespace
+
+    import racerlab.train
+    from racerlab.cli.model import CAMERA_FIRST_LAP, CAMERA_MINUTES, CAMERA_UPDATE_S
+
+    runs = []
+
+    def no_lap_yet(model, **overrides):  # the training itself is not under test: a run that ends without a lap
+        runs.append(overrides)
+        return SimpleNamespace(model_dir=model, first_lap=None, interrupted=False)
+
+    monkeypatch.setattr(racerlab.train, "train", no_lap_yet)
+    assert main(["init", str(tmp_path / "cam"), "--sensor", "camera"]) == 0
+    assert f"`racerlab train {tmp_path / 'cam'} --minutes {CAMERA_MINUTES}`" in capsys.readouterr().out
+    assert main(["train", str(tmp_path / "cam"), "--minutes", "2", "--device", "cpu"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    it, minutes, _ = CAMERA_FIRST_LAP
+    assert ("note: a camera model learns from pixels, here on the CPU" in out
+            and f"an iteration's update took {CAMERA_UPDATE_S[0]}-{CAMERA_UPDATE_S[1]} s" in out
+            and f"the first evaluation lap came at iteration {it}, after {minutes:.0f} minutes" in out)
+    assert "no evaluation lap yet: as expected so early for a camera model on the CPU" in out
+    assert f"`racerlab train {tmp_path / 'cam'} --minutes 20` goes on from here" in out
+    # the measured figures are real ones: an update of a minute or so, a first lap within the suggested minutes
+    assert 10 <= CAMERA_UPDATE_S[0] <= CAMERA_UPDATE_S[1] <= 300 and 0 < minutes <= CAMERA_MINUTES and it >= 1
+    # a features model, or a camera model on a GPU, trains without the note
+    assert main(["init", str(tmp_path / "f")]) == 0
+    assert main(["train", str(tmp_path / "f"), "--minutes", "2"]) == 0
+    assert main(["train", str(tmp_path / "cam"), "--minutes", "2", "--device", "cuda"]) == 0
+    assert "learns from pixels" not in capsys.readouterr().out and len(runs) == 3

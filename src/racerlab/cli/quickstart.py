@@ -2,8 +2,10 @@
 
 Creates the default model folder if it is missing, trains it on the default track for a few
 minutes, evaluates the best checkpoint (the fastest evaluation laps) under race rules (3 laps) and
-draws the evaluation and the training curve, then says which checkpoint drove the laps, where
-everything is and what to run next.
+draws the evaluation and the training curve, then says which checkpoint drove the laps, what training
+changed (iteration 5's evaluation laps beside the raced checkpoint's and the race's; when the best lap came
+early, why: the action space's top speed, or a reward that does not pay for speed), where everything is and
+what to run next.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from racerlab.cli.model import fit
     from racerlab.evaluate import evaluate
     from racerlab.model import ModelFolder, init_model
     from racerlab.train import train
@@ -59,7 +62,7 @@ def run(args) -> int:
     draw_curve(folder.path, curve_png)
     for line in [checkpoint_line(folder, res), *training_story(folder.path, res.checkpoint, res),
                  f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}"]:
-        print(_fit(line))
+        print(fit(line))
     print(next_steps(folder.path))
     return 0
 
@@ -238,12 +241,6 @@ def _why(model: Path) -> str:
                 "else (the centre line, the heading), and training followed what it pays for.")
     return (f"Faster laps earned clearly more reward ({how}), yet the greedy laps slowed: compare what the reward "
             "pays per lap below.")
-
-
-def _fit(line: str) -> str:
-    import textwrap
-
-    return textwrap.fill(line, WIDTH, subsequent_indent="  ", break_on_hyphens=False, break_long_words=False)
 
 
 def next_steps(model: Path) -> str:
