@@ -216,6 +216,15 @@ def test_a_race_below_the_top_speed_blames_the_reward_not_the_action_space(tmp_p
                                "episode reward over 20 training laps)")
 
 
+def test_at_the_top_speed_a_reward_that_pays_for_speed_is_named_second(tmp_path):
+    from racerlab.cli.quickstart import training_story
+
+    model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, 300 - k) for k in range(20)])  # faster laps earned more
+    lines = training_story(model, "24_Step-81110.pt", _race(tmp_path, [8.6], top_share=0.95))
+    assert lines[3].startswith("Why: in the race above the car commanded its top speed, 2 m/s, on 95 % of its")
+    assert lines[4].startswith("The reward: faster laps earned clearly more reward (rank correlation -1.00 between")
+
+
 def test_the_quickstart_says_what_training_changed_and_why_an_early_best_stayed(tmp_path):
     from racerlab.cli.quickstart import training_story
 

@@ -126,7 +126,8 @@ def training_story(model: Path, raced: str | None = None, race=None) -> list[str
             capped, why = _capped(model, race), _why(model)
             if capped:  # the first reason; the reward's is then what a faster action space will meet
                 lines.append(capped)
-                why = "The reward: " + why.removeprefix("Why: ") if why else ""
+                why = why.removeprefix("Why: ")
+                why = "The reward: " + why[:1].lower() + why[1:] if why else ""
             if why:
                 lines.append(why)
             lines.append(f"see what a reward pays for on the laps already driven: `racerlab reward rescore {model} "
