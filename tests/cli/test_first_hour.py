@@ -355,3 +355,16 @@ def test_a_camera_training_on_the_cpu_says_what_to_expect(tmp_path, capsys, monk
     assert main(["train", str(tmp_path / "f"), "--minutes", "2"]) == 0
     assert main(["train", str(tmp_path / "cam"), "--minutes", "2", "--device", "cuda"]) == 0
     assert "learns from pixels" not in capsys.readouterr().out and len(runs) == 3
+
+
+def test_a_generalising_training_says_it_trains_on_generated_circuits(tmp_path, capsys):
+    """The tour's `racerlab train any-track` (init --preset generalise) announced "clipped_ppo on lab_technical": the
+    cars drive 8 generated circuits, lab_technical is only where it is evaluated."""
+    model = tmp_path / "any"
+    assert main(["init", str(model), "--preset", "generalise", "--track", "lab_oval", "--cars", "8"]) == 0
+    hp = json.loads((model / "hyperparameters.json").read_text())
+    (model / "hyperparameters.json").write_text(json.dumps({**hp, "num_episodes_between_training": 8}))
+    capsys.readouterr()
+    assert main(["train", str(model), "--iterations", "1"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "clipped_ppo on 8 generated circuits, redrawn every 5 iterations (evaluated on lab_oval), 8 cars" in out

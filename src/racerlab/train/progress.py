@@ -93,6 +93,9 @@ class Progress:
         cfg, meta = trainer.cfg, trainer.metadata
         what = f"resuming at iteration {trainer.state.iteration}" if resumed else "starting"
         tracks = ", ".join(cfg.track.names)
+        if cfg.track.generated:  # names then hold the evaluation track only
+            again = f", redrawn every {cfg.track.regenerate_every} iterations" if cfg.track.regenerate_every else ""
+            tracks = f"{cfg.track.generated} generated circuits{again} (evaluated on {tracks})"
         self._print(f"training {trainer.folder.path} ({what}): {meta.training_algorithm} on {tracks}, "
                     f"{cfg.run.num_cars} cars, observation {trainer.eval_world.observation.name}, "
                     f"device {trainer.agent.device}, car {trainer.eval_world.sim.car_params.name}", "bold")
