@@ -368,3 +368,4 @@ def test_a_generalising_training_says_it_trains_on_generated_circuits(tmp_path, 
     assert main(["train", str(model), "--iterations", "1"]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "clipped_ppo on 8 generated circuits, redrawn every 5 iterations (evaluated on lab_oval), 8 cars" in out
+    assert "stops after 1 iteration or Ctrl-C" in out  # not "1 iterations"
