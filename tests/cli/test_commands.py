@@ -48,30 +48,55 @@ def test_user_mistakes_are_one_line(tmp_path, capsys):
 
 def test_quickstart_on_defaults(tmp_path, capsys):
     model = tmp_path / "qs"
-    assert main(["quickstart", "--model", str(model), "--minutes", "0.2"]) == 0
+    # a fixed number of iterations, not minutes: a cold numba cache on a loaded machine can use up a short time
+    # limit before the first iteration ends, leaving no metrics to show
+    assert main(["quickstart", "--model", str(model), "--iterations", "2"]) == 0
     out = capsys.readouterr().out
     assert "result:" in out and (model / "quickstart" / "evaluation.png").is_file()
-    # which checkpoint drove the laps, then what to run next, each next command naming the model
+    assert "stopped: iteration limit of 2" in " ".join(out.split())
+    # which checkpoint drove the laps, what training changed, then what to run next, each command naming the model
     summary = json.loads(next(model.glob("evaluation-*/summary.json")).read_text())
-    assert f"laps 1-3 above: driven by checkpoint {summary['checkpoint']} (iteration " in out
-    assert "the fastest evaluation laps during training" in out
+    own = out[out.index("laps 1-3 above"):out.index("next:\n")]  # the quickstart's own lines fit 80 columns
+    assert all(len(line) <= 80 or len(line.split()) == 1 for line in own.splitlines())  # only a long path is longer
+    text = " ".join(own.split())
+    assert f"laps 1-3 above: driven by checkpoint {summary['checkpoint']} (iteration " in text
+    assert "the fastest evaluation laps during training" in text
+    assert "training: iteration 2" in text or "what training changed, iteration 1 -> iteration 2" in text
     block = out[out.index("next:\n"):].splitlines()[1:]
-    commands = [line.split("#")[0].strip() for line in block]
+    commands = [line.strip() for line in block if line.strip() and not line.strip().startswith("#")]
+    commands = [c.split("  #")[0].strip() for c in commands]
     assert commands[0] == f"racerlab report {model}" and commands[1] == f"racerlab evaluate {model} --video"
     assert any(c.startswith("racerlab reward check my_reward.py") for c in commands)
     assert any(c.startswith(f"racerlab clone {model} my-model --reward my_reward.py") for c in commands)
+    assert all(map(_fits_or_is_a_whole_command, block)), block
     assert "sensor FEATURES" in out and "racerlab's own" in out
     assert (model / "quickstart" / "training.png").is_file()
     assert list(model.glob("evaluation-*/EvalMetrics.json"))
     # the quickstart keeps the checkpoint with the fastest mean evaluation lap (newest on ties)
     assert 'best_model_metric = "laptime"' in (model / "training.toml").read_text()
     rows = [json.loads(line) for line in (model / "metrics" / "metrics.jsonl").read_text().splitlines()]
-    rows = [r for r in rows if r["eval/metric"] is not None]  # an iteration ended by the time limit has none
-    assert rows
+    assert [r["iteration"] for r in rows] == [1, 2] and all(r["eval/metric"] is not None for r in rows)
     fastest = min(r["eval/metric"] for r in rows)
     newest_fastest = max(r["iteration"] for r in rows if r["eval/metric"] == fastest)
     best = json.loads((model / "checkpoints" / "deepracer_checkpoints.json").read_text())["best_checkpoint"]
     assert best["name"].startswith(f"{newest_fastest}_Step-") and best["avg_eval_metric"] == fastest
+
+
+def _fits_or_is_a_whole_command(line: str) -> bool:
+    """80 columns, unless the line is a command (never wrapped, to be copied) or a comment's one long path."""
+    words = line.split()
+    return len(line) <= 80 or (words[0] == "#" and len(words) == 2) or (words[0] != "#" and "#" not in words)
+
+
+def test_the_next_steps_fit_80_columns_and_keep_each_command_whole(tmp_path):
+    from racerlab.cli.quickstart import next_steps
+
+    for model in (tmp_path.parent / "m", tmp_path / ("a-long-folder-name" * 3) / "quickstart-model"):
+        block = next_steps(model).splitlines()[1:]
+        assert all(map(_fits_or_is_a_whole_command, block)), block
+        commands = [line.strip().split("  #")[0] for line in block if not line.strip().startswith("#")]
+        assert commands[0] == f"racerlab report {model}" and commands[1] == f"racerlab evaluate {model} --video"
+        assert commands[-1] == "racerlab train my-model --minutes 5" and len(commands) == 7
 
 
 def test_init_says_a_features_model_is_racerlab_only(tmp_path, capsys):

@@ -91,7 +91,8 @@ def run_init(args) -> int:
     print(speed_note(args.max_speed))
     if args.sensor == "features":
         print(FEATURES_NOTE)
-    print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes 5`")
+    minutes = 5 if args.sensor == "features" else CAMERA_MINUTES  # a camera model laps after many minutes on a CPU
+    print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes {minutes}`")
     return 0
 
 
@@ -137,7 +138,14 @@ def run_train(args) -> int:
     else:
         from racerlab.train import train
 
+        pixels = pixels_on_cpu(args.model, args.device)
+        if pixels:
+            print(fit(camera_expectation(pixels)))
         result = train(args.model, **overrides)
+        if pixels and not getattr(result, "first_lap", None) and not getattr(result, "interrupted", False):
+            print(fit(f"no evaluation lap yet: as expected so early for a {pixels} model on the CPU (see the note "
+                       f"above); `racerlab train {shlex.quote(str(args.model))} --minutes {CAMERA_MINUTES}` goes on "
+                       "from here"))
     where = shlex.quote(str(result.model_dir))
     print(f"model: {result.model_dir} (checkpoints/, training-simtrace/, metrics/)\n"
           f"next: `racerlab evaluate {where}` or `racerlab report {where}`")
@@ -146,6 +154,54 @@ def run_train(args) -> int:
 
 
 INTERRUPTED = 130  # the shell's code for a command ended by SIGINT
+
+# A camera model's first evaluation lap on the CPU, measured: README's tour (`racerlab init cam-model --sensor
+# camera --max-speed 2`, `racerlab train cam-model --minutes 20`, 16 cars, droa car, lab_technical) on this
+# project's shared 2-core machine, with other jobs running (load average 6-7), November 2026
+CAMERA_UPDATE_S = (45, 98)  # one iteration's update, seconds (metrics.jsonl learn_seconds, iterations 1-7)
+CAMERA_FIRST_LAP = (7, 10.1, 6.5)  # (iteration, minutes, load average) of the first evaluation lap (10.00 s)
+CAMERA_MINUTES = 20  # what `init` and the note suggest for a camera model's first training
+
+
+def fit(text: str) -> str:
+    """80 columns, as the training's own lines (a long path or word stays whole)."""
+    import textwrap
+
+    return textwrap.fill(text, 80, subsequent_indent="  ", break_on_hyphens=False, break_long_words=False)
+
+
+def pixels_on_cpu(model, device: str | None) -> str:
+    """The model's sensor ("camera", "stereo") when it learns from pixels and will train on the CPU; else ""."""
+    from racerlab.model import ModelFolder
+
+    folder = ModelFolder(model)
+    # training.toml's observation, else the camera of model_metadata.json (FRONT_FACING_CAMERA, STEREO_CAMERAS)
+    sees = (folder.config().run.observation or str(folder.metadata().camera or "")).lower()
+    sensor = "stereo" if "stereo" in sees else "camera" if "camera" in sees else ""
+    if not sensor:
+        return ""
+    device = device or folder.config().run.device
+    if device.startswith("cuda"):
+        return ""
+    if device == "auto":
+        import torch
+
+        if torch.cuda.is_available():
+            return ""
+    return sensor
+
+
+def camera_expectation(sensor: str) -> str:
+    """What a pixel model's first minutes look like on a CPU, in measured numbers."""
+    import os
+
+    it, minutes, load = CAMERA_FIRST_LAP
+    lo, hi = CAMERA_UPDATE_S
+    return (f"note: a {sensor} model learns from pixels, here on the CPU ({os.cpu_count()} cores): on racerlab's "
+            f"shared 2-core machine an iteration's update took {lo}-{hi} s and the first evaluation lap came at "
+            f"iteration {it}, after {minutes:.0f} minutes (load average {load:.1f}); until then the eval % column "
+            f"shows the progress. Give it {CAMERA_MINUTES} minutes or more (training resumes where it stopped), or "
+            "a GPU.")
 
 
 def run_clone(args) -> int:

@@ -2,8 +2,10 @@
 
 Creates the default model folder if it is missing, trains it on the default track for a few
 minutes, evaluates the best checkpoint (the fastest evaluation laps) under race rules (3 laps) and
-draws the evaluation and the training curve, then says which checkpoint drove the laps, where
-everything is and what to run next.
+draws the evaluation and the training curve, then says which checkpoint drove the laps, what training
+changed (iteration 5's evaluation laps beside the raced checkpoint's and the race's; when the best lap came
+early, why: the action space's top speed, or a reward that does not pay for speed), where everything is and
+what to run next.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 DEFAULT_MODEL = Path("racerlab-out") / "quickstart-model"  # racerlab.cli.OUT_DIR; the console lists it
+DEFAULT_MINUTES = 3.0
+WIDTH = 80  # the quickstart's own lines fit a terminal of the default width
 
 
 def register(sub) -> None:
@@ -19,7 +23,10 @@ def register(sub) -> None:
                                    "with its best checkpoint and draw the results.")
     p.add_argument("--model", type=Path, default=DEFAULT_MODEL, help=f"model folder (default {DEFAULT_MODEL})")
     p.add_argument("--track", default=None, help="track name or path (default: the bundled default track)")
-    p.add_argument("--minutes", type=float, default=3.0, help="training time in minutes (default 3)")
+    p.add_argument("--minutes", type=float, default=None,
+                   help=f"training time in minutes (default {DEFAULT_MINUTES:g}, or none with --iterations)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="stop after this many training iterations (with --minutes: whichever comes first)")
     from racerlab.cli.model import QUICKSTART_MAX_SPEED
 
     p.add_argument("--max-speed", type=float, default=QUICKSTART_MAX_SPEED,
@@ -29,6 +36,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from racerlab.cli.model import fit
     from racerlab.evaluate import evaluate
     from racerlab.model import ModelFolder, init_model
     from racerlab.train import train
@@ -43,7 +51,8 @@ def run(args) -> int:
 
         print(f"created model folder {folder.path}")
         print(FEATURES_NOTE)
-    train(folder.path, minutes=args.minutes, tracks=[args.track] if args.track else None)
+    minutes = args.minutes if args.minutes is not None else (0 if args.iterations else DEFAULT_MINUTES)
+    train(folder.path, minutes=minutes, iterations=args.iterations, tracks=[args.track] if args.track else None)
     res = evaluate(folder.path, track=args.track)
     print(res.report())
     out = folder.path / "quickstart"
@@ -51,10 +60,9 @@ def run(args) -> int:
     lap_png, curve_png = out / "evaluation.png", out / "training.png"
     draw_lap(res, args.track or folder.config().track.names[0], lap_png)
     draw_curve(folder.path, curve_png)
-    print(checkpoint_line(folder, res))
-    for line in training_story(folder.path):
-        print(line)
-    print(f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}")
+    for line in [checkpoint_line(folder, res), *training_story(folder.path, res.checkpoint, res),
+                 f"results: model {folder.path} | evaluation {res.out_dir} | pictures {lap_png}, {curve_png}"]:
+        print(fit(line))
     print(next_steps(folder.path))
     return 0
 
@@ -73,32 +81,80 @@ def checkpoint_line(folder, res) -> str:
 
 
 EARLY_ITERATION = 5  # the quickstart's model is compared with its own iteration 5
+SLOWER = 1.02  # later laps this much slower than the best eval lap (their median) make the best "early"
+AT_TOP_SPEED = 0.9  # a race that commands the top action speed on this share of its steps is capped by it
 
 
-def training_story(model: Path) -> list[str]:
-    """What training changed: the in-training evaluation of iteration 5 beside the last iteration's, and, when
-    the best eval lap came early and later laps were slower, why (do the logged laps pay for speed?) and where
-    to look next."""
+def training_story(model: Path, raced: str | None = None, race=None) -> list[str]:
+    """What training changed: iteration 5's in-training evaluation beside the raced checkpoint's (`raced`, a
+    checkpoint name; else the last evaluated iteration) and the race's laps (`race`, an EvaluationResult); when
+    the best eval lap came early and the later laps were slower, why (the action space's top speed, or a reward
+    that does not pay for speed) and where to look next."""
+    import statistics
+
     from racerlab.logs import BEST_LAP_NAME, best_eval_lap, metrics_jsonl_path, read_metrics_jsonl
 
     rows = [r for r in read_metrics_jsonl(metrics_jsonl_path(model)) if r.get("eval/mean_progress") is not None]
     if not rows:
         return []
     early = next((r for r in rows if r["iteration"] >= EARLY_ITERATION), rows[0])
-    last = rows[-1]
-    if last is early:
-        return [f"iteration {last['iteration']}: {_eval_text(last)} (one evaluated iteration: nothing to compare)"]
-    lines = [f"training: iteration {early['iteration']} {_eval_text(early)}; iteration {last['iteration']} (the "
-             f"last) {_eval_text(last)}: {_change(early, last)}"]
+    it = _iteration_of(raced)
+    final = next((r for r in rows if r["iteration"] == it), None) if it is not None else None
+    name = f"iteration {final['iteration']} (the raced checkpoint)" if final else \
+        f"iteration {rows[-1]['iteration']} (the last evaluated)"
+    final = final or rows[-1]
+    if final["iteration"] <= early["iteration"] and final is not rows[-1]:
+        lines = [f"training: the raced checkpoint, iteration {final['iteration']} {_eval_text(final)}, is iteration "
+                 f"{early['iteration']} or older: no later iteration's evaluation laps were faster"]
+    elif final is early:
+        lines = [f"training: iteration {final['iteration']} {_eval_text(final)}: one evaluated iteration, "
+                 "nothing to compare"]
+    else:
+        lines = [f"what training changed, iteration {early['iteration']} -> {name}: {_change(early, final)}"]
+    race_line = _race_text(race, early)
+    if race_line:
+        lines.append(race_line)
     best = best_eval_lap(rows)
-    late_lap = last.get("eval/best_lap")
-    if best and best[1] is not None and late_lap is not None and late_lap > 1.02 * best[0] \
-            and best[1] <= max(EARLY_ITERATION, last["iteration"] // 4):
-        lines.append(f"the {BEST_LAP_NAME}, {best[0]:.2f} s, came at iteration {best[1]} of {last['iteration']}; "
-                     f"later laps were slower. {_why(model)}")
-        lines.append(f"see what a reward pays for on the laps already driven: `racerlab reward rescore {model} "
-                     "--reward my_reward.py` (its table ranks the laps by lap time and by reward)")
+    last = rows[-1]["iteration"]
+    later = sorted(r["eval/best_lap"] for r in rows if best and best[1] is not None and r["iteration"] > best[1]
+                   and r.get("eval/best_lap") is not None)
+    if best and best[1] is not None and len(later) >= 3 and best[1] <= max(EARLY_ITERATION, last // 2):
+        median = statistics.median(later)
+        if median > SLOWER * best[0]:
+            lines.append(f"the {BEST_LAP_NAME}, {best[0]:.2f} s, came at iteration {best[1]} of {last}; the later "
+                         f"evaluation laps were slower (median {median:.2f} s over iterations {best[1] + 1}-{last}).")
+            capped, why = _capped(model, race), _why(model)
+            if capped:  # the first reason; the reward's is then what a faster action space will meet
+                lines.append(capped)
+                why = why.removeprefix("Why: ")
+                why = "The reward: " + why[:1].lower() + why[1:] if why else ""
+            if why:
+                lines.append(why)
+            lines.append(f"see what a reward pays for on the laps already driven: `racerlab reward rescore {model} "
+                         "--reward my_reward.py` (its table ranks the laps by lap time and by reward)")
     return lines
+
+
+def _iteration_of(checkpoint: str | None) -> int | None:
+    """The iteration of an AWS checkpoint name, `<N>_Step-<S>.pt`."""
+    head = (checkpoint or "").split("_Step-")[0]
+    return int(head) if head.isdigit() else None
+
+
+def _race_text(race, early: dict) -> str:
+    """The race's laps beside iteration `early`'s best evaluation lap."""
+    laps = [lap.time for lap in getattr(race, "laps", []) if lap.completed]
+    if not laps:
+        return ""
+    mean = sum(laps) / len(laps)
+    text = f"the race above: {len(laps)} lap{'s' if len(laps) > 1 else ''}, {mean:.2f} s on average"
+    ref = early.get("eval/best_lap")
+    if ref is None:
+        return text + f"; iteration {early['iteration']} drove no evaluation lap"
+    if abs(mean - ref) < 0.005:
+        return text + f", as fast as iteration {early['iteration']}'s best evaluation lap"
+    return text + (f", {abs(mean - ref):.2f} s {'faster' if mean < ref else 'slower'} than iteration "
+                   f"{early['iteration']}'s best evaluation lap ({ref:.2f} s)")
 
 
 def _eval_text(row: dict) -> str:
@@ -107,18 +163,52 @@ def _eval_text(row: dict) -> str:
     return f"(lap {lap:.2f} s, {progress})" if lap is not None else f"(no lap, {progress})"
 
 
-def _change(early: dict, last: dict) -> str:
-    a, b = early.get("eval/best_lap"), last.get("eval/best_lap")
+def _change(early: dict, final: dict) -> str:
+    """What improved (or got worse) between two iterations' evaluations: the best lap and the progress."""
+    a, b = early.get("eval/best_lap"), final.get("eval/best_lap")
     if a is not None and b is not None:
-        if abs(b - a) < 0.005:
-            return "as fast"
-        return f"{abs(b - a):.2f} s {'faster' if b < a else 'slower'}"
-    if b is not None:
-        return "it completes a lap, iteration {} did not".format(early["iteration"])
-    if a is not None:
-        return "it no longer completes a lap"
-    pa, pb = early["eval/mean_progress"], last["eval/mean_progress"]
-    return f"{abs(pb - pa):.0f} points of progress {'more' if pb >= pa else 'fewer'}"
+        lap = "as fast" if abs(b - a) < 0.005 else f"{abs(b - a):.2f} s {'faster' if b < a else 'slower'}"
+        lap = f"best evaluation lap {a:.2f} -> {b:.2f} s ({lap})"
+    elif b is not None:
+        lap = f"best evaluation lap none -> {b:.2f} s (it completes a lap, iteration {early['iteration']} did not)"
+    elif a is not None:
+        lap = f"best evaluation lap {a:.2f} s -> none (it no longer completes a lap)"
+    else:
+        lap = "no evaluation lap in either"
+    pa, pb = early["eval/mean_progress"], final["eval/mean_progress"]
+    return f"{lap}; evaluation progress {pa:.0f} -> {pb:.0f} %"
+
+
+def _capped(model: Path, race) -> str:
+    """Whether the race drove at the action space's top speed nearly all the way: then faster laps need faster
+    actions, not more training (the quickstart's 2 m/s model does so within a minute of training)."""
+    import csv
+
+    from racerlab.errors import RacerlabError
+    from racerlab.model import ModelFolder
+    from racerlab.spec import MAX_SPEED
+
+    simtrace = getattr(race, "files", {}).get("simtrace")
+    try:
+        top = ModelFolder(model).metadata().actions.top_speed
+    except (RacerlabError, OSError, ValueError, AttributeError):
+        return ""
+    if not simtrace or not Path(simtrace).is_file():
+        return ""
+    with open(simtrace, newline="") as f:
+        speeds = [float(r["throttle"]) for r in csv.DictReader(f) if r["episode_status"] != "prepare"]
+    if not speeds:
+        return ""
+    share = sum(v >= top - 1e-6 for v in speeds) / len(speeds)
+    if share < AT_TOP_SPEED:
+        return ""
+    why = (f"Why: in the race above the car commanded its top speed, {top:g} m/s, on {100 * share:.0f} % of its "
+           "steps: the action space, not training, sets the pace now; only a shorter line is left to find.")
+    if top >= MAX_SPEED:
+        return why + f" {MAX_SPEED:g} m/s is the simulator's cap."
+    faster = min(top + 1, MAX_SPEED)
+    return why + (f" For faster laps give it faster actions: `racerlab init NEW --max-speed {faster:g}` (a new "
+                  "model), or `racerlab clone` with a model_metadata.json whose speeds are higher.")
 
 
 def _why(model: Path) -> str:
@@ -131,6 +221,8 @@ def _why(model: Path) -> str:
     try:
         tm = load_metrics(model, "training")
     except (RacerlabError, ValueError):
+        return ""
+    if tm.empty or not {"phase", "episode_status"} <= set(tm.columns):  # no training episode logged yet
         return ""
     laps = tm[(tm["phase"] == "training") & (tm["episode_status"] == "Lap complete")]
     if len(laps) < 10 or laps["elapsed_time_in_milliseconds"].nunique() < 2:
@@ -154,6 +246,8 @@ def _why(model: Path) -> str:
 
 def next_steps(model: Path) -> str:
     """What a newcomer runs next: look at the report, evaluate again, try a new reward."""
+    import textwrap
+
     m = str(model)
     lines = [
         ("racerlab report " + m, f"then open {model / 'report.html'}: training, laps, track heatmaps"),
@@ -161,11 +255,17 @@ def next_steps(model: Path) -> str:
         (f"cp {model / 'reward_function.py'} my_reward.py", "a new reward: edit my_reward.py, then"),
         ("racerlab reward check my_reward.py --track " + _track_arg(model), "call it over the whole track"),
         (f"racerlab reward rescore {m} --reward my_reward.py", "how it scores the laps already driven"),
-        (f"racerlab clone {m} my-model --reward my_reward.py && racerlab train my-model --minutes 5",
-         "train with it"),
+        (f"racerlab clone {m} my-model --reward my_reward.py", "a new model from this one's best checkpoint, with it"),
+        ("racerlab train my-model --minutes 5", "train with it"),
     ]
     width = max(len(c) for c, _ in lines)
-    return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in lines)
+    if 2 + width + 4 + max(len(why) for _, why in lines) <= WIDTH:
+        return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in lines)
+    # too wide for one line each (a long model path): the reason, wrapped, above its command, which stays whole
+    # to be copied
+    return "next:\n" + "\n".join(
+        textwrap.fill(why, WIDTH, initial_indent="  # ", subsequent_indent="  #   ", break_long_words=False,
+                      break_on_hyphens=False) + f"\n  {c}" for c, why in lines)
 
 
 def _track_arg(model: Path) -> str:

@@ -30,6 +30,10 @@ def _fmt_time(seconds: float | None) -> str:
     return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s"
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")  # "stops after 1 iteration", not "1 iterations"
+
+
 def _lap(x) -> str:
     return "--" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.2f}s"
 
@@ -93,12 +97,15 @@ class Progress:
         cfg, meta = trainer.cfg, trainer.metadata
         what = f"resuming at iteration {trainer.state.iteration}" if resumed else "starting"
         tracks = ", ".join(cfg.track.names)
+        if cfg.track.generated:  # names then hold the evaluation track only
+            again = f", redrawn every {cfg.track.regenerate_every} iterations" if cfg.track.regenerate_every else ""
+            tracks = f"{cfg.track.generated} generated circuits{again} (evaluated on {tracks})"
         self._print(f"training {trainer.folder.path} ({what}): {meta.training_algorithm} on {tracks}, "
                     f"{cfg.run.num_cars} cars, observation {trainer.eval_world.observation.name}, "
                     f"device {trainer.agent.device}, car {trainer.eval_world.sim.car_params.name}", "bold")
         limits = [f"{cfg.stop.minutes:g} min" if cfg.stop.minutes else "",
-                  f"{cfg.stop.episodes} episodes" if cfg.stop.episodes else "",
-                  f"{cfg.stop.iterations} iterations" if cfg.stop.iterations else ""]
+                  _count(cfg.stop.episodes, "episode") if cfg.stop.episodes else "",
+                  _count(cfg.stop.iterations, "iteration") if cfg.stop.iterations else ""]
         limits = [x for x in limits if x] or [f"{trainer.hp.term_cond_max_episodes} episodes (term_cond_max_episodes)"]
         self._print(f"stops after {' / '.join(limits)} or Ctrl-C (the last complete iteration is kept)")
         self._print(f"{BEST_LAP_NAME}: the fastest lap of the greedy evaluation episodes so far\n"
