@@ -136,6 +136,34 @@ def test_bad_values_are_one_line_naming_the_field(console, method, url, body, fi
     assert not (console.app.state.workspace.root / "None").exists()
 
 
+@pytest.mark.parametrize("body, error", [
+    ({"iterations": 2.5}, "iterations must be a finite whole number > 0, got 2.5"),
+    ({"episodes": "3.7"}, "episodes must be a finite whole number > 0, got '3.7'"),
+    ({"minutes": 0}, "minutes must be a finite number > 0, got 0"),
+    ({"iterations": True}, "iterations must be a finite whole number > 0, got True"),
+])
+def test_training_limits_are_refused_not_rounded(console, body, error):
+    """One home for the console's numbers (`security.number`): a training's limits were truncated (2.5 iterations
+    trained 2) while every other field refused a fraction."""
+    c = console.client
+    assert c.post("/api/models", json={"name": "m", "track": "lab_oval", "cars": 4}).status_code == 200
+    r = c.post("/api/models/m/train", json=body)
+    assert r.status_code == 400 and r.json()["error"] == error
+    assert c.get("/api/models/m").json()["state"] == "idle"
+
+
+def test_numbers_keep_their_kind_and_range():
+    from racerlab.console.security import ConsoleError, number
+
+    assert number({"n": "3"}, "n", integer=True, above=0) == 3 and type(number({"n": 3.0}, "n", integer=True)) is int
+    assert number({"m": "0.25"}, "m", above=0) == 0.25 and number({}, "m", 7, above=0) == 7
+    assert number({"x": 1}, "x", low=1, high=1) == 1
+    for body, limits in [({"n": 0}, {"above": 0}), ({"n": -1e-9}, {"low": 0}), ({"n": "nan"}, {}),
+                         ({"n": 2}, {"high": 1})]:
+        with pytest.raises(ConsoleError):
+            number(body, "n", **limits)
+
+
 def test_race_rules_read_yes_and_no_as_written():
     from racerlab.console.runs import _rules
 

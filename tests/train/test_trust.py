@@ -193,6 +193,45 @@ def test_a_learning_rate_of_10_is_caught_and_named(model):
     assert model.resolve_checkpoint("last").iteration == 0  # nothing collapsed reached a checkpoint
 
 
+def _continuous(tmp_path) -> ModelFolder:
+    return init_model(tmp_path / "cont", track=str(aws_track_path("reInvent2019_track")), max_speed=2.0,
+                      action_space="continuous")
+
+
+def test_a_learning_rate_of_10_on_continuous_actions_stops_with_the_file_and_a_rate_to_try(tmp_path):
+    """e958da9 rolled back twice and then trained on for ever with the policy's log-std stuck past its clamp
+    (entropy 8.84 in every later iteration, the actions pure noise)."""
+    model = _continuous(tmp_path)
+    _small(model, lr=10)
+    with pytest.raises(TrainingDiverged) as err:
+        train(model.path, iterations=6, **SMALL)
+    msg = str(err.value)
+    assert "\n" not in msg and f"lr 10 in {model.hyperparameters_path}" in msg and "try 0.0003 or lower" in msg
+    assert model.resolve_checkpoint("last").iteration == 0  # no collapsed policy was saved
+
+
+def test_a_continuous_spread_pushed_past_its_clamp_is_a_collapse_whatever_the_evaluation(tmp_path):
+    """Past the clamp the log-std has no gradient, so it never comes back: rolled back even while the evaluation
+    holds steady (the approx-KL check waits for a falling one)."""
+    from types import SimpleNamespace
+
+    from racerlab.train.loop import Trainer
+
+    t = Trainer(_continuous(tmp_path).path, progress=False, num_cars=2)
+    calm = {"losses/approx_kl": 0.01, "losses/value": 0.5, "losses/entropy": 8.84}
+    steady = [SimpleNamespace(progress=42.0)] * 3
+    t.health.last_eval = 42.0
+    assert t.health.collapse(calm, steady, np.ones(4)) is None  # log-std 0: a fresh policy
+    with torch.no_grad():
+        t.agent.policy_net.log_std[1] = 3.4
+    what, cause = t.health.collapse(calm, steady, np.ones(4))
+    assert "log-std reached 3.4, past its limit of 3" in what
+    assert f"lr 0.0003 in {t.hp.source}" in cause
+    with torch.no_grad():
+        t.agent.policy_net.log_std[:] = torch.tensor([-1.0, -20.5])
+    assert "log-std fell to -20.5" in t.health.collapse(calm, steady, np.ones(4))[0]
+
+
 # ---- watchdogs -----------------------------------------------------------------------------------------------
 def test_an_endless_reward_stops_training_with_file_line_params_and_time(model):
     _small(model)

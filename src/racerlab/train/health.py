@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from racerlab.agent.distributions import PPO_LOG_STD_MAX, PPO_LOG_STD_MIN
 from racerlab.errors import RacerlabError
 
 MAX_ROLLBACKS = 3
@@ -52,9 +53,9 @@ class Health:
 
     def collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
         """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
-        the value loss exploded (rewards far too large), one update moved the policy absurdly far (approx KL), or a
-        discrete policy's entropy fell to near zero while its evaluation progress fell (a learning rate far too
-        high)."""
+        the value loss exploded (rewards far too large), a continuous policy's spread was pushed onto its limit, one
+        update moved the policy absurdly far (approx KL), or a discrete policy's entropy fell to near zero while its
+        evaluation progress fell (a learning rate far too high)."""
         v = metrics.get("losses/value")
         if v is not None and v > VALUE_LOSS_LIMIT:
             top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
@@ -67,6 +68,9 @@ class Health:
         ev = float(np.mean([e.progress for e in evals])) if evals else None
         prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
         falling = ev is None or (ev < prev if prev is not None else ev < 10.0)
+        pinned = self.pinned_spread()
+        if pinned:
+            return pinned, self.lr_advice()
         kl = metrics.get("losses/approx_kl")
         # a far move counts only where the evaluation got worse (or there is none): a converged continuous
         # policy (std ~0.05) shows rare spikes of the approx KL from a few samples its mean moved away from
@@ -78,6 +82,22 @@ class Health:
             return None
         if ent < COLLAPSED_ENTROPY and falling:
             return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %", self.lr_advice())
+        return None
+
+    def pinned_spread(self) -> str | None:
+        """What is wrong when a continuous PPO policy's log-std parameter left the range its distribution clamps it
+        to: past the clamp its gradient is zero, so nothing brings it back and the policy drives pure noise (std
+        e^3 = 20 where actions span [-1, 1]) or none at all, whatever the evaluation says. lr 10 did this in its first
+        update on e958da9: the entropy then sat at the clamp's value (8.84 for two actions) and the run went on."""
+        log_std = getattr(getattr(self.agent, "policy_net", None), "log_std", None)
+        if self.discrete or log_std is None:
+            return None
+        values = log_std.detach().cpu().numpy()
+        low, high = float(values.min()), float(values.max())
+        if high >= PPO_LOG_STD_MAX:
+            return f"the policy's log-std reached {high:.3g}, past its limit of {PPO_LOG_STD_MAX:g} (actions are noise)"
+        if low <= PPO_LOG_STD_MIN:
+            return f"the policy's log-std fell to {low:.3g}, past its limit of {PPO_LOG_STD_MIN:g} (no exploration)"
         return None
 
     def lr_advice(self) -> str:
