@@ -172,6 +172,51 @@ def test_race_rules_read_yes_and_no_as_written():
     assert _rules({}).continuous is True
 
 
+# ---- 13: a running race can be cancelled -------------------------------------------------------------------------
+def test_a_running_race_of_32_copies_is_cancelled_at_the_next_lap_end(console):
+    from racerlab.logs import evaluation_dirs
+    from racerlab.model import ModelFolder
+    from tests.evaluate.models import write_checkpoint
+
+    c = console.client
+    w = console.app.state.workspace
+    assert c.post("/api/models", json={"name": "m", "track": "lab_oval", "cars": 4}).status_code == 200
+    write_checkpoint(ModelFolder(w.root / "m"))
+    r = c.post("/api/races", json={"models": ["m"] * 32, "trials": 20, "track": "lab_oval"})
+    assert r.status_code == 200 and r.json()["cancellable"], r.text  # 32 x 20 trials: minutes of racing
+    time.sleep(2.0)
+    t0 = time.monotonic()
+    r = c.post("/api/tasks/race/cancel")
+    assert r.status_code == 200 and r.json()["cancelling"], r.text
+    while c.get("/api/tasks/race").json()["status"] == "running":
+        assert time.monotonic() - t0 < 10, "the race still runs after its cancel"
+        time.sleep(0.1)
+    task = c.get("/api/tasks/race").json()
+    assert task["status"] == "cancelled" and not task["cancellable"]
+    done = int(task["message"].split(" after ")[1].split(" of ")[0])
+    assert task["message"].startswith(f"race cancelled after {done} of 32 models") and done < 32
+    assert task["message"].endswith("no leaderboard was written")
+    assert len(evaluation_dirs(w.root / "m")) == done  # whole evaluations only: the one on the track wrote nothing
+    assert c.get("/api/races").json()["races"] == []
+    r = c.post("/api/tasks/race/cancel")
+    assert r.status_code == 409 and "not running (cancelled)" in r.json()["error"]
+    assert c.post("/api/tasks/nothing/cancel").status_code == 404
+
+
+def test_a_task_that_cannot_stop_says_so(console):
+    import threading
+
+    gate = threading.Event()
+    w = console.app.state.workspace
+    w.run_task("report", "report:x", lambda: gate.wait(30) and {})
+    try:
+        r = console.client.post("/api/tasks/report:x/cancel")
+        assert r.status_code == 409
+        assert r.json()["error"] == "report:x: a report cannot be cancelled; wait for it to end"
+    finally:
+        gate.set()
+
+
 # ---- 10: symbolic links -----------------------------------------------------------------------------------------
 def test_a_linked_model_folder_or_file_is_neither_listed_nor_served(console, tmp_path):
     c = console.client
