@@ -67,6 +67,7 @@ def test_a_stale_lock_is_taken_over_and_released(model):
 # ---- validation ----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(("flags", "expected"), [
     ({"minutes": -3}, "--minutes must be a number >= 0 (0 = no limit), got -3"),
+    ({"minutes": float("inf")}, "--minutes must be a number >= 0 (0 = no limit), got inf"),  # issue 28, case 13
     ({"num_cars": 0}, "--cars must be at least 1, got 0"),
     ({"iterations": -1}, "--iterations must be a number >= 0 (0 = no limit), got -1"),
 ])
