@@ -233,6 +233,41 @@ def test_a_continuous_spread_pushed_past_its_clamp_is_a_collapse_whatever_the_ev
     assert "log-std fell to -20.5" in t.health.collapse(calm, steady, np.ones(4))[0]
 
 
+def test_a_discrete_policy_certain_of_one_action_short_of_a_lap_is_a_collapse(model):
+    """Issue 28, case 13: lr 10 "rolls back once and then sits at entropy 0.000": a saturated softmax has no
+    gradient left, and a deterministic policy crashes at the same place each time, so its evaluation never falls."""
+    from types import SimpleNamespace
+
+    from racerlab.train.loop import Trainer
+
+    t = Trainer(model.path, progress=False, num_cars=2)
+    sure = {"losses/approx_kl": 0.01, "losses/value": 0.5, "losses/entropy": 2e-4}
+    t.health.last_eval = 12.5
+    what, cause = t.health.collapse(sure, [SimpleNamespace(progress=12.5)] * 3, np.ones(4))
+    assert what.startswith("entropy 0.0002: one action certain in every state") and "12.5 %" in what
+    assert f"lr 0.0003 in {model.hyperparameters_path}" in cause
+    assert t.health.collapse(sure, [SimpleNamespace(progress=100.0)] * 3, np.ones(4)) is None  # it laps: fine
+    assert t.health.collapse({**sure, "losses/entropy": 0.3}, [SimpleNamespace(progress=12.5)] * 3, np.ones(4)) is None
+
+
+def test_a_rolled_back_evaluation_is_not_the_yardstick_for_the_next(model):
+    """After a rollback the next collapse often crashes where the last one did; judged against that rolled-back
+    evaluation it was "not falling" and the run sat in it. The yardstick is the last committed evaluation."""
+    from types import SimpleNamespace
+
+    from racerlab.train.loop import Trainer
+
+    t = Trainer(model.path, progress=False, num_cars=2)
+    far = {"losses/approx_kl": 40.0, "losses/value": 0.5, "losses/entropy": 1.5}
+    t.health.last_eval = 50.0
+    crash = [SimpleNamespace(progress=20.0)] * 3
+    assert t.health.collapse(far, crash, np.ones(4)) is not None
+    assert t.health.collapse(far, crash, np.ones(4)) is not None  # the same crash again: still worse than 50 %
+    assert t.health.last_eval == 50.0
+    assert t.health.collapse({**far, "losses/approx_kl": 0.02}, crash, np.ones(4)) is None
+    assert t.health.last_eval == 20.0  # a sound iteration, committed: the new yardstick
+
+
 # ---- watchdogs -----------------------------------------------------------------------------------------------
 def test_an_endless_reward_stops_training_with_file_line_params_and_time(model):
     _small(model)
