@@ -195,7 +195,7 @@ def test_a_running_race_of_32_copies_is_cancelled_at_the_next_lap_end(console):
     assert task["status"] == "cancelled" and not task["cancellable"]
     done = int(task["message"].split(" after ")[1].split(" of ")[0])
     assert task["message"].startswith(f"race cancelled after {done} of 32 models") and done < 32
-    assert task["message"].endswith("no leaderboard was written")
+    assert task["message"].endswith("no leaderboard was written" if done else "nothing was written")
     assert len(evaluation_dirs(w.root / "m")) == done  # whole evaluations only: the one on the track wrote nothing
     assert c.get("/api/races").json()["races"] == []
     r = c.post("/api/tasks/race/cancel")

@@ -50,7 +50,7 @@ def test_a_race_cancelled_mid_model_stops_at_the_lap_end_and_keeps_only_whole_ev
 def test_a_race_cancelled_before_it_starts_writes_nothing(models):
     cancel = threading.Event()
     cancel.set()
-    with pytest.raises(RaceCancelled, match="after 0 of 3 models: nothing was written"):
+    with pytest.raises(RaceCancelled, match="^race cancelled after 0 of 3 models: nothing was written$"):
         race(models, rules=RULES, cancel=cancel)
     assert all(evaluation_dirs(m) == [] for m in models)
 

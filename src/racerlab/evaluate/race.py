@@ -34,9 +34,10 @@ class RaceCancelled(RacerlabError):
 
 def stopped_text(how: str, finished: list[str], total: int) -> str:
     """What a race stopped early leaves: the finished models' evaluations, no leaderboard."""
-    kept = (f"the evaluations of {', '.join(finished)} are kept in their model folders" if finished
-            else "nothing was written")
-    return f"race {how} after {len(finished)} of {total} models: {kept}; no leaderboard was written"
+    if not finished:
+        return f"race {how} after 0 of {total} models: nothing was written"
+    return (f"race {how} after {len(finished)} of {total} models: the evaluations of {', '.join(finished)} are kept "
+            "in their model folders; no leaderboard was written")
 
 
 @dataclass
