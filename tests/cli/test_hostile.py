@@ -66,3 +66,44 @@ def test_a_short_console_token_is_refused(tmp_path, capsys, monkeypatch):
     assert main(["console", "--dir", str(tmp_path), "--host", "0.0.0.0", "--token", "a", "--no-browser"]) == 2
     err = capsys.readouterr().err
     assert "--token" in err and "at least 16" in err and err.count("\n") == 1
+
+
+def test_ctrl_c_stops_a_race_at_once_with_one_line_saying_what_stays(tmp_path):
+    """Issue 28, case 13: a long race could only be killed. Ctrl-C ends it within a lap: exit status 130, the
+    finished models' evaluations kept, no leaderboard."""
+    import signal
+    import time
+
+    from racerlab.logs import evaluation_dirs
+    from tests.evaluate.models import write_checkpoint, write_model
+
+    dirs = []
+    for name in ("a", "b", "c"):
+        folder = write_model(tmp_path / name, "lab_oval", actions=((0.0, 1.0), (15.0, 1.0)))
+        write_checkpoint(folder)
+        dirs.append(str(folder.path))
+    import racerlab
+
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(os.path.abspath(racerlab.__file__)))}
+    out = tmp_path / "board.json"
+    proc = subprocess.Popen([sys.executable, "-m", "racerlab", "race", *dirs, "--trials", "40", "--out", str(out)],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, env=env)
+    try:
+        for line in proc.stderr:  # the first model's result: it is done, the second one is on the track
+            if line.startswith("a: "):
+                break
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        rc = proc.wait(timeout=30)
+        took = time.monotonic() - t0
+        rest = proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert rc == 130 and took < 5.0, (rc, took)
+    assert rest.strip().splitlines()[-1] == ("racerlab: race interrupted after 1 of 3 models: the evaluations of a "
+                                             "are kept in their model folders; no leaderboard was written")
+    assert "Traceback" not in rest
+    assert len(evaluation_dirs(dirs[0])) == 1 and evaluation_dirs(dirs[1]) == [] and not out.exists()

@@ -277,6 +277,74 @@ def test_a_stopped_worker_is_given_up_at_the_deadline_and_replaced(cluster, tmp_
     assert "worker 1 (no answer within" in capsys.readouterr().out
 
 
+def test_a_sweep_gives_up_a_stopped_training_at_its_deadline_and_races_the_rest(cluster, tmp_path):
+    """SIGSTOP on one sweep training's worker: the driver waited for it for ever (ray.get without a timeout)."""
+    import threading
+
+    from racerlab.model import ModelFolder
+    from racerlab.model.lock import TrainingLock
+
+    spec = tmp_path / "sweep.toml"
+    hp = "hyperparameters = { num_episodes_between_training = 2, num_epochs = 1 }\n"
+    spec.write_text(f'out = "runs"\niterations = 2\ncars = 2\n[race]\ntrials = 1\n[[model]]\nname = "goes"\n{hp}'
+                    f'[[model]]\nname = "stops"\n{hp}')
+    lock = ModelFolder(tmp_path / "runs" / "stops").lock_path
+    notes, result, stopped = [], {}, []
+    run = threading.Thread(target=lambda: result.update(board=run_sweep(spec, address=cluster, stall_s=20.0,
+                                                                        note=notes.append, tick_s=0.5)), daemon=True)
+    run.start()
+    try:
+        deadline = time.time() + 120
+        while not stopped and run.is_alive() and time.time() < deadline:  # the trainer puts its PID in the lock
+            pid = TrainingLock(lock).holder()
+            if pid:
+                os.kill(pid, signal.SIGSTOP)
+                stopped.append(pid)
+            time.sleep(0.05)
+        assert stopped, "the second training never started"
+        run.join(180)
+        assert not run.is_alive(), "the driver still waits for the stopped training"
+        gone = time.time() + 15
+        while _alive(stopped[0]) and time.time() < gone:
+            time.sleep(0.2)
+        assert not _alive(stopped[0]), "the stopped worker was not killed"
+    finally:
+        for pid in stopped:
+            for sig in (signal.SIGCONT, signal.SIGKILL):
+                try:
+                    os.kill(pid, sig)
+                except ProcessLookupError:
+                    pass
+    board = result["board"]
+    assert [r["model"] for r in board.board.rows()] == ["goes"]
+    assert board.trained["goes"]["iterations"] == 2 and "failed" in board.trained["stops"]
+    data = json.loads(board.json_path.read_text())
+    assert list(data["left_out"]) == ["stops"] and "no progress for 20 s after it started" in data["left_out"]["stops"]
+    assert len(notes) == 1 and "model 'stops': its training made no progress for 20 s after it started" in notes[0]
+    assert "\n" not in notes[0]
+
+
+def test_an_error_inside_a_sweep_training_is_its_one_line(cluster, tmp_path):
+    from racerlab.errors import RewardFunctionError
+
+    (tmp_path / "bad.py").write_text("def reward_function(params):\n    return params['no_such_key']\n")
+    spec = tmp_path / "sweep.toml"
+    spec.write_text('iterations = 1\ncars = 2\n[[model]]\nname = "bad"\nreward = "bad.py"\n'
+                    'hyperparameters = { num_episodes_between_training = 2, num_epochs = 1 }\n')
+    with pytest.raises(RewardFunctionError) as err:
+        run_sweep(spec, address=cluster)
+    msg = str(err.value)
+    assert "reward_function.py:2" in msg and "KeyError" in msg and "Traceback" not in msg and len(msg.splitlines()) <= 2
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(") ", 1)[1][0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
 def test_a_local_cluster_starts_with_token_authentication_and_old_ray_is_refused(monkeypatch):
     from types import SimpleNamespace
 

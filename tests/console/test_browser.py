@@ -178,3 +178,31 @@ def test_exchange_tab_exports_for_the_car_and_offers_the_download(browser, tmp_p
     finally:
         page.close()
         console.stop()
+
+
+def test_a_running_race_is_cancelled_from_its_button(browser, tmp_path):
+    from racerlab.model import ModelFolder
+    from tests.evaluate.models import write_checkpoint
+
+    console = Console(tmp_path / "ws")
+    for name in ("r1", "r2", "r3"):
+        console.client.post("/api/models", json={"name": name, "track": "lab_oval", "cars": 4})
+        write_checkpoint(ModelFolder(console.app.state.workspace.root / name))
+    page = browser.new_page(viewport={"width": 1280, "height": 700})
+    try:
+        page.goto(console.url + "/#/races")
+        page.locator("#race-start").wait_for()
+        assert page.locator("#race-cancel").is_disabled()  # nothing to cancel yet
+        for box in page.locator("input[data-race]").all():
+            box.check()
+        page.fill("#race-trials", "100")  # three models x 100 laps: far longer than this test waits
+        page.click("#race-start")
+        page.locator("#race-cancel:not([disabled])").wait_for(timeout=10_000)
+        page.click("#race-cancel")
+        page.locator("#toast div", has_text="race cancelled after").wait_for(timeout=20_000)
+        shot(page, "race_cancelled")
+        assert page.locator("#race-cancel").is_disabled() and not page.locator("#race-start").is_disabled()
+        assert console.client.get("/api/tasks/race").json()["status"] == "cancelled"
+    finally:
+        page.close()
+        console.stop()

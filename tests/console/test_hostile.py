@@ -136,12 +136,85 @@ def test_bad_values_are_one_line_naming_the_field(console, method, url, body, fi
     assert not (console.app.state.workspace.root / "None").exists()
 
 
+@pytest.mark.parametrize("body, error", [
+    ({"iterations": 2.5}, "iterations must be a finite whole number > 0, got 2.5"),
+    ({"episodes": "3.7"}, "episodes must be a finite whole number > 0, got '3.7'"),
+    ({"minutes": 0}, "minutes must be a finite number > 0, got 0"),
+    ({"iterations": True}, "iterations must be a finite whole number > 0, got True"),
+])
+def test_training_limits_are_refused_not_rounded(console, body, error):
+    """One home for the console's numbers (`security.number`): a training's limits were truncated (2.5 iterations
+    trained 2) while every other field refused a fraction."""
+    c = console.client
+    assert c.post("/api/models", json={"name": "m", "track": "lab_oval", "cars": 4}).status_code == 200
+    r = c.post("/api/models/m/train", json=body)
+    assert r.status_code == 400 and r.json()["error"] == error
+    assert c.get("/api/models/m").json()["state"] == "idle"
+
+
+def test_numbers_keep_their_kind_and_range():
+    from racerlab.console.security import ConsoleError, number
+
+    assert number({"n": "3"}, "n", integer=True, above=0) == 3 and type(number({"n": 3.0}, "n", integer=True)) is int
+    assert number({"m": "0.25"}, "m", above=0) == 0.25 and number({}, "m", 7, above=0) == 7
+    assert number({"x": 1}, "x", low=1, high=1) == 1
+    for body, limits in [({"n": 0}, {"above": 0}), ({"n": -1e-9}, {"low": 0}), ({"n": "nan"}, {}),
+                         ({"n": 2}, {"high": 1})]:
+        with pytest.raises(ConsoleError):
+            number(body, "n", **limits)
+
+
 def test_race_rules_read_yes_and_no_as_written():
     from racerlab.console.runs import _rules
 
     assert _rules({"continuous": "false", "reverse": "true"}).continuous is False
     assert _rules({"continuous": "false", "reverse": "true"}).reverse is True
     assert _rules({}).continuous is True
+
+
+# ---- 13: a running race can be cancelled -------------------------------------------------------------------------
+def test_a_running_race_of_32_copies_is_cancelled_at_the_next_lap_end(console):
+    from racerlab.logs import evaluation_dirs
+    from racerlab.model import ModelFolder
+    from tests.evaluate.models import write_checkpoint
+
+    c = console.client
+    w = console.app.state.workspace
+    assert c.post("/api/models", json={"name": "m", "track": "lab_oval", "cars": 4}).status_code == 200
+    write_checkpoint(ModelFolder(w.root / "m"))
+    r = c.post("/api/races", json={"models": ["m"] * 32, "trials": 20, "track": "lab_oval"})
+    assert r.status_code == 200 and r.json()["cancellable"], r.text  # 32 x 20 trials: minutes of racing
+    time.sleep(2.0)
+    t0 = time.monotonic()
+    r = c.post("/api/tasks/race/cancel")
+    assert r.status_code == 200 and r.json()["cancelling"], r.text
+    while c.get("/api/tasks/race").json()["status"] == "running":
+        assert time.monotonic() - t0 < 10, "the race still runs after its cancel"
+        time.sleep(0.1)
+    task = c.get("/api/tasks/race").json()
+    assert task["status"] == "cancelled" and not task["cancellable"]
+    done = int(task["message"].split(" after ")[1].split(" of ")[0])
+    assert task["message"].startswith(f"race cancelled after {done} of 32 models") and done < 32
+    assert task["message"].endswith("no leaderboard was written" if done else "nothing was written")
+    assert len(evaluation_dirs(w.root / "m")) == done  # whole evaluations only: the one on the track wrote nothing
+    assert c.get("/api/races").json()["races"] == []
+    r = c.post("/api/tasks/race/cancel")
+    assert r.status_code == 409 and "not running (cancelled)" in r.json()["error"]
+    assert c.post("/api/tasks/nothing/cancel").status_code == 404
+
+
+def test_a_task_that_cannot_stop_says_so(console):
+    import threading
+
+    gate = threading.Event()
+    w = console.app.state.workspace
+    w.run_task("report", "report:x", lambda: gate.wait(30) and {})
+    try:
+        r = console.client.post("/api/tasks/report:x/cancel")
+        assert r.status_code == 409
+        assert r.json()["error"] == "report:x: a report cannot be cancelled; wait for it to end"
+    finally:
+        gate.set()
 
 
 # ---- 10: symbolic links -----------------------------------------------------------------------------------------

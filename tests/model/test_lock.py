@@ -31,13 +31,25 @@ def _race(path, start, done, results):
     lock.release()
 
 
+def _dead_pid() -> int:
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    return gone.pid
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="fork start method")
-def test_racers_released_at_the_same_instant_never_both_take_the_lock(tmp_path):
+@pytest.mark.parametrize("stale", [False, True], ids=["no-lock", "stale-lock"])
+def test_racers_released_at_the_same_instant_never_both_take_the_lock(tmp_path, stale):
+    """With a stale lock in the folder (its trainer killed) every racer sees it stale: on e958da9 each removed the
+    file and created its own, the later removing the earlier's, and two took the lock (302 of 600 in issue 28)."""
     ctx = mp.get_context("fork")
     wins = []
+    dead = _dead_pid()
     for n in range(ROUNDS):
         folder = tmp_path / f"m{n}"
         folder.mkdir()
+        if stale:
+            (folder / "training.lock").write_text(f"{dead}\n")
         start, done, results = ctx.Event(), ctx.Event(), ctx.Queue()
         procs = [ctx.Process(target=_race, args=(folder, start, done, results)) for _ in range(RACERS)]
         for p in procs:

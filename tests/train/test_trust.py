@@ -67,6 +67,7 @@ def test_a_stale_lock_is_taken_over_and_released(model):
 # ---- validation ----------------------------------------------------------------------------------------------
 @pytest.mark.parametrize(("flags", "expected"), [
     ({"minutes": -3}, "--minutes must be a number >= 0 (0 = no limit), got -3"),
+    ({"minutes": float("inf")}, "--minutes must be a number >= 0 (0 = no limit), got inf"),  # issue 28, case 13
     ({"num_cars": 0}, "--cars must be at least 1, got 0"),
     ({"iterations": -1}, "--iterations must be a number >= 0 (0 = no limit), got -1"),
 ])
@@ -191,6 +192,80 @@ def test_a_learning_rate_of_10_is_caught_and_named(model):
     # the advice names the file's rate and one below it, not a rate the rollbacks already went under
     assert "(halved to 2.5 by rollbacks)" in msg and "try 0.0003 or lower" in msg
     assert model.resolve_checkpoint("last").iteration == 0  # nothing collapsed reached a checkpoint
+
+
+def _continuous(tmp_path) -> ModelFolder:
+    return init_model(tmp_path / "cont", track=str(aws_track_path("reInvent2019_track")), max_speed=2.0,
+                      action_space="continuous")
+
+
+def test_a_learning_rate_of_10_on_continuous_actions_stops_with_the_file_and_a_rate_to_try(tmp_path):
+    """e958da9 rolled back twice and then trained on for ever with the policy's log-std stuck past its clamp
+    (entropy 8.84 in every later iteration, the actions pure noise)."""
+    model = _continuous(tmp_path)
+    _small(model, lr=10)
+    with pytest.raises(TrainingDiverged) as err:
+        train(model.path, iterations=6, **SMALL)
+    msg = str(err.value)
+    assert "\n" not in msg and f"lr 10 in {model.hyperparameters_path}" in msg and "try 0.0003 or lower" in msg
+    assert model.resolve_checkpoint("last").iteration == 0  # no collapsed policy was saved
+
+
+def test_a_continuous_spread_pushed_past_its_clamp_is_a_collapse_whatever_the_evaluation(tmp_path):
+    """Past the clamp the log-std has no gradient, so it never comes back: rolled back even while the evaluation
+    holds steady (the approx-KL check waits for a falling one)."""
+    from types import SimpleNamespace
+
+    from racerlab.train.loop import Trainer
+
+    t = Trainer(_continuous(tmp_path).path, progress=False, num_cars=2)
+    calm = {"losses/approx_kl": 0.01, "losses/value": 0.5, "losses/entropy": 8.84}
+    steady = [SimpleNamespace(progress=42.0)] * 3
+    t.health.last_eval = 42.0
+    assert t.health.collapse(calm, steady, np.ones(4)) is None  # log-std 0: a fresh policy
+    with torch.no_grad():
+        t.agent.policy_net.log_std[1] = 3.4
+    what, cause = t.health.collapse(calm, steady, np.ones(4))
+    assert "log-std reached 3.4, past its limit of 3" in what
+    assert f"lr 0.0003 in {t.hp.source}" in cause
+    with torch.no_grad():
+        t.agent.policy_net.log_std[:] = torch.tensor([-1.0, -20.5])
+    assert "log-std fell to -20.5" in t.health.collapse(calm, steady, np.ones(4))[0]
+
+
+def test_a_discrete_policy_certain_of_one_action_short_of_a_lap_is_a_collapse(model):
+    """Issue 28, case 13: lr 10 "rolls back once and then sits at entropy 0.000": a saturated softmax has no
+    gradient left, and a deterministic policy crashes at the same place each time, so its evaluation never falls."""
+    from types import SimpleNamespace
+
+    from racerlab.train.loop import Trainer
+
+    t = Trainer(model.path, progress=False, num_cars=2)
+    sure = {"losses/approx_kl": 0.01, "losses/value": 0.5, "losses/entropy": 2e-4}
+    t.health.last_eval = 12.5
+    what, cause = t.health.collapse(sure, [SimpleNamespace(progress=12.5)] * 3, np.ones(4))
+    assert what.startswith("entropy 0.0002: one action certain in every state") and "12.5 %" in what
+    assert f"lr 0.0003 in {model.hyperparameters_path}" in cause
+    assert t.health.collapse(sure, [SimpleNamespace(progress=100.0)] * 3, np.ones(4)) is None  # it laps: fine
+    assert t.health.collapse({**sure, "losses/entropy": 0.3}, [SimpleNamespace(progress=12.5)] * 3, np.ones(4)) is None
+
+
+def test_a_rolled_back_evaluation_is_not_the_yardstick_for_the_next(model):
+    """After a rollback the next collapse often crashes where the last one did; judged against that rolled-back
+    evaluation it was "not falling" and the run sat in it. The yardstick is the last committed evaluation."""
+    from types import SimpleNamespace
+
+    from racerlab.train.loop import Trainer
+
+    t = Trainer(model.path, progress=False, num_cars=2)
+    far = {"losses/approx_kl": 40.0, "losses/value": 0.5, "losses/entropy": 1.5}
+    t.health.last_eval = 50.0
+    crash = [SimpleNamespace(progress=20.0)] * 3
+    assert t.health.collapse(far, crash, np.ones(4)) is not None
+    assert t.health.collapse(far, crash, np.ones(4)) is not None  # the same crash again: still worse than 50 %
+    assert t.health.last_eval == 50.0
+    assert t.health.collapse({**far, "losses/approx_kl": 0.02}, crash, np.ones(4)) is None
+    assert t.health.last_eval == 20.0  # a sound iteration, committed: the new yardstick
 
 
 # ---- watchdogs -----------------------------------------------------------------------------------------------

@@ -215,8 +215,12 @@ def run_race(args) -> int:
 
     require_models(*args.models)
     from racerlab.evaluate import head_to_model, race
+    from racerlab.evaluate.race import stopped_text
+
+    finished = []
 
     def done(res):
+        finished.append(res.model)
         print(f"{res.model}: {res.text}", file=sys.stderr, flush=True)
 
     common = dict(track=args.track, rules=_rules(args), checkpoint=args.checkpoint, ranking_laps=args.ranking_laps,
@@ -226,9 +230,14 @@ def run_race(args) -> int:
             raise RacerlabError(f"race --head-to-model races two models, got {len(args.models)}; name two folders")
         if race_overrides(args):
             raise RacerlabError("race --head-to-model puts only the two cars on the track; drop the [race] flags")
-        board = head_to_model(*args.models, **common)
-    else:
-        board = race(args.models, race=race_overrides(args) or None, **common)
+    try:
+        if args.head_to_model:
+            board = head_to_model(*args.models, **common)
+        else:
+            board = race(args.models, race=race_overrides(args) or None, **common)
+    except KeyboardInterrupt:  # Ctrl-C: one line saying what stays, exit status 130 as for any interrupted command
+        print(f"racerlab: {stopped_text('interrupted', finished, len(args.models))}", file=sys.stderr)
+        return 130
     r = board.rules
     how = "head to model, " if args.head_to_model else ""
     from racerlab.evaluate.results import trials_text

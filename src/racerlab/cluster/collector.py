@@ -26,6 +26,7 @@ WORKER_START_S = 600.0  # workers build their worlds (and compile) before they a
 WORKER_TIMEOUT_S = 1800.0  # one iteration's collection on a worker, at most
 STRAGGLER_FACTOR = 3.0  # once a worker has answered, the others get this many times its time...
 STRAGGLER_MIN_S = 60.0  # ...plus this
+READY_GET_S = 60.0  # fetching a finished call's result (its arrays from the object store), at most
 
 
 def split_episodes(target: int, workers: int) -> list[int]:
@@ -87,7 +88,7 @@ class RayCollector:
             raise RacerlabError(f"{self.model_dir}: the {workers} rollout workers did not start within "
                                 f"{WORKER_START_S:g} s; check `ray status` (free CPUs) and start again") from None
         except self.ray.exceptions.RayTaskError as exc:
-            raise _remote_error(exc, self.model_dir) from None
+            raise remote_error(exc, self.model_dir) from None
         self.episodes = [0] * workers  # each worker counts its own episodes from 0, as the simulator does
         self.report = WorkerReport()
         self.starts: list[list[int]] = [[] for _ in range(workers)]
@@ -125,13 +126,14 @@ class RayCollector:
                 self._revive(k)
                 continue
             try:
-                ro, starts = self.ray.get(fut)
-            except (self.ray.exceptions.RayActorError, self.ray.exceptions.WorkerCrashedError) as exc:
+                ro, starts = self.ray.get(fut, timeout=READY_GET_S)  # _wait saw it finish: the result is there
+            except (self.ray.exceptions.RayActorError, self.ray.exceptions.WorkerCrashedError,
+                    self.ray.exceptions.GetTimeoutError) as exc:
                 report.failed[k] = type(exc).__name__
                 self._revive(k)
                 continue
             except self.ray.exceptions.RayTaskError as exc:
-                raise _remote_error(exc, f"{self.model_dir}: worker {k}") from None
+                raise remote_error(exc, f"{self.model_dir}: worker {k}") from None
             report.finished.append(k)
             report.rollout_bytes[k] = array_bytes(ro)
             self.starts[k] = starts
@@ -177,7 +179,7 @@ class RayCollector:
         self.actors = []
 
 
-def _remote_error(exc, where) -> RacerlabError:
+def remote_error(exc, where) -> RacerlabError:
     """One line for an exception raised inside a worker (Ray's own message carries the remote traceback)."""
     cause = getattr(exc, "cause", None) or exc
     if isinstance(cause, RacerlabError) and not isinstance(cause, type(exc)):

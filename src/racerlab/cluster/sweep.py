@@ -18,23 +18,32 @@ SPEC.toml (paths relative to the file)::
     action_space = "continuous"   # or "discrete"; also sensor, algorithm, max_speed
     reward = "rewards/centre.py"  # optional reward_function.py
     hyperparameters = { lr = 0.001, num_epochs = 3 }
+
+No wait on the cluster is unbounded: a training that shows no progress in its model folder (its lock, a
+checkpoint, a metrics line) for `stall_s` (TRAINING_STALL_S) is given up (a stopped or hung worker) and left out
+of the race, as the collector gives up a worker; an error inside a training is its one line, not Ray's traceback.
 """
 
 from __future__ import annotations
 
 import json
+import time
 import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
-from racerlab.cluster.collector import connect
+from racerlab.cluster.collector import READY_GET_S, WORKER_START_S, WORKER_TIMEOUT_S, connect, remote_error
 from racerlab.errors import RacerlabError
 from racerlab.evaluate import Leaderboard, RaceRules, race
-from racerlab.model import init_model
+from racerlab.logs import metrics_jsonl_path
+from racerlab.model import ModelFolder, init_model
 
 _INIT_KEYS = ("sensor", "action_space", "algorithm", "max_speed")
+# a training shows progress at least once per iteration (a checkpoint, a metrics line); its first iteration builds
+# the worlds (the collector's WORKER_START_S) and collects (WORKER_TIMEOUT_S at most)
+TRAINING_STALL_S = WORKER_START_S + WORKER_TIMEOUT_S
 _MODEL_KEYS = {"name", "reward", "hyperparameters", *_INIT_KEYS}
 
 
@@ -111,25 +120,117 @@ def _train_one(model_dir: str, iterations: int) -> dict:
             "wall_seconds": round(r.wall_seconds, 2), "best_checkpoint": r.best_checkpoint}
 
 
-def run_sweep(spec_path, address: str | None = None) -> SweepBoard:
+def run_sweep(spec_path, address: str | None = None, *, stall_s: float = TRAINING_STALL_S,
+              start_s: float = TRAINING_STALL_S, note=print, tick_s: float = 2.0) -> SweepBoard:
+    """Train the spec's models in parallel on Ray and race them. A training with no progress for `stall_s` after
+    it started, or not started while no training moved for `start_s`, is given up and left out of the race
+    (`note` says so; its entry in `trained` says why)."""
     spec_path = Path(spec_path)
     spec = load_spec(spec_path)
     out = (spec_path.parent / spec.get("out", spec_path.stem)).resolve()
     track = spec.get("track")
     cars = int(spec.get("cars", 4))
     dirs = [prepare_model(spec_path, out, m, track, cars) for m in spec["model"]]
+    names = [m["name"] for m in spec["model"]]
     ray = connect(address)
     task = ray.remote(num_cpus=1, max_retries=1)(_train_one)
-    trained = dict(zip([m["name"] for m in spec["model"]],
-                       ray.get([task.remote(str(d), int(spec.get("iterations", 2))) for d in dirs]), strict=True))
+    watch = _Watch(ray, spec_path, names, dirs, (stall_s, start_s), note)
+    trained = watch.run([task.remote(str(d), int(spec.get("iterations", 2))) for d in dirs], tick_s)
+    raced = [d for d, n in zip(dirs, names, strict=True) if "failed" not in trained[n]]
+    if not raced:
+        raise RacerlabError(f"{spec_path}: no training finished; model {names[0]!r}: {trained[names[0]]['failed']}; "
+                            "check `ray status` and the workers' logs under the Ray session folder, then run the "
+                            "sweep again")
     rules = RaceRules(**spec.get("race", {}))
-    board = race(dirs, track=track, rules=rules, out=out / "leaderboard.json")
+    board = race(raced, track=track, rules=rules, out=out / "leaderboard.json")
     data = json.loads(board.path.read_text())
     for row in data["leaderboard"]:
         row["training"] = trained.get(row["model"])
+    data["left_out"] = {n: t["failed"] for n, t in trained.items() if "failed" in t}
     board.path.write_text(json.dumps(data, indent=2) + "\n")
     png = draw_leaderboard(board, out / "leaderboard.png")
     return SweepBoard(board, board.path, png, trained)
+
+
+class _Watch:
+    """Waits for the sweep's training tasks, never unboundedly: a training is judged by its model folder (the
+    lock it takes when it starts, then a checkpoint or a metrics line each iteration). One that started and shows
+    nothing new for `stall_s`, or one not started while no training at all has moved for `start_s` (no free CPU;
+    starting a worker, its imports and worlds, takes a while), is cancelled (its worker killed) and recorded as
+    failed."""
+
+    def __init__(self, ray, spec_path: Path, names: list[str], dirs: list[Path], limits: tuple[float, float], note):
+        self.ray, self.spec_path, self.names, self.dirs = ray, spec_path, names, dirs
+        (self.stall_s, self.start_s), self.note = limits, note
+        self.marks = [_progress(d) for d in dirs]  # as the folder was before its training began
+        self.lock_before = [m[0] for m in self.marks]  # a stale lock left by an earlier run is not a start
+        self.started = [False] * len(dirs)
+
+    def run(self, refs: list, tick_s: float) -> dict:
+        index = {ref: k for k, ref in enumerate(refs)}
+        trained: dict[str, dict] = {}
+        now = time.monotonic()
+        seen, latest = [now] * len(refs), now
+        pending = list(refs)
+        while pending:
+            done, pending = self.ray.wait(pending, num_returns=1, timeout=tick_s)
+            now = time.monotonic()
+            for ref in done:
+                trained[self.names[index[ref]]] = self._result(ref, index[ref])
+                latest = now
+            for ref in pending:
+                k = index[ref]
+                mark = _progress(self.dirs[k])
+                if mark != self.marks[k]:
+                    self.marks[k], seen[k], latest = mark, now, now
+                    self.started[k] = self.started[k] or mark[0] != self.lock_before[k]
+            stalled = [ref for ref in pending if (now - seen[index[ref]] > self.stall_s if self.started[index[ref]]
+                                                  else now - latest > self.start_s)]
+            for ref in stalled:
+                trained[self.names[index[ref]]] = self._give_up(ref, index[ref])
+                pending.remove(ref)
+        return {n: trained[n] for n in self.names}
+
+    def _result(self, ref, k: int) -> dict:
+        where = f"{self.spec_path}: model {self.names[k]!r}"
+        try:
+            return self.ray.get(ref, timeout=READY_GET_S)  # finished: its result is already there
+        except self.ray.exceptions.RayTaskError as exc:
+            raise remote_error(exc, where) from None
+        except (self.ray.exceptions.RayActorError, self.ray.exceptions.WorkerCrashedError,
+                self.ray.exceptions.GetTimeoutError) as exc:
+            return self._failed(k, f"its worker died ({type(exc).__name__})")
+
+    def _give_up(self, ref, k: int) -> dict:
+        self.ray.cancel(ref, force=True)  # kills the worker, stopped (SIGSTOP) or hung; its lock goes stale
+        if self.started[k]:
+            return self._failed(k, f"its training made no progress for {self.stall_s:.0f} s after it started (a "
+                                   "stopped or hung Ray worker)")
+        return self._failed(k, f"its training did not start within {self.start_s:.0f} s (no free CPU on the "
+                               "cluster, or a worker that cannot start)")
+
+    def _failed(self, k: int, why: str) -> dict:
+        self.note(f"{self.spec_path}: model {self.names[k]!r}: {why}; it is left out of the race, its folder keeps "
+                  "the iterations it finished (resume it with racerlab train)")
+        return {"failed": why}
+
+
+def _progress(path: Path) -> tuple:
+    """What changes in a model folder as its training goes: the lock's content (the trainer's PID), then the
+    checkpoints folder and metrics.jsonl with each iteration."""
+    folder = ModelFolder(path)
+    try:
+        lock = folder.lock_path.read_text()
+    except OSError:
+        lock = None
+    return lock, _mtime(folder.checkpoints_dir), _mtime(metrics_jsonl_path(path))
+
+
+def _mtime(path: Path) -> int | None:
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:
+        return None
 
 
 def draw_leaderboard(board: Leaderboard, path: Path) -> Path:

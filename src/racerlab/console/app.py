@@ -8,7 +8,6 @@ name inside the workspace. Routes for runs (evaluation, races, reports, racing l
 
 from __future__ import annotations
 
-import math
 from importlib import resources
 from pathlib import Path
 from typing import Annotated
@@ -18,7 +17,15 @@ from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Resp
 from fastapi.staticfiles import StaticFiles
 
 from racerlab.console import live
-from racerlab.console.security import COOKIE, CSRF_HEADER, MAX_UPLOAD_BYTES, ConsoleError, Guard, check_name
+from racerlab.console.security import (
+    COOKIE,
+    CSRF_HEADER,
+    MAX_UPLOAD_BYTES,
+    ConsoleError,
+    Guard,
+    check_name,
+    number,
+)
 from racerlab.console.texts import HYPERPARAMETER_HELP
 from racerlab.console.workspace import Workspace
 from racerlab.errors import RacerlabError
@@ -161,7 +168,8 @@ def _model_routes(app: FastAPI) -> None:
 
     @app.post("/api/models/{name}/train")
     def train(request: Request, name: str, body: Annotated[dict | None, Body()] = None):
-        limits = {k: _positive(body or {}, k) for k in ("minutes", "episodes", "iterations")}
+        body = body or {}
+        limits = {k: number(body, k, integer=k != "minutes", above=0) for k in ("minutes", "episodes", "iterations")}
         pid = ws(request).start_training(name, **limits)
         return {"pid": pid, "state": "training"}
 
@@ -174,19 +182,6 @@ def _model_routes(app: FastAPI) -> None:
     @app.get("/api/models/{name}/log")
     def log(request: Request, name: str):
         return {"log": ws(request).log_tail(name, 200)}
-
-
-def _positive(body: dict, key: str):
-    value = body.get(key)
-    if value in (None, ""):
-        return None
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise ConsoleError(f"{key} must be a number, got {value!r}") from None
-    if not 0 < x < math.inf:
-        raise ConsoleError(f"{key} must be a finite number > 0, got {value!r}")
-    return x if key == "minutes" else int(x)
 
 
 def _read_text(path: Path) -> str | None:

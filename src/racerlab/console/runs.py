@@ -8,6 +8,7 @@ import base64
 import io
 import json
 import re
+import threading
 import time
 from pathlib import Path
 from typing import Annotated
@@ -87,6 +88,10 @@ def register(app: FastAPI) -> None:
             raise ConsoleError(f"no task {key!r}", 404)
         return t.to_json()
 
+    @app.post("/api/tasks/{key}/cancel")
+    def cancel_task(request: Request, key: str):
+        return ws(request).cancel_task(key).to_json()
+
 
 # ---- evaluations ----------------------------------------------------------------------------------------
 
@@ -163,12 +168,13 @@ def _race_routes(app: FastAPI) -> None:
         folders = [w.folder(check_name(n)).path for n in names]
         rules, track = _rules(body), _track_arg(body)
         out = _races_dir(request) / f"race-{time.strftime('%Y%m%d%H%M%S')}.json"
+        cancel = threading.Event()
 
         def job():
-            board = race(folders, track=track, rules=rules, out=out, progress=False)
+            board = race(folders, track=track, rules=rules, out=out, progress=False, cancel=cancel)
             return {"race": out.name, "table": board.table()}
 
-        return w.run_task("race", "race", job).to_json()
+        return w.run_task("race", "race", job, cancel=cancel).to_json()
 
     @app.get("/api/races")
     def races(request: Request):

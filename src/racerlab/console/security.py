@@ -61,28 +61,33 @@ def check_name(name: str, what: str = "model name") -> str:
 
 
 def number(body: dict, key: str, default=None, *, integer: bool = False, low: float | None = None,
-           high: float | None = None):
-    """`body[key]` as a finite number (an int when `integer`) within [low, high]; `default` when absent or empty.
-    Numbers may come as JSON numbers or strings ("0.5"); anything else is one line naming the field."""
+           high: float | None = None, above: float | None = None):
+    """`body[key]` as a finite number (an int when `integer`) within [low, high] and over `above`; `default` when
+    absent or empty. Numbers may come as JSON numbers or strings ("0.5"); anything else, a fraction where a whole
+    number is asked for included, is one line naming the field (never rounded: 2.5 episodes is a mistake)."""
     value = body.get(key)
     if value is None or value == "":
         return default
-    span = f" in [{low:g}, {high:g}]" if low is not None and high is not None else (
-        f" >= {low:g}" if low is not None else f" <= {high:g}" if high is not None else "")
-    what = f"{key} must be a finite {'whole ' if integer else ''}number{span}, got {value!r}"
+    what = f"{key} must be a finite {'whole ' if integer else ''}number{_span(low, high, above)}, got {value!r}"
     if isinstance(value, bool) or not isinstance(value, int | float | str):
         raise ConsoleError(what)
     try:
         x = float(value)
     except (ValueError, OverflowError):
         raise ConsoleError(what) from None
-    if not math.isfinite(x) or (low is not None and x < low) or (high is not None and x > high):
+    if (not math.isfinite(x) or (low is not None and x < low) or (high is not None and x > high)
+            or (above is not None and x <= above) or (integer and x != int(x))):
         raise ConsoleError(what)
-    if integer:
-        if x != int(x):
-            raise ConsoleError(what)
-        return int(x)
-    return x
+    return int(x) if integer else x
+
+
+def _span(low: float | None, high: float | None, above: float | None) -> str:
+    """The allowed range as the error says it: " in [1, 100]", " >= 0", " > 0", " <= 1"."""
+    if low is not None and high is not None:
+        return f" in [{low:g}, {high:g}]"
+    parts = [f">= {low:g}" if low is not None else "", f"> {above:g}" if above is not None else "",
+             f"<= {high:g}" if high is not None else ""]
+    return "".join(f" {p}" for p in parts if p)
 
 
 def flag(body: dict, key: str, default: bool) -> bool:

@@ -62,15 +62,18 @@ class Task:
 
     kind: str
     key: str
-    status: str = "running"  # running | done | failed
+    status: str = "running"  # running | done | failed | cancelled
     message: str = ""
     result: dict = field(default_factory=dict)
     started: float = field(default_factory=time.time)
     finished: float | None = None
+    cancel: threading.Event | None = None  # set to stop the job (a race), for those that can stop
 
     def to_json(self) -> dict:
         return {"kind": self.kind, "key": self.key, "status": self.status, "message": self.message,
-                "result": self.result, "started": self.started, "finished": self.finished}
+                "result": self.result, "started": self.started, "finished": self.finished,
+                "cancellable": self.cancel is not None and self.status == "running",
+                "cancelling": self.cancel is not None and self.cancel.is_set() and self.status == "running"}
 
 
 class Workspace:
@@ -223,23 +226,37 @@ class Workspace:
         return "\n".join(text.splitlines()[-lines:])
 
     # ---- background tasks --------------------------------------------------------------------
-    def run_task(self, kind: str, key: str, fn) -> Task:
-        """Run `fn()` (returning a dict) in a thread; one task per key at a time."""
+    def run_task(self, kind: str, key: str, fn, cancel: threading.Event | None = None) -> Task:
+        """Run `fn()` (returning a dict) in a thread; one task per key at a time. `cancel` is the event `fn` watches
+        to stop early (`cancel_task` sets it); an error after it was set ends the task as "cancelled"."""
         with self._lock:
             old = self.tasks.get(key)
             if old and old.status == "running":
                 raise ConsoleError(f"{key}: already running", 409)
-            task = self.tasks[key] = Task(kind, key)
+            task = self.tasks[key] = Task(kind, key, cancel=cancel)
 
         def work():
             try:
                 task.result = fn() or {}
                 task.status = "done"
             except RacerlabError as exc:
-                task.status, task.message = "failed", str(exc)
+                stopped = cancel is not None and cancel.is_set()
+                task.status, task.message = "cancelled" if stopped else "failed", str(exc)
             except Exception as exc:  # noqa: BLE001 - shown in the page rather than lost in a thread
                 task.status, task.message = "failed", f"{type(exc).__name__}: {exc}"
             task.finished = time.time()
 
         threading.Thread(target=work, name=f"console-{key}", daemon=True).start()
+        return task
+
+    def cancel_task(self, key: str) -> Task:
+        """Ask the running task `key` to stop; it ends at its next check (a race: the end of a lap)."""
+        task = self.tasks.get(key)
+        if task is None:
+            raise ConsoleError(f"no task {key!r}", 404)
+        if task.status != "running":
+            raise ConsoleError(f"{key}: not running ({task.status})", 409)
+        if task.cancel is None:
+            raise ConsoleError(f"{key}: a {task.kind} cannot be cancelled; wait for it to end", 409)
+        task.cancel.set()
         return task

@@ -14,10 +14,10 @@ Parts: `rules` (RaceRules, where a car is put back), `runner` (driving one car u
 """
 
 from racerlab.evaluate.api import EvaluationResult, evaluate
-from racerlab.evaluate.race import Leaderboard, head_to_model, race
+from racerlab.evaluate.race import Leaderboard, RaceCancelled, head_to_model, race
 from racerlab.evaluate.results import Lap, RaceResult, race_result
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation, run_head_to_model
 
-__all__ = ["EvalRun", "EvaluationResult", "Lap", "Leaderboard", "RaceResult", "RaceRules", "evaluate",
+__all__ = ["EvalRun", "EvaluationResult", "Lap", "Leaderboard", "RaceCancelled", "RaceResult", "RaceRules", "evaluate",
            "head_to_model", "race", "race_result", "run_evaluation", "run_head_to_model"]

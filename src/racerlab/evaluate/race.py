@@ -3,6 +3,10 @@
 Each model gets its own evaluation folder (as `evaluate` writes it); the leaderboard ranks them
 by `results.rank_key`: the best average over `ranking_laps` consecutive completed laps, as
 DeepRacer on AWS ranks, then more completed laps, the best lap and progress for the rest.
+
+A race can be stopped (`cancel`, set from another thread: the console's Cancel button) at the end of any lap:
+the models already done keep their evaluation folders, the one on the track writes none, and no leaderboard is
+written (`RaceCancelled` says which were done).
 """
 
 from __future__ import annotations
@@ -18,6 +22,22 @@ from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, race_result, rank_ke
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
 from racerlab.model import resolve_track
+
+
+class RaceCancelled(RacerlabError):
+    """A race stopped on request before its last model; `done` are the finished models' results."""
+
+    def __init__(self, done: list[EvaluationResult], total: int):
+        self.done = done
+        super().__init__(stopped_text("cancelled", [r.model for r in done], total))
+
+
+def stopped_text(how: str, finished: list[str], total: int) -> str:
+    """What a race stopped early leaves: the finished models' evaluations, no leaderboard."""
+    if not finished:
+        return f"race {how} after 0 of {total} models: nothing was written"
+    return (f"race {how} after {len(finished)} of {total} models: the evaluations of {', '.join(finished)} are kept "
+            "in their model folders; no leaderboard was written")
 
 
 @dataclass
@@ -63,13 +83,14 @@ class Leaderboard:
 
 def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
          ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
-         on_result=None, device: str = "cpu", race=None, car=None) -> Leaderboard:
+         on_result=None, device: str = "cpu", race=None, car=None, cancel=None) -> Leaderboard:
     """Evaluate every model on `track` (default: the first model's training track) under `rules` and
     rank them; the leaderboard is written as JSON to `out` (default `race-<stamp>.json` in the first model's
     folder, never the current directory; `out=False` writes nothing). No model's reward_function.py is run.
     `on_result(result)` is called after each model. `race` is passed to each `evaluate` (a RaceConfig, or
     [race] keys over each model's own); `car` likewise (a simulator name, a [car] dict or a `CarParams`; default
-    each model's own [car])."""
+    each model's own [car]). `cancel` (a `threading.Event`) stops the race at the next lap's end with
+    `RaceCancelled`."""
     model_dirs = [Path(m) for m in model_dirs]
     if not model_dirs:
         raise RacerlabError("race needs at least one model folder")
@@ -77,9 +98,15 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
     if track is None:
         track = resolve_track(model_dirs[0])
     results = []
+
+    def lap_end(lap) -> None:
+        if cancel is not None and cancel.is_set():
+            raise RaceCancelled(results, len(model_dirs))
+
     for m in model_dirs:
+        lap_end(None)
         res = evaluate(m, track=track, rules=rules, checkpoint=checkpoint, ranking_laps=ranking_laps, video=video,
-                       progress=progress, device=device, race=race, car=car)
+                       progress=progress, device=device, race=race, car=car, on_lap=lap_end)
         results.append(res)
         if on_result:
             on_result(res)

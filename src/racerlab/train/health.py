@@ -11,12 +11,16 @@ import math
 
 import numpy as np
 
+from racerlab.agent.distributions import PPO_LOG_STD_MAX, PPO_LOG_STD_MIN
 from racerlab.errors import RacerlabError
 
 MAX_ROLLBACKS = 3
 VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
 MAX_SENSIBLE_REWARD = 1e3
 COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
+# nats; below this a discrete policy's softmax is saturated (gradients ~0): it cannot explore or learn again
+# (lr 10 sat at "entropy 0.000" in issue 28); a policy that laps like that is left alone
+PINNED_ENTROPY = 1e-3
 KL_LIMIT = 2.0  # nats; PPO at sane learning rates moves the policy ~0.01-0.05 per update
 AWS_DEFAULT_LR = 0.0003
 
@@ -52,9 +56,10 @@ class Health:
 
     def collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
         """(what happened, likely cause and fix) when the update collapsed the policy though every value is finite:
-        the value loss exploded (rewards far too large), one update moved the policy absurdly far (approx KL), or a
-        discrete policy's entropy fell to near zero while its evaluation progress fell (a learning rate far too
-        high)."""
+        the value loss exploded (rewards far too large), a continuous policy's spread was pushed onto its limit, one
+        update moved the policy absurdly far (approx KL), a discrete policy's entropy reached ~0 short of a lap, or
+        fell to near zero while its evaluation progress fell (a learning rate far too high). An iteration found
+        sound becomes the yardstick for the next one's evaluation."""
         v = metrics.get("losses/value")
         if v is not None and v > VALUE_LOSS_LIMIT:
             top = float(np.max(np.abs(rewards))) if np.size(rewards) else 0.0
@@ -65,8 +70,19 @@ class Health:
             return (f"value loss {v:.3g} (over {VALUE_LOSS_LIMIT:g}) with rewards up to {top:.3g}",
                     self.lr_advice())
         ev = float(np.mean([e.progress for e in evals])) if evals else None
-        prev, self.last_eval = self.last_eval, ev if ev is not None else self.last_eval
+        # judged against the last *committed* evaluation: a collapsed one that was rolled back must not become the
+        # yardstick, or the next collapse (same crash, same progress) is "not falling" and the run sits in it
+        prev = self.last_eval
         falling = ev is None or (ev < prev if prev is not None else ev < 10.0)
+        found = self._collapse(metrics, ev, falling)
+        if found is None and ev is not None:
+            self.last_eval = ev
+        return found
+
+    def _collapse(self, metrics, ev: float | None, falling: bool) -> tuple[str, str] | None:
+        pinned = self.pinned_spread()
+        if pinned:
+            return pinned, self.lr_advice()
         kl = metrics.get("losses/approx_kl")
         # a far move counts only where the evaluation got worse (or there is none): a converged continuous
         # policy (std ~0.05) shows rare spikes of the approx KL from a few samples its mean moved away from
@@ -74,10 +90,32 @@ class Health:
         if kl is not None and kl > KL_LIMIT and falling:
             return (f"the policy moved {kl:.3g} nats in one update (approx KL over {KL_LIMIT:g})", self.lr_advice())
         ent = metrics.get("losses/entropy")
-        if not self.discrete or ent is None or ev is None:
+        if not self.discrete or ent is None:
+            return None
+        if ent < PINNED_ENTROPY and (ev is None or ev < 100.0):
+            where = "with no evaluation" if ev is None else f"while evaluation progress is {ev:.1f} %"
+            return (f"entropy {ent:.3g}: one action certain in every state, so the policy cannot learn, {where}",
+                    self.lr_advice())
+        if ev is None:
             return None
         if ent < COLLAPSED_ENTROPY and falling:
             return (f"entropy {ent:.3g} (near zero) while evaluation progress fell to {ev:.1f} %", self.lr_advice())
+        return None
+
+    def pinned_spread(self) -> str | None:
+        """What is wrong when a continuous PPO policy's log-std parameter left the range its distribution clamps it
+        to: past the clamp its gradient is zero, so nothing brings it back and the policy drives pure noise (std
+        e^3 = 20 where actions span [-1, 1]) or none at all, whatever the evaluation says. lr 10 did this in its first
+        update on e958da9: the entropy then sat at the clamp's value (8.84 for two actions) and the run went on."""
+        log_std = getattr(getattr(self.agent, "policy_net", None), "log_std", None)
+        if self.discrete or log_std is None:
+            return None
+        values = log_std.detach().cpu().numpy()
+        low, high = float(values.min()), float(values.max())
+        if high >= PPO_LOG_STD_MAX:
+            return f"the policy's log-std reached {high:.3g}, past its limit of {PPO_LOG_STD_MAX:g} (actions are noise)"
+        if low <= PPO_LOG_STD_MIN:
+            return f"the policy's log-std fell to {low:.3g}, past its limit of {PPO_LOG_STD_MIN:g} (no exploration)"
         return None
 
     def lr_advice(self) -> str:

@@ -549,14 +549,22 @@ async function viewRaces() {
   const boxes = models.models.map(m => el("label", {}, el("input", { type: "checkbox", value: m.name, "data-race": "1" }), " " + m.name + "  "));
   const rules = rulesForm("race");
   const boards = el("div");
+  // a race runs until its last model's last lap; Cancel stops it at the end of the lap on the track
+  const cancel = el("button", { id: "race-cancel", text: "Cancel race", disabled: true, onclick: async () => {
+    if (await guarded(() => api("POST", "/api/tasks/race/cancel"))) { cancel.disabled = true; toast("cancelling…"); }
+  } });
   const go = el("button", { id: "race-start", text: "Start race", onclick: async () => {
     const chosen = [...main.querySelectorAll("input[data-race]:checked")].map(i => i.value);
     const t = await guarded(() => api("POST", "/api/races", { models: chosen, ...rules.values() }));
     if (!t) return;
-    go.disabled = true; toast("racing…");
-    pollTask(t.key, () => { go.disabled = false; refresh(); });
+    go.disabled = true; cancel.disabled = false; toast("racing…");
+    pollTask(t.key, done => {
+      go.disabled = false; cancel.disabled = true;
+      if (done.status === "cancelled") toast(done.message);
+      refresh();
+    });
   } });
-  main.append(el("h1", { text: "Races" }), el("div", { class: "card" }, el("p", {}, ...boxes), rules.grid, el("p", {}, go)), boards);
+  main.append(el("h1", { text: "Races" }), el("div", { class: "card" }, el("p", {}, ...boxes), rules.grid, el("p", {}, go, " ", cancel)), boards);
   async function refresh() {
     const d = await guarded(() => api("GET", "/api/races"));
     if (!d) return;
