@@ -369,3 +369,15 @@ def test_a_generalising_training_says_it_trains_on_generated_circuits(tmp_path, 
     out = " ".join(capsys.readouterr().out.split())
     assert "clipped_ppo on 8 generated circuits, redrawn every 5 iterations (evaluated on lab_oval), 8 cars" in out
     assert "stops after 1 iteration or Ctrl-C" in out  # not "1 iterations"
+
+
+def test_a_wrapped_line_keeps_each_number_with_its_unit():
+    from racerlab.cli.model import fit
+
+    # the quickstart's real closing line, which once ended a row with "100 ->" and put "%" alone on the next
+    text = ("what training changed, iteration 5 -> iteration 20 (the raced checkpoint): best evaluation lap "
+            "9.07 -> 8.73 s (0.33 s faster); evaluation progress 100 -> 100 %")
+    rows = fit(text).splitlines()
+    assert all(len(r) <= 80 for r in rows) and " ".join(" ".join(rows).split()) == text
+    assert rows[-1].strip() != "%" and not any(r.rstrip().endswith((" 100", " 8.73", " 0.33")) for r in rows)
+    assert fit("speed 2 m/s") == "speed 2 m/s" and "\u00a0" not in fit(text)

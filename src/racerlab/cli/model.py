@@ -164,10 +164,14 @@ CAMERA_MINUTES = 20  # what `init` and the note suggest for a camera model's fir
 
 
 def fit(text: str) -> str:
-    """80 columns, as the training's own lines (a long path or word stays whole)."""
+    """80 columns, as the training's own lines (a long path or word stays whole, and a unit stays on its number's
+    line: "100 %" and "8.53 s" are not split)."""
+    import re
     import textwrap
 
-    return textwrap.fill(text, 80, subsequent_indent="  ", break_on_hyphens=False, break_long_words=False)
+    glued = re.sub(r"(\d) (%|s\b|m/s\b)", "\\1\u00a0\\2", text)  # textwrap does not break at a no-break space
+    return textwrap.fill(glued, 80, subsequent_indent="  ", break_on_hyphens=False,
+                         break_long_words=False).replace("\u00a0", " ")
 
 
 def pixels_on_cpu(model, device: str | None) -> str:
