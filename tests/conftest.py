@@ -7,6 +7,8 @@ are skipped, not failed, when none is there.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -15,6 +17,19 @@ from racerlab.track import load_file
 
 REPO = Path(__file__).resolve().parents[1]
 AWS_TRACKS = Path(os.environ.get("RACERLAB_TEST_AWS_TRACKS") or REPO.parent / "shared" / "tracks")
+
+
+def lock_holder(folder) -> subprocess.Popen:
+    """Another process holding `folder`'s training lock, as `racerlab train` started in a terminal does; it imports
+    the racerlab under test and lets go when killed (or after 60 s)."""
+    import racerlab
+
+    code = ("import time\nfrom racerlab.model import ModelFolder\n"
+            f"ModelFolder({str(folder)!r}).lock().acquire()\nprint('held', flush=True)\ntime.sleep(60)\n")
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(os.path.abspath(racerlab.__file__)))}
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
 
 
 def aws_track_path(name: str) -> Path:

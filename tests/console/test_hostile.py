@@ -4,29 +4,14 @@ it, endless reward functions, bad numbers, symlinks."""
 from __future__ import annotations
 
 import io
-import os
 import shutil
-import subprocess
-import sys
 import tarfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-import racerlab
-
-SRC = os.path.dirname(os.path.dirname(racerlab.__file__))  # the racerlab under test, in the child too
-
-
-def _terminal_trainer(folder) -> subprocess.Popen:
-    """A process holding the folder's training lock, as `racerlab train` started in a terminal does."""
-    code = ("import time\nfrom racerlab.model import ModelFolder\n"
-            f"ModelFolder({str(folder)!r}).lock().acquire()\nprint('held', flush=True)\ntime.sleep(60)\n")
-    env = {**os.environ, "PYTHONPATH": os.path.abspath(SRC)}
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
-    assert proc.stdout.readline().strip() == "held"
-    return proc
+from tests.conftest import lock_holder
 
 
 def test_a_model_trained_from_a_terminal_shows_training_and_cannot_be_deleted(console):
@@ -34,7 +19,7 @@ def test_a_model_trained_from_a_terminal_shows_training_and_cannot_be_deleted(co
     assert c.post("/api/models", json={"name": "busy", "track": "lab_oval", "cars": 4}).status_code == 200
     folder = console.app.state.workspace.root / "busy"
     before = sorted(p.relative_to(folder) for p in folder.rglob("*"))
-    proc = _terminal_trainer(folder)
+    proc = lock_holder(folder)
     try:
         assert c.get("/api/models/busy").json()["state"] == "training"
         r = c.delete("/api/models/busy?confirm=busy")

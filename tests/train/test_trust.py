@@ -18,7 +18,7 @@ from racerlab.errors import ConfigError, RacerlabError, RewardFunctionError, Tra
 from racerlab.logs import read_metrics_jsonl
 from racerlab.model import ModelFolder, init_model, nonfinite_tensors
 from racerlab.train import TrainingDiverged, train
-from tests.conftest import aws_track_path
+from tests.conftest import aws_track_path, lock_holder
 
 FAST = dict(progress=False, num_cars=8)
 SRC = os.path.join(os.path.dirname(__file__), "..", "..", "src")
@@ -30,17 +30,8 @@ def model(tmp_path):
 
 
 # ---- the lock ------------------------------------------------------------------------------------------------
-def _holder(folder: ModelFolder) -> subprocess.Popen:
-    code = ("import sys, time\nfrom racerlab.model import ModelFolder\n"
-            f"ModelFolder({str(folder.path)!r}).lock().acquire()\nprint('held', flush=True)\ntime.sleep(60)\n")
-    env = {**os.environ, "PYTHONPATH": os.path.abspath(SRC)}
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
-    assert proc.stdout.readline().strip() == "held"
-    return proc
-
-
 def test_a_second_trainer_is_refused_with_the_first_ones_pid(model):
-    proc = _holder(model)
+    proc = lock_holder(model.path)
     try:
         with pytest.raises(RacerlabError) as err:
             train(model.path, iterations=1, **FAST)
