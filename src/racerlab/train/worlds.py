@@ -67,8 +67,8 @@ class WorldBuilder:
         run = self.cfg.run
         track = self.load_track(track) if isinstance(track, str) else track
         # the [car] table's simulator car; its steps jitter in training, not in the evaluation (a lucky draw of
-        # short steps would otherwise count as a faster lap), unless the table says
-        car = self.cfg.car if training else {"step_jitter": False, **self.cfg.car.table()}
+        # short steps would otherwise count as a faster lap), unless the table says (`CarSettings.params`)
+        car = self.cfg.car.params(self.metadata.version, training=training)
         return World(track, cars, self.metadata, self.reward, run.observation, start=start_rules(self.cfg.track),
                      max_episode_steps=run.max_episode_steps, reward_order=run.reward_order, seed=seed,
                      race=self.cfg.race, randomise=randomise, look=run.look, car=car)
