@@ -179,12 +179,13 @@ def pixels_on_cpu(model, device: str | None) -> str:
     from racerlab.model import ModelFolder
 
     folder = ModelFolder(model)
+    run = folder.config().run
     # training.toml's observation, else the camera of model_metadata.json (FRONT_FACING_CAMERA, STEREO_CAMERAS)
-    sees = (folder.config().run.observation or str(folder.metadata().camera or "")).lower()
+    sees = (run.observation or str(folder.metadata().camera or "")).lower()
     sensor = "stereo" if "stereo" in sees else "camera" if "camera" in sees else ""
     if not sensor:
         return ""
-    device = device or folder.config().run.device
+    device = device or run.device
     if device.startswith("cuda"):
         return ""
     if device == "auto":
