@@ -93,12 +93,14 @@ def training_story(model: Path, raced: str | None = None, race=None) -> list[str
     import statistics
 
     from racerlab.logs import BEST_LAP_NAME, best_eval_lap, metrics_jsonl_path, read_metrics_jsonl
+    from racerlab.model import CheckpointInfo
 
     rows = [r for r in read_metrics_jsonl(metrics_jsonl_path(model)) if r.get("eval/mean_progress") is not None]
     if not rows:
         return []
     early = next((r for r in rows if r["iteration"] >= EARLY_ITERATION), rows[0])
-    it = _iteration_of(raced)
+    info = CheckpointInfo.parse(raced) if raced else None  # <N>_Step-<S>.pt
+    it = info.iteration if info else None
     final = next((r for r in rows if r["iteration"] == it), None) if it is not None else None
     name = f"iteration {final['iteration']} (the raced checkpoint)" if final else \
         f"iteration {rows[-1]['iteration']} (the last evaluated)"
@@ -133,12 +135,6 @@ def training_story(model: Path, raced: str | None = None, race=None) -> list[str
             lines.append(f"see what a reward pays for on the laps already driven: `racerlab reward rescore {model} "
                          "--reward my_reward.py` (its table ranks the laps by lap time and by reward)")
     return lines
-
-
-def _iteration_of(checkpoint: str | None) -> int | None:
-    """The iteration of an AWS checkpoint name, `<N>_Step-<S>.pt`."""
-    head = (checkpoint or "").split("_Step-")[0]
-    return int(head) if head.isdigit() else None
 
 
 def _race_text(race, early: dict) -> str:
