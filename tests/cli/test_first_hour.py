@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from racerlab.cli import main
@@ -154,7 +155,7 @@ QUICKSTART_LAP_STEPS = [None] * 4 + [135, 143, 136, 135, 134, 136, 143, 136, 139
 QUICKSTART_PROGRESS = [13.4, 47.8, 42.7, 49.9, 90.6, 80.6, 100.0, 83.3] + [100.0] * 57
 
 
-def _race(folder, lap_times, top_share, top=2.0, steps=100):
+def _race(lap_times, top_share, top=2.0, steps=100):
     """An evaluation's laps and a simtrace whose commanded speed is `top` on `top_share` of the steps (a
     prepare row first, at 0 m/s, as the simulator writes it)."""
     from types import SimpleNamespace
@@ -164,11 +165,10 @@ def _race(folder, lap_times, top_share, top=2.0, steps=100):
     at_top = round(top_share * steps)
     rows = [("0.00", "prepare")] + [(f"{top:.2f}", "in_progress")] * at_top
     rows += [("1.00", "in_progress")] * (steps - at_top)
-    simtrace = folder / "race.csv"
-    simtrace.write_text("throttle,episode_status\n" + "".join(f"{v},{s}\n" for v, s in rows))
+    trace = {"throttle": np.array([float(v) for v, _ in rows]), "episode_status": np.array([s for _, s in rows])}
     ends = [sum(lap_times[:k + 1]) for k in range(len(lap_times))]
     laps = [Lap(k + 1, "lap_complete", ends[k] - t, ends[k], 100.0) for k, t in enumerate(lap_times)]
-    return SimpleNamespace(laps=laps, files={"simtrace": simtrace})
+    return SimpleNamespace(laps=laps, run=SimpleNamespace(trace=trace))
 
 
 def _quickstart_model(tmp_path, train_laps):
@@ -186,7 +186,7 @@ def test_the_quickstart_compares_iteration_5_with_the_raced_checkpoint_and_names
 
     rewards = [295, 306, 240, 276, 293, 297, 286, 298, 280, 283, 277, 258, 261, 279, 264, 291, 291, 298, 270, 291]
     model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, r) for k, r in enumerate(rewards)])
-    race = _race(tmp_path, [8.8, 8.667, 8.6], top_share=1.0)
+    race = _race([8.8, 8.667, 8.6], top_share=1.0)
     lines = training_story(model, "24_Step-81110.pt", race)
     # iteration 5: 135 steps = 9.00 s, 90.6 %; iteration 24: 128 steps = 8.53 s, 100 %
     assert lines[0] == ("what training changed, iteration 5 -> iteration 24 (the raced checkpoint): best evaluation "
@@ -208,7 +208,7 @@ def test_a_race_below_the_top_speed_blames_the_reward_not_the_action_space(tmp_p
     from racerlab.cli.quickstart import training_story
 
     model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, 100 + 10 * k) for k in range(20)])
-    lines = training_story(model, "24_Step-81110.pt", _race(tmp_path, [9.4], top_share=0.6))
+    lines = training_story(model, "24_Step-81110.pt", _race([9.4], top_share=0.6))
     assert lines[1] == ("the race above: 1 lap, 9.40 s on average, 0.40 s slower than iteration 5's best evaluation "
                         "lap (9.00 s)")
     assert not any("top speed" in line for line in lines)
@@ -220,7 +220,7 @@ def test_at_the_top_speed_a_reward_that_pays_for_speed_is_named_second(tmp_path)
     from racerlab.cli.quickstart import training_story
 
     model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, 300 - k) for k in range(20)])  # faster laps earned more
-    lines = training_story(model, "24_Step-81110.pt", _race(tmp_path, [8.6], top_share=0.95))
+    lines = training_story(model, "24_Step-81110.pt", _race([8.6], top_share=0.95))
     assert lines[3].startswith("Why: in the race above the car commanded its top speed, 2 m/s, on 95 % of its")
     assert lines[4].startswith("The reward: faster laps earned clearly more reward (rank correlation -1.00 between")
 

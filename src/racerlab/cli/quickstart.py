@@ -178,24 +178,23 @@ def _change(early: dict, final: dict) -> str:
 def _capped(model: Path, race) -> str:
     """Whether the race drove at the action space's top speed nearly all the way: then faster laps need faster
     actions, not more training (the quickstart's 2 m/s model does so within a minute of training)."""
-    import csv
+    import numpy as np
 
     from racerlab.errors import RacerlabError
     from racerlab.model import ModelFolder
     from racerlab.spec import MAX_SPEED
 
-    simtrace = getattr(race, "files", {}).get("simtrace")
+    trace = getattr(getattr(race, "run", None), "trace", None)  # the race's simtrace columns, as it drove them
     try:
         top = ModelFolder(model).metadata().actions.top_speed
     except (RacerlabError, OSError, ValueError, AttributeError):
         return ""
-    if not simtrace or not Path(simtrace).is_file():
+    if not trace:
         return ""
-    with open(simtrace, newline="") as f:
-        speeds = [float(r["throttle"]) for r in csv.DictReader(f) if r["episode_status"] != "prepare"]
-    if not speeds:
+    speeds = np.asarray(trace["throttle"], dtype=float)[np.asarray(trace["episode_status"]) != "prepare"]
+    if not speeds.size:
         return ""
-    share = sum(v >= top - 1e-6 for v in speeds) / len(speeds)
+    share = float(np.mean(speeds >= top - 1e-6))
     if share < AT_TOP_SPEED:
         return ""
     why = (f"Why: in the race above the car commanded its top speed, {top:g} m/s, on {100 * share:.0f} % of its "
