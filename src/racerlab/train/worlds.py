@@ -13,6 +13,7 @@ come from `run.seed * GENERATED_SEED_FACTOR + d`.
 from __future__ import annotations
 
 from racerlab.errors import ConfigError, TrackError
+from racerlab.model import as_model_metadata
 from racerlab.sim import StartRules, World
 from racerlab.track import load as load_track
 from racerlab.train.rollout import Collector, Rollout
@@ -68,7 +69,7 @@ class WorldBuilder:
         track = self.load_track(track) if isinstance(track, str) else track
         # the [car] table's simulator car; its steps jitter in training, not in the evaluation (a lucky draw of
         # short steps would otherwise count as a faster lap), unless the table says (`CarSettings.params`)
-        car = self.cfg.car.params(self.metadata.version, training=training)
+        car = self.cfg.car.params(as_model_metadata(self.metadata).version, training=training)
         return World(track, cars, self.metadata, self.reward, run.observation, start=start_rules(self.cfg.track),
                      max_episode_steps=run.max_episode_steps, reward_order=run.reward_order, seed=seed,
                      race=self.cfg.race, randomise=randomise, look=run.look, car=car)
