@@ -275,6 +275,12 @@ def build_networks(obs, metadata, mlp_hidden=None) -> tuple[nn.Module, ...]:
     return build_ppo_networks(obs, metadata, mlp_hidden or PPO_MLP_HIDDEN)
 
 
+def inference_networks(metadata) -> tuple[str, ...]:
+    """The networks a trained model is used through (exported, imported, raced), named as `build_networks` returns
+    them and as the agent's `state_dict()` keys their weights: policy and value for clipped_ppo, the actor for sac."""
+    return ("actor",) if metadata.training_algorithm == "sac" else ("policy", "value")
+
+
 def count_parameters(module: nn.Module) -> int:
     return sum(p.numel() for p in module.parameters())
 
