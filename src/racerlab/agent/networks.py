@@ -47,8 +47,6 @@ SHALLOW = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
 DEEP = "DEEP_CONVOLUTIONAL_NETWORK"
 DEEP_DEEP = "DEEP_CONVOLUTIONAL_NETWORK_DEEP"
 MLP = "MLP"
-IMAGE_INPUTS = ("camera", "stereo")
-
 # (convs as (filters, kernel, stride), per-position dense widths)
 _CAMERA_SCHEMES = {
     SHALLOW: (((32, 8, 4), (64, 4, 2), (64, 3, 1)), ()),
