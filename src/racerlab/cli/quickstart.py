@@ -86,9 +86,11 @@ def next_steps(model: Path) -> str:
     """What a newcomer runs next: look at the report, evaluate again, try a new reward."""
     import textwrap
 
+    from racerlab.analysis.report import REPORT_NAME
+
     m = str(model)
     lines = [
-        ("racerlab report " + m, f"then open {model / 'report.html'}: training, laps, track heatmaps"),
+        ("racerlab report " + m, f"then open {model / REPORT_NAME}: training, laps, track heatmaps"),
         (f"racerlab evaluate {m} --video", "race it again (3 laps) and write an MP4 of the laps"),
         (f"cp {model / 'reward_function.py'} my_reward.py", "a new reward: edit my_reward.py, then"),
         ("racerlab reward check my_reward.py --track " + _track_arg(model), "call it over the whole track"),
