@@ -243,10 +243,12 @@ def test_uploaded_log_archive_is_analysed(trained):
     assert trained.client.get("/api/uploads").json()["uploads"][0]["report"]
 
 
-@pytest.mark.parametrize("sensor, race, channels", [("stereo", "time_trial", 2), ("lidar", "object_avoidance", 1)])
+@pytest.mark.parametrize("sensor, race, channels", [("stereo", "time_trial", 2), ("lidar", "object_avoidance", 1),
+                                                     ("camera", "head_to_model", 1)])
 def test_the_live_frame_is_the_training_worlds_frame_at_the_logged_pose(tmp_path, sensor, race, channels):
     """The live view gets a model-point pose from the simtrace; what it shows there is what the model's training
-    world observes for a car standing at that pose: its stereo pair, its lidar, its race's boxes."""
+    world observes for a car standing at that pose: its stereo pair, its lidar, its race's boxes, a head-to-model
+    pair (whose world has two cars)."""
     import math
 
     import numpy as np

@@ -124,16 +124,18 @@ def newest_replay(model_dir: Path, current: Replay | None) -> Replay | None:
 
 
 class Sensors:
-    """What one car of a model sees at given poses: a one-car `World` built as the model's training builds its
-    worlds (`train.worlds.WorldBuilder`: the model's observation, look, stereo, lidar, race objects and car), so
-    the live view shows the frames the model trains on. No reward runs and nothing is randomised."""
+    """What one car of a model sees at given poses: a `World` (one car; a pair in a head-to-model race) built as the
+    model's training builds its worlds (`train.worlds.WorldBuilder`: the model's observation, look, stereo, lidar,
+    race objects and car), so the live view shows the frames the model trains on. No reward runs and nothing is
+    randomised."""
 
     def __init__(self, folder):
         from racerlab.sim.sensors.geometry import lidar_ray_angles
         from racerlab.train.worlds import EVAL_SEED, WorldBuilder
 
         cfg = folder.config()
-        self.world = WorldBuilder(cfg, folder.metadata(), None).world(cfg.track.names[0], 1, EVAL_SEED,
+        cars = 2 if cfg.race.head_to_model else 1  # a head-to-model world pairs its cars; car 0 is the one shown
+        self.world = WorldBuilder(cfg, folder.metadata(), None).world(cfg.track.names[0], cars, EVAL_SEED,
                                                                       training=False)
         self.world.sim.reset()
         self.ahead = MODEL_POINT_AHEAD_M
