@@ -310,3 +310,49 @@ def test_allowed_imports_pass(tmp_path):
                            "sim/core.py": "from racerlab.track import core\nfrom . import _private\n",
                            "sim/_private.py": ""})
     assert violations(src, read_table(TABLE)) == []
+
+
+BUILDERS = {"Simulator", "Camera", "Lidar", "CameraObservation", "LidarObservation", "CombinedObservation",
+            "build_observation", "make_observation", "place_cars", "ObjectSet"}
+MAY_BUILD = ("sim", "train/worlds.py")  # the simulator's own part, and the worlds of a run for anyone who trains
+
+
+def _called_names(path: Path) -> list[tuple[int, str]]:
+    """(line, name) of every call in a file to a bare name or an attribute (`Simulator(...)`, `core.Simulator(...)`)."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Call):
+            f = node.func
+            name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
+            if name:
+                out.append((node.lineno, name))
+    return out
+
+
+def builds_outside(src: Path) -> list[str]:
+    """Calls that build a simulator or a sensor outside `sim` and `train.worlds`."""
+    found = []
+    for path in sorted(src.rglob("*.py")):
+        rel = path.relative_to(src).as_posix()
+        if rel.startswith(MAY_BUILD[0] + "/") or rel == MAY_BUILD[1]:
+            continue
+        found += [f"{rel}:{line}: builds {name}" for line, name in _called_names(path) if name in BUILDERS]
+    return found
+
+
+def test_only_sim_and_train_worlds_build_simulators_and_sensors():
+    found = builds_outside(SRC)
+    assert not found, ("a part builds its own simulator or sensor; drive a sim.World built by train.worlds "
+                       "(WorldBuilder) instead:\n" + "\n".join(found))
+
+
+def test_the_consoles_live_frames_come_from_a_world():
+    calls = {name for _, name in _called_names(SRC / "console" / "live.py")}
+    assert "WorldBuilder" in calls and not calls & BUILDERS
+
+
+def test_a_part_that_builds_its_own_sensor_is_named(tmp_path):
+    src = _tree(tmp_path, {"__init__.py": "", "console/live.py": "from x import Camera\n\nc = Camera(sim)\n",
+                           "sim/core.py": "s = Simulator(t, 1)\n", "train/worlds.py": "s = Simulator(t, 1)\n",
+                           "train/loop.py": "import racerlab.sim.core as c\n\ns = c.Simulator(t, 1)\n"})
+    assert builds_outside(src) == ["console/live.py:3: builds Camera", "train/loop.py:3: builds Simulator"]

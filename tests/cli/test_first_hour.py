@@ -182,7 +182,7 @@ def _quickstart_model(tmp_path, train_laps):
 
 
 def test_the_quickstart_compares_iteration_5_with_the_raced_checkpoint_and_names_the_top_speed_cap(tmp_path):
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     rewards = [295, 306, 240, 276, 293, 297, 286, 298, 280, 283, 277, 258, 261, 279, 264, 291, 291, 298, 270, 291]
     model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, r) for k, r in enumerate(rewards)])
@@ -205,7 +205,7 @@ def test_the_quickstart_compares_iteration_5_with_the_raced_checkpoint_and_names
 
 
 def test_a_race_below_the_top_speed_blames_the_reward_not_the_action_space(tmp_path):
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, 100 + 10 * k) for k in range(20)])
     lines = training_story(model, "24_Step-81110.pt", _race([9.4], top_share=0.6))
@@ -217,7 +217,7 @@ def test_a_race_below_the_top_speed_blames_the_reward_not_the_action_space(tmp_p
 
 
 def test_at_the_top_speed_a_reward_that_pays_for_speed_is_named_second(tmp_path):
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     model = _quickstart_model(tmp_path, [(8.0 + 0.1 * k, 300 - k) for k in range(20)])  # faster laps earned more
     lines = training_story(model, "24_Step-81110.pt", _race([8.6], top_share=0.95))
@@ -226,7 +226,7 @@ def test_at_the_top_speed_a_reward_that_pays_for_speed_is_named_second(tmp_path)
 
 
 def test_the_quickstart_says_what_training_changed_and_why_an_early_best_stayed(tmp_path):
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     model = tmp_path / "qs"
     # the issue's run: 8.33 s at iteration 4, then 9.3 s laps to the end; slower laps earned more (a per-step reward)
@@ -247,7 +247,7 @@ def test_the_quickstart_says_what_training_changed_and_why_an_early_best_stayed(
 
 
 def test_a_weak_pay_for_speed_is_named_as_the_cause(tmp_path):
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     model = tmp_path / "qs"  # as the quickstart's own run: faster laps earned a little more (Spearman -0.17)
     rewards = [295, 306, 240, 276, 293, 297, 286, 298, 280, 283, 277, 258, 261, 279, 264, 291, 291, 298, 270, 291]
@@ -259,7 +259,7 @@ def test_a_weak_pay_for_speed_is_named_as_the_cause(tmp_path):
 
 
 def test_a_quickstart_that_kept_getting_faster_says_only_that(tmp_path):
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     model = tmp_path / "qs"
     _logged_training(model, [None, None, None, None, 9.0, 8.8, 8.5, 8.1], [(8.0 + 0.1 * k, 300 - k) for k in range(20)])
@@ -270,7 +270,7 @@ def test_a_quickstart_that_kept_getting_faster_says_only_that(tmp_path):
 def test_one_late_lucky_lap_does_not_hide_an_early_best(tmp_path):
     """The last evaluation's lap alone said "no early best" on this round's quickstart (8.47 s at iteration 65,
     within 2 % of 8.40 s): the later laps' median (8.80 s) is what decides."""
-    from racerlab.cli.quickstart import training_story
+    from racerlab.analysis.story import training_story
 
     model = _quickstart_model(tmp_path, [])
     assert QUICKSTART_LAP_STEPS[-1] / 15 < 1.02 * 126 / 15

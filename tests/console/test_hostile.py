@@ -188,6 +188,33 @@ def test_a_running_race_of_32_copies_is_cancelled_at_the_next_lap_end(console):
     assert c.post("/api/tasks/nothing/cancel").status_code == 404
 
 
+def test_a_head_to_model_race_is_cancelled_at_the_next_lap_end(console):
+    from racerlab.logs import evaluation_dirs
+    from racerlab.model import ModelFolder
+    from tests.evaluate.models import write_checkpoint
+
+    c = console.client
+    w = console.app.state.workspace
+    for name in ("a", "b"):
+        assert c.post("/api/models", json={"name": name, "track": "lab_oval", "cars": 4}).status_code == 200
+        write_checkpoint(ModelFolder(w.root / name))
+    r = c.post("/api/races", json={"models": ["a", "b", "a"], "head_to_model": True, "track": "lab_oval"})
+    assert r.status_code == 400 and r.json()["error"] == "models: 3 entries; a head-to-model race takes two"
+    r = c.post("/api/races", json={"models": ["a", "b"], "head_to_model": True, "trials": 50, "track": "lab_oval"})
+    assert r.status_code == 200 and r.json()["cancellable"], r.text
+    time.sleep(2.0)
+    t0 = time.monotonic()
+    assert c.post("/api/tasks/race/cancel").json()["cancelling"]
+    while c.get("/api/tasks/race").json()["status"] == "running":
+        assert time.monotonic() - t0 < 10, "the head-to-model race still runs after its cancel"
+        time.sleep(0.1)
+    task = c.get("/api/tasks/race").json()
+    assert task["status"] == "cancelled"
+    assert task["message"] == "race cancelled after 0 of 2 models: nothing was written"
+    assert evaluation_dirs(w.root / "a") == evaluation_dirs(w.root / "b") == []
+    assert c.get("/api/races").json()["races"] == []
+
+
 def test_a_task_that_cannot_stop_says_so(console):
     import threading
 

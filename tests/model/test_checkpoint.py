@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
+from racerlab.errors import RacerlabError
 from racerlab.model import ContinuousActions, DiscreteActions, TrainingState, make_metadata
 from racerlab.model.checkpoint import CheckpointInfo
 
@@ -38,3 +41,15 @@ def test_a_clone_keeps_weights_and_counters_and_starts_the_rest_afresh():
     assert clone.to_dict()["cloned"] is True and clone.info == CheckpointInfo("7_Step-8000.pt", 7, 8000)
     back = TrainingState.from_dict(state.to_dict(), "x.pt")
     assert back.collection == {"starts": [3]} and back.best_metric == 55.0 and math.isnan(back.best_lap_time)
+
+
+def test_a_checkpoint_of_another_format_is_one_line_naming_the_file():
+    data = TrainingState({"w": 1}, iteration=3, collection={"worker_episodes": [4, 5]}).to_dict()
+    assert data["format"] == "racerlab.checkpoint/1" and data["worker_episodes"] == [4, 5]
+    assert TrainingState.from_dict(data, "x.pt").collection == {"worker_episodes": [4, 5]}  # the collection's keys
+    for fmt in ("racerlab.checkpoint/2", None):
+        with pytest.raises(RacerlabError) as err:
+            TrainingState.from_dict({**data, "format": fmt}, "m/checkpoints/3_Step-10.pt")
+        msg = str(err.value)
+        assert msg.startswith(f"m/checkpoints/3_Step-10.pt: a checkpoint of format {fmt!r}, and this racerlab reads "
+                              "'racerlab.checkpoint/1'") and "\n" not in msg

@@ -19,6 +19,7 @@ from racerlab.sim import _object_kernels as OK
 from racerlab.sim.core import StartRules
 from racerlab.sim.objects import CAMERA_HFOV_RAD, CAMERA_PITCH_RAD, FEATURE_OBJECTS, OBSTACLE_Z_M, RaceConfig
 from racerlab.sim.sensors.geometry import camera_position
+from racerlab.sim.sensors.look import TrackLook
 from racerlab.spec import MODEL_POINT_AHEAD_M
 
 DT = 1 / 15
@@ -197,8 +198,9 @@ def test_params_columns_and_features_as_the_plain_computation(aws_track):
 
 
 def in_camera(bx, by, byaw, oxy, oyaw, half):
-    """The next object's centre or a footprint corner at box height inside the camera frustum (by hand)."""
-    cam_ahead, cam_z = camera_position()
+    """The next object's centre or a footprint corner at box height inside the camera frustum (by hand), the camera
+    at the height the AWS look renders it from (0.163 m), so the param agrees with the frame the model sees."""
+    cam_ahead, cam_z = camera_position()[0], TrackLook().camera_z
     cx, cy = bx + cam_ahead * math.cos(byaw), by + cam_ahead * math.sin(byaw)
     tan_h = math.tan(CAMERA_HFOV_RAD / 2)
     for du, dv in ((0, 0), (half[0], half[1]), (half[0], -half[1]), (-half[0], half[1]), (-half[0], -half[1])):

@@ -30,6 +30,7 @@ from racerlab.agent.networks import (
     build_ppo_networks,
     build_sac_networks,
     count_parameters,
+    inference_networks,
     observation_shapes,
     parameter_summary,
 )
@@ -54,6 +55,6 @@ def make_agent(obs, metadata, hyperparameters=None, **kwargs) -> PPO | SAC:
 __all__ = [
     "PPO", "PPOBatch", "SAC", "Categorical", "DiagGaussian", "ReplayBuffer", "TanhGaussian", "build_networks",
     "build_ppo_networks", "build_sac_networks", "compute_gae", "count_parameters", "episode_next_values",
-    "epsilon_greedy", "epsilon_schedule", "make_agent", "make_batch", "minibatch_size", "observation_shapes",
-    "parameter_summary", "ppo_losses", "resolve_device",
+    "epsilon_greedy", "epsilon_schedule", "inference_networks", "make_agent", "make_batch", "minibatch_size",
+    "observation_shapes", "parameter_summary", "ppo_losses", "resolve_device",
 ]

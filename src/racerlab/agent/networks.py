@@ -47,8 +47,6 @@ SHALLOW = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
 DEEP = "DEEP_CONVOLUTIONAL_NETWORK"
 DEEP_DEEP = "DEEP_CONVOLUTIONAL_NETWORK_DEEP"
 MLP = "MLP"
-IMAGE_INPUTS = ("camera", "stereo")
-
 # (convs as (filters, kernel, stride), per-position dense widths)
 _CAMERA_SCHEMES = {
     SHALLOW: (((32, 8, 4), (64, 4, 2), (64, 3, 1)), ()),
@@ -273,6 +271,12 @@ def build_networks(obs, metadata, mlp_hidden=None) -> tuple[nn.Module, ...]:
     if metadata.training_algorithm == "sac":
         return build_sac_networks(obs, metadata, mlp_hidden or MLP_HIDDEN)
     return build_ppo_networks(obs, metadata, mlp_hidden or PPO_MLP_HIDDEN)
+
+
+def inference_networks(metadata) -> tuple[str, ...]:
+    """The networks a trained model is used through (exported, imported, raced), named as `build_networks` returns
+    them and as the agent's `state_dict()` keys their weights: policy and value for clipped_ppo, the actor for sac."""
+    return ("actor",) if metadata.training_algorithm == "sac" else ("policy", "value")
 
 
 def count_parameters(module: nn.Module) -> int:

@@ -30,9 +30,6 @@ from racerlab.spec import STEP_S
 from racerlab.track import Track
 
 STATS = ("mean", "median", "min", "max", "sum", "std", "count")
-ROAD_ALPHA = 0.85
-
-
 def _figure(w: float, h: float):
     from matplotlib.figure import Figure
 

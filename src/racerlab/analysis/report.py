@@ -213,7 +213,7 @@ def write_report(path, out=None, track=None, *, kind: str = "auto", progress=Non
     if len(df) == 0:
         raise RacerlabError(f"{path}: the logs hold no steps to analyse")
     say(f"{len(df):,} steps read")
-    out = Path(out) if out else _default_out(path)
+    out = Path(out) if out else report_path(path)
     trk, track_note = log_track(path, df, track)
     doc = _Doc(f"racerlab report: {path.name or path}", say=say)
     toc = _build(doc, path, df, trk, track_note, out)
@@ -230,11 +230,16 @@ def count_iterations_from_one(eps: pd.DataFrame | None = None, its: pd.DataFrame
         its.index = its.index + 1
 
 
-def _default_out(path: Path) -> Path:
+REPORT_NAME = "report.html"  # a folder's report, as `racerlab report` and the console write it
+
+
+def report_path(path: Path) -> Path:
+    """Where the report of the logs at `path` goes unless told: `report.html` in a folder, `<name>-report.html`
+    beside a file (its archive or log suffix dropped). The CLI and the console both name reports this way."""
     if path.is_dir():
-        return path / "report.html"
+        return path / REPORT_NAME
     name = path.name
-    for suffix in (".tar.gz", ".tgz", ".gz", ".csv", ".log"):
+    for suffix in (".tar.gz", ".tgz", ".tar", ".gz", ".csv", ".log"):
         if name.endswith(suffix):
             name = name[: -len(suffix)]
             break

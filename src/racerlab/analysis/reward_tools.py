@@ -144,21 +144,6 @@ class CheckReport:
         counts, _ = np.histogram(r, edges)
         return pd.DataFrame({"from": edges[:-1], "to": edges[1:], "share": counts / r.size})
 
-    def by_factor(self) -> dict[str, pd.Series]:
-        """Mean reward of the sampled states binned by distance from centre, heading error and speed (each
-        averaged over everything else that varies)."""
-        f = self.frame.assign(reward=self.rewards)
-        bins = {
-            "distance from centre / half width": ("distance_ratio", [0, 0.25, 0.5, 0.75, 1.0, 1.5, np.inf]),
-            "heading error (°)": ("heading_error", [0, 10, 20, 45, 90, 180.001]),
-            "speed (m/s)": ("speed", [0.1, 1.0, 2.0, 3.0, 4.0001]),
-        }
-        out = {}
-        for name, (col, edges) in bins.items():
-            cut = pd.cut(f[col], edges, right=False)
-            out[name] = f.groupby(cut, observed=False)["reward"].mean()
-        return out
-
     def format(self) -> str:
         """The report as text for the terminal."""
         return "\n".join(_format_report(self))

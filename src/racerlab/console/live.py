@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from racerlab import logs
+from racerlab.spec import MODEL_POINT_AHEAD_M, STEPS_PER_SECOND
 
 POLL_S = 0.2
 HEARTBEAT_S = 15.0
@@ -123,32 +124,49 @@ def newest_replay(model_dir: Path, current: Replay | None) -> Replay | None:
 
 
 class Sensors:
-    """One car on a track whose camera and lidar are rendered at given poses."""
+    """What one car of a model sees at given poses: a `World` (one car; a pair in a head-to-model race) built as the
+    model's training builds its worlds (`train.worlds.WorldBuilder`: the model's observation, look, stereo, lidar,
+    race objects and car), so the live view shows the frames the model trains on. No reward runs and nothing is
+    randomised."""
 
-    def __init__(self, track):
-        from racerlab.console.modelapi import MODEL_POINT_AHEAD_M
-        from racerlab.sim.core import Simulator
-        from racerlab.sim.sensors.camera import Camera
-        from racerlab.sim.sensors.lidar import Lidar
-
-        self.ahead = MODEL_POINT_AHEAD_M
-        self.sim = Simulator(track, 1)
-        self.sim.reset()
+    def __init__(self, folder):
         from racerlab.sim.sensors.geometry import lidar_ray_angles
+        from racerlab.train.worlds import EVAL_SEED, WorldBuilder
 
-        self.camera, self.lidar = Camera(self.sim), Lidar(self.sim)
+        cfg = folder.config()
+        cars = 2 if cfg.race.head_to_model else 1  # a head-to-model world pairs its cars; car 0 is the one shown
+        self.world = WorldBuilder(cfg, folder.metadata(), None).world(cfg.track.names[0], cars, EVAL_SEED,
+                                                                      training=False)
+        self.world.sim.reset()
+        self.ahead = MODEL_POINT_AHEAD_M
         self.angles = [round(float(a), 4) for a in lidar_ray_angles()]
 
-    def at(self, x: float, y: float, yaw_deg: float) -> tuple[str, list[float]]:
-        """The camera frame as a PNG data URI and the lidar ranges (m), for a logged model-point pose."""
+    def observe(self, x: float, y: float, yaw_deg: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The model's camera frame (120, 160, channels) uint8 and its lidar's 64 ranges (m) at a logged model-point
+        pose; None for the sensor the model lacks."""
+        yaw = math.radians(yaw_deg)
+        self.world.sim.relocate(0, x - self.ahead * math.cos(yaw), y - self.ahead * math.sin(yaw), yaw)
+        obs = self.world.observe()
+        parts = getattr(self.world.observation, "parts", None) or {self.world.observation.name: self.world.observation}
+        frames = obs if isinstance(obs, dict) else {self.world.observation.name: obs}
+        camera = next((frames[k][0] for k in ("camera", "stereo") if k in frames), None)
+        if "lidar" in frames:
+            return camera, frames["lidar"][0]
+        lidar = next((p.lidar for p in parts.values() if hasattr(p, "lidar")), None)  # a sector lidar: its ranges
+        return camera, None if lidar is None else lidar.scan()[0]
+
+    def at(self, x: float, y: float, yaw_deg: float) -> tuple[str | None, list[float] | None]:
+        """The camera frame as a PNG data URI (a stereo pair side by side) and the lidar ranges (m), for a logged
+        model-point pose; None for the sensor the model lacks."""
         import imageio.v3 as iio
 
-        yaw = math.radians(yaw_deg)
-        self.sim.relocate(0, x - self.ahead * math.cos(yaw), y - self.ahead * math.sin(yaw), yaw)
-        frame = self.camera.render()[0, :, :, 0]
-        png = iio.imwrite("<bytes>", frame, extension=".png")
-        ranges = self.lidar.scan()[0]
-        return "data:image/png;base64," + base64.b64encode(png).decode(), [round(float(r), 3) for r in ranges]
+        camera, ranges = self.observe(x, y, yaw_deg)
+        uri = None
+        if camera is not None:
+            png = iio.imwrite("<bytes>", np.hstack([camera[:, :, c] for c in range(camera.shape[2])]), extension=".png")
+            uri = "data:image/png;base64," + base64.b64encode(png).decode()
+        return uri, None if ranges is None else [round(float(r), 3) for r in ranges]
+
 
 
 def model_sees(folder) -> list[str]:
@@ -176,7 +194,7 @@ async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = V
             yield sse("waiting", {"message": "no training iteration logged yet"})
             await asyncio.sleep(1.0)
             continue
-        step = int((time.monotonic() - t0) * 15)
+        step = int((time.monotonic() - t0) * STEPS_PER_SECOND)
         poses = replay.poses(step)
         msg = {"iteration": replay.iteration, "step": step, "sees": sees,
                "cars": [[round(float(p[0]), 3), round(float(p[1]), 3), round(float(p[2]), 1)] for p in poses]}
@@ -185,7 +203,7 @@ async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = V
             msg["car"] = k
             if sees:  # a features model sees a vector: no frame or scan to draw
                 if sensors is None:
-                    sensors = await asyncio.to_thread(Sensors, _model_track(folder))
+                    sensors = await asyncio.to_thread(Sensors, folder)
                 camera, lidar = await asyncio.to_thread(sensors.at, *poses[k])
                 if "camera" in sees:
                     msg["camera"] = camera
@@ -195,8 +213,3 @@ async def live_view(workspace, name: str, car: int, is_disconnected, hz: int = V
         frame += 1
         await asyncio.sleep(1.0 / hz)
 
-
-def _model_track(folder):
-    from racerlab import track as tracks
-
-    return tracks.load(folder.config().track.names[0])

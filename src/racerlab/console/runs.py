@@ -157,12 +157,15 @@ def _races_dir(request: Request) -> Path:
 def _race_routes(app: FastAPI) -> None:
     @app.post("/api/races")
     def start_race(request: Request, body: Annotated[dict, Body()]):
-        from racerlab.evaluate import race
+        from racerlab.evaluate import head_to_model, race
 
         w = ws(request)
         names = body.get("models") or []
         if not isinstance(names, list) or len(names) < 1:
             raise ConsoleError("a race needs at least one model")
+        pair = body.get("head_to_model") is True  # both cars on the track at once
+        if pair and len(names) != 2:
+            raise ConsoleError(f"models: {len(names)} entries; a head-to-model race takes two")
         if len(names) > MAX_RACE_MODELS:
             raise ConsoleError(f"models: {len(names)} entries; a race takes at most {MAX_RACE_MODELS}")
         folders = [w.folder(check_name(n)).path for n in names]
@@ -171,7 +174,10 @@ def _race_routes(app: FastAPI) -> None:
         cancel = threading.Event()
 
         def job():
-            board = race(folders, track=track, rules=rules, out=out, progress=False, cancel=cancel)
+            if pair:
+                board = head_to_model(*folders, track=track, rules=rules, out=out, progress=False, cancel=cancel)
+            else:
+                board = race(folders, track=track, rules=rules, out=out, progress=False, cancel=cancel)
             return {"race": out.name, "table": board.table()}
 
         return w.run_task("race", "race", job, cancel=cancel).to_json()
@@ -190,6 +196,17 @@ def _race_routes(app: FastAPI) -> None:
 
 # ---- reports, racing lines, reward check -------------------------------------------------------------------
 
+def _limit_summary(track) -> dict:
+    """The theoretical best lap of `track` (`line.theoretical_limit`), or the one line saying why it is not solved."""
+    from racerlab.errors import TrackError
+    from racerlab.line import theoretical_limit
+
+    try:
+        return theoretical_limit(track).summary()
+    except TrackError as exc:
+        return {"error": str(exc)}
+
+
 def _analysis_routes(app: FastAPI) -> None:
     @app.post("/api/models/{name}/report")
     def make_report(request: Request, name: str):
@@ -201,7 +218,9 @@ def _analysis_routes(app: FastAPI) -> None:
 
     @app.api_route("/api/models/{name}/report", methods=["GET", "HEAD"])  # the page asks with HEAD if there is one
     def report(request: Request, name: str):
-        path = ws(request).folder(name).path / "report.html"
+        from racerlab.analysis.report import report_path
+
+        path = report_path(ws(request).folder(name).path)
         if not plain_file(path):
             raise ConsoleError(f"{name}: no report yet; make one first", 404)
         return FileResponse(path, media_type="text/html", headers=SANDBOX)
@@ -209,15 +228,15 @@ def _analysis_routes(app: FastAPI) -> None:
     @app.post("/api/lines")
     def make_line(request: Request, body: Annotated[dict, Body()]):
         from racerlab import track as tracks
-        from racerlab.line import DEFAULT_MARGIN_M, racing_line
+        from racerlab.line import DEFAULT_MARGIN_M, METHODS, racing_line
         from racerlab.line.export import write_all
 
         track = _track_arg(body)
         if track is None:
             raise ConsoleError("choose a track for the racing line")
-        method = body.get("method", "mincurv")
-        if method not in ("mincurv", "shortest"):
-            raise ConsoleError(f"method {method!r}: use mincurv or shortest")
+        method = body.get("method", METHODS[0])
+        if method not in METHODS:
+            raise ConsoleError(f"method {method!r}: use {' or '.join(METHODS)}")
         margin = number(body, "margin", DEFAULT_MARGIN_M, low=0, high=1)
         out = ws(request).state_root / "lines" / f"{track}_{method}"
 
@@ -225,14 +244,17 @@ def _analysis_routes(app: FastAPI) -> None:
             t = tracks.load(track)
             line = racing_line(t, margin=margin, method=method)
             paths = write_all(line, t, out)
-            return {"summary": line.summary(), "png": paths["png"].name, "python": paths["py"].read_text()}
+            return {"summary": line.summary(), "limit": _limit_summary(t), "png": paths["png"].name,
+                    "python": paths["py"].read_text()}
 
         return ws(request).run_task("line", f"line:{track}:{method}", job).to_json()
 
     @app.get("/api/lines/{track}/{method}.png")
     def line_png(request: Request, track: str, method: str):
-        if method not in ("mincurv", "shortest"):
-            raise ConsoleError(f"method {method!r}: use mincurv or shortest", 404)
+        from racerlab.line import METHODS
+
+        if method not in METHODS:
+            raise ConsoleError(f"method {method!r}: use {' or '.join(METHODS)}", 404)
         folder = inside(ws(request).state_root / "lines", f"{check_name(track, 'track')}_{method}")
         pngs = sorted(p for p in folder.glob("*.png") if plain_file(p)) if folder.is_dir() else []
         if not pngs:
@@ -306,7 +328,7 @@ def upload_name(filename: str) -> str:
 def _upload_routes(app: FastAPI) -> None:
     @app.post("/api/uploads")
     async def upload(request: Request, file: Annotated[UploadFile, File()]):
-        from racerlab.analysis.report import write_report
+        from racerlab.analysis.report import report_path, write_report
 
         name = upload_name(file.filename)
         dest = _uploads_dir(request) / name
@@ -318,25 +340,25 @@ def _upload_routes(app: FastAPI) -> None:
         except ConsoleError:
             dest.unlink(missing_ok=True)
             raise
-        report = dest.with_name(_stem(name) + "-report.html")
+        report = report_path(dest)
         task = ws(request).run_task("upload", f"upload:{name}", lambda: {"report": write_report(dest, report).name})
         return {"name": name, "bytes": size, "files": files, "task": task.to_json()}
 
     @app.get("/api/uploads")
     def uploads(request: Request):
+        from racerlab.analysis.report import report_path
+
         d = _uploads_dir(request)
-        return {"uploads": [{"name": p.name, "bytes": p.stat().st_size,
-                             "report": (d / (_stem(p.name) + "-report.html")).is_file()}
+        return {"uploads": [{"name": p.name, "bytes": p.stat().st_size, "report": report_path(p).is_file()}
                             for p in sorted(d.iterdir()) if p.name.endswith(UPLOAD_SUFFIXES)]}
 
     @app.get("/api/uploads/{name}/report")
     def upload_report(request: Request, name: str):
+        from racerlab.analysis.report import report_path
+
         d = _uploads_dir(request)
-        path = inside(d, _stem(upload_name(name)) + "-report.html")
+        path = inside(d, report_path(d / upload_name(name)).name)
         if not plain_file(path):
             raise ConsoleError(f"{name}: no report (yet)", 404)
         return FileResponse(path, media_type="text/html", headers=SANDBOX)
 
-
-def _stem(name: str) -> str:
-    return next(name[: -len(s)] for s in UPLOAD_SUFFIXES if name.endswith(s))

@@ -6,7 +6,8 @@ DeepRacer on AWS ranks, then more completed laps, the best lap and progress for 
 
 A race can be stopped (`cancel`, set from another thread: the console's Cancel button) at the end of any lap:
 the models already done keep their evaluation folders, the one on the track writes none, and no leaderboard is
-written (`RaceCancelled` says which were done).
+written (`RaceCancelled` says which were done). A head-to-model race stops the same way; its two cars drive
+together, so neither keeps an evaluation.
 """
 
 from __future__ import annotations
@@ -115,16 +116,26 @@ def race(model_dirs, track=None, *, rules: RaceRules | None = None, checkpoint: 
 
 def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = None, checkpoint: str | int = "best",
                   ranking_laps: int = DEFAULT_RANKING_LAPS, out=None, video: bool = False, progress: bool = False,
-                  on_result=None, on_lap=None, device: str = "cpu", write: bool = True, car=None) -> Leaderboard:
+                  on_result=None, on_lap=None, device: str = "cpu", write: bool = True, car=None,
+                  cancel=None) -> Leaderboard:
     """Two models on the track at once (`racerlab race A B --head-to-model`): one world, a car each, each car's
     sensors and `objects_*` params seeing the other car, crashes between them judged by the crash rule (the car
     behind crashed). Each model's evaluation folder gets its simtrace, EvalMetrics and summary (and video); the
-    leaderboard ranks the two as `race` does. `on_lap(k, lap)` is called as car k ends a lap."""
+    leaderboard ranks the two as `race` does. `on_lap(k, lap)` is called as car k ends a lap. `cancel` (a
+    `threading.Event`) stops the race at the next lap's end with `RaceCancelled`: the two drive together, so
+    neither writes an evaluation."""
     rules = rules or RaceRules()
     dirs = [Path(model_a), Path(model_b)]
+
+    def lap_end(k, lap) -> None:
+        if cancel is not None and cancel.is_set():
+            raise RaceCancelled([], 2)
+        if on_lap is not None:
+            on_lap(k, lap)
+
     models = [load_model(m, checkpoint) for m in dirs]
     track_obj = resolve_track(models[0].folder, track)
-    worlds, runs = run_pair(models, track_obj, rules, video=video, on_lap=on_lap, device=device,
+    worlds, runs = run_pair(models, track_obj, rules, video=video, on_lap=lap_end, device=device,
                             where="racerlab race --head-to-model", car=car)
     results = []
     for m, w, run in zip(models, worlds, runs, strict=True):

@@ -72,7 +72,7 @@ class LocalModel:
 
 
 def load_local_model(model_dir, checkpoint: str | int = "best") -> LocalModel:
-    from racerlab.agent import build_networks
+    from racerlab.agent import build_networks, inference_networks
 
     folder = ModelFolder(model_dir)
     folder.require()
@@ -82,7 +82,7 @@ def load_local_model(model_dir, checkpoint: str | int = "best") -> LocalModel:
     agent = folder.load_state(info).agent
     where = folder.checkpoint_path(info)
     nets = build_networks(shapes, meta)
-    names = ("actor",) if meta.training_algorithm == "sac" else ("policy", "value")
+    names = inference_networks(meta)
     networks = {}
     for name, net in zip(names, nets, strict=False):
         try:

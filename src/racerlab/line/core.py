@@ -120,11 +120,6 @@ class RacingLine:
         """Steering angle each point needs at the line's speed (the car's wheelbase and yaw gain), ° (+ = left)."""
         return steering_for_curvature(self.curvature, self.car.wheelbase_m, self.car.yaw_gain_at(self.speed))
 
-    @property
-    def lateral_accel(self) -> np.ndarray:
-        """v²·κ at each point, m/s² (at most the car's grip)."""
-        return self.speed**2 * self.curvature
-
     def summary(self) -> dict:
         """The headline numbers, JSON-ready."""
         return {"track": self.track_name, "kind": self.kind, "method": self.method,

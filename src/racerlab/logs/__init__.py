@@ -28,6 +28,10 @@ Writers:
 - `MetricsLog(path, fsync=False)`: `.append(entry)` one JSON line, flushed.
 - `atomic_write_text`, `atomic_write_bytes`, `atomic_write_json`: temp name + rename.
 - `scratch_dir(kind)`: a private temporary folder for a `with` block, in racerlab's one place (`logs.scratch`).
+
+Readers: `load(path)` (any log source to one step DataFrame, cached; `logs.frame`, re-exported as
+`racerlab.analysis.load`), `load_metrics(path)` (TrainingMetrics/EvalMetrics JSON to a DataFrame),
+`read_metrics_jsonl`, `follow_metrics_jsonl`.
 """
 
 from racerlab.logs.atomic import (
@@ -72,14 +76,25 @@ from racerlab.logs.retention import SimtraceRetention, thin_simtrace
 from racerlab.logs.scratch import pid_alive, scratch_dir
 from racerlab.logs.simtrace import SIMTRACE_COLUMNS, SimtraceWriter, format_row, format_rows, write_simtrace
 
+_READERS = ("FRAME_COLUMNS", "load", "load_metrics")  # pandas loads with the first read, not with `import racerlab`
+
+
+def __getattr__(name: str):
+    if name in _READERS:
+        from racerlab.logs import frame
+
+        return getattr(frame, name)
+    raise AttributeError(f"module 'racerlab.logs' has no attribute {name!r}")
+
 __all__ = [
     "BEST_CHECKPOINT_RULES", "BEST_LAP_MEANING", "BEST_LAP_NAME", "best_eval_lap",
-    "EVAL_METRICS_KEYS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
+    "EVAL_METRICS_KEYS", "FRAME_COLUMNS", "SIMTRACE_COLUMNS", "TRAINING_METRICS_KEYS",
     "EvalMetrics", "LogFileError", "MetricsLog", "SimtraceRetention", "SimtraceWriter", "TrainingMetrics",
     "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "disk_bytes", "eval_layouts_path",
     "eval_metrics_path",
     "eval_simtrace_path", "evaluation_dir", "evaluation_dirs", "export_drfc_metadata", "format_row",
-    "finite_json", "follow_metrics_jsonl", "format_rows", "last_metrics_entry", "metrics_jsonl_path",
+    "finite_json", "follow_metrics_jsonl", "format_rows", "last_metrics_entry", "load", "load_metrics",
+    "metrics_jsonl_path",
     "new_evaluation_dir", "pid_alive", "read_metrics_jsonl", "remove_stale_temps",
     "remove_training_simtrace_after", "scratch_dir", "simtrace_files", "training_metrics_path", "training_simtrace_dir",
     "training_simtrace_path", "thin_simtrace", "write_simtrace",

@@ -18,9 +18,6 @@ from racerlab.errors import RacerlabError
 
 CHECKPOINT_FORMAT = "racerlab.checkpoint/1"
 CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
-# what a collection keeps to resume: a local run's per-world round-robin counters, a cluster's per-worker
-# episode counts and counters (kept flat in the file, as racerlab has always written them)
-COLLECTION_KEYS = ("starts", "worker_episodes", "worker_starts")
 
 
 @dataclass(frozen=True)
@@ -58,7 +55,10 @@ class TrainingState:
     best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
     first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
-    collection: dict = field(default_factory=dict)  # COLLECTION_KEYS
+    # what the collection keeps to resume (`train.seams.Collection.state`: a local run's round-robin counters, a
+    # cluster's per-worker episode counts), under the collection's own keys, kept flat in the file as racerlab has
+    # always written them: every key of the file that is not one of these fields
+    collection: dict = field(default_factory=dict)
     cloned: bool = False  # cloned or imported: training goes on from these weights with fresh counters
     saved_at: float = 0.0
 
@@ -66,7 +66,7 @@ class TrainingState:
         """The dict the file holds."""
         out = {"format": CHECKPOINT_FORMAT, **{f.name: getattr(self, f.name) for f in fields(self)}}
         del out["collection"]
-        out.update({k: self.collection.get(k) for k in COLLECTION_KEYS if k in self.collection})
+        out.update({k: v for k, v in self.collection.items() if k not in out})
         out["saved_at"] = self.saved_at or time.time()
         if not self.cloned:
             del out["cloned"]
@@ -74,12 +74,16 @@ class TrainingState:
 
     @classmethod
     def from_dict(cls, data, where) -> TrainingState:
-        """A checkpoint's state; `where` (its path) names it in the error for a file without agent weights."""
+        """A checkpoint's state; `where` (its path) names it in the one-line error for a file without agent weights
+        or of another format."""
         if not isinstance(data, dict) or not isinstance(data.get("agent"), dict):
             raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+        if data.get("format") != CHECKPOINT_FORMAT:
+            raise RacerlabError(f"{where}: a checkpoint of format {data.get('format')!r}, and this racerlab reads "
+                                f"{CHECKPOINT_FORMAT!r}; train a new one or use the racerlab that wrote it")
         known = {f.name for f in fields(cls)} - {"collection"}
         state = cls(**{k: v for k, v in data.items() if k in known and v is not None})
-        state.collection = {k: data[k] for k in COLLECTION_KEYS if data.get(k) is not None}
+        state.collection = {k: v for k, v in data.items() if k not in known and k != "format" and v is not None}
         return state
 
     @property

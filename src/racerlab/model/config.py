@@ -16,7 +16,7 @@ from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
 from racerlab.spec import CAR_KEYS, DEFAULT_SIMULATOR, SIMULATORS, CarParams, RaceConfig, car_params
 
 REWARD_ORDERS = ("aws", "after_action")
-LOOKS = ("aws", "classic")  # run.look: the camera's world (racerlab.sim.sensors.look.LOOKS holds each one)
+LOOKS = ("aws", "classic")  # run.look: the camera's world, named only here (sim.sensors.look.LOOKS holds each)
 
 
 @dataclass(frozen=True)

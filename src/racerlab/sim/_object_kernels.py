@@ -349,14 +349,6 @@ def _front_arc(i, q, r, xy, yaw, lines, seg_len, cum_s, closed):
 
 
 @njit(cache=True)
-def front_arcs(rows, rev, xy, yaw, lines, seg_len, cum_s, closed, out):
-    """out[j, q]: `_front_arc` of object q of car rows[j]."""
-    for j in range(rows.size):
-        for q in range(xy.shape[1]):
-            out[j, q] = _front_arc(rows[j], q, 1 if rev[rows[j]] else 0, xy, yaw, lines, seg_len, cum_s, closed)
-
-
-@njit(cache=True)
 def judge_cars(inside, rows, car_arc, length, rev, xy, yaw, lines, seg_len, cum_s, closed, crashed, rear_ended):
     """Per car rows[j] with a corner inside the objects marked in inside[j]: crashed where such an object (a car)
     is ahead (its front point less than half a lap ahead of the car's centre-line arc car_arc[j]: the car ran into

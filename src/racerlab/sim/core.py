@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from racerlab.model.config import REWARD_ORDERS
 from racerlab.sim import _kernels as K
 from racerlab.sim.car import pack as pack_car
 from racerlab.sim.car import step_lengths
@@ -24,8 +25,7 @@ from racerlab.track import Track
 from racerlab.track import load as load_track
 
 DEFAULT_LOOKAHEAD_M = (0.25, 0.5, 0.8, 1.2, 1.6, 2.2, 3.0)
-AFTER_ACTION = "after_action"
-REWARD_ORDERS = ("aws", AFTER_ACTION)
+AFTER_ACTION = REWARD_ORDERS[1]  # "after_action"; training.toml's run.reward_order names them (model.config)
 
 
 @dataclass(frozen=True)

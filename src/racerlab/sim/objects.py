@@ -41,7 +41,7 @@ from numba import njit
 from racerlab.errors import ConfigError
 from racerlab.sim import _kernels as K
 from racerlab.sim import _object_kernels as OK
-from racerlab.sim.sensors.geometry import CAMERA_PITCH_RAD, camera_position
+from racerlab.sim.sensors.geometry import AWS_CAMERA_HEIGHT_M, CAMERA_HFOV_RAD, CAMERA_PITCH_RAD, camera_position
 from racerlab.spec import MODEL_POINT_AHEAD_M, RaceConfig
 from racerlab.track import Track
 from racerlab.track.kernels import build_road_index, contains_many
@@ -55,7 +55,6 @@ FEATURE_OBJECTS = 2  # the `features` observation gains the nearest objects ahea
 RESET_BEHIND_DIST_M = 1.0  # evaluation: after a crash the car restarts this far behind the box, other lane
 CLOSEST_OBJ_GAP_M = 1.0  # a start this near an object moves to the other lane (rollout_agent_ctrl)
 MOVED_STARTS_KEPT = 4096  # moved start poses remembered (the cache starts afresh when full)
-CAMERA_HFOV_RAD = 1.13
 CAMERA_ASPECT = 4 / 3  # 640 x 480
 CAMERA_FAR_M = 300.0
 CAMERA_NEAR_M = 0.02
@@ -253,8 +252,9 @@ def _nearest_object(rows, oxy, pts):
 
 def _camera_constants() -> np.ndarray:
     """The camera frustum as `_object_kernels.closest_and_in_camera` takes it (HFOV 1.13 rad, 4:3, pitched down
-    0.2618 rad, 0.02-300 m; the camera's place on the car; objects seen at OBSTACLE_Z_M)."""
-    cam_ahead, cam_z = camera_position()
+    0.2618 rad, 0.02-300 m; the camera's place on the car, at the height the AWS look puts it; objects seen at
+    OBSTACLE_Z_M)."""
+    cam_ahead, cam_z = camera_position()[0], AWS_CAMERA_HEIGHT_M
     tan_h = math.tan(CAMERA_HFOV_RAD / 2)
     return np.array([cam_ahead, cam_z, OBSTACLE_Z_M, math.cos(CAMERA_PITCH_RAD), math.sin(CAMERA_PITCH_RAD), tan_h,
                      tan_h / CAMERA_ASPECT, CAMERA_NEAR_M, CAMERA_FAR_M])
@@ -605,14 +605,6 @@ class ObjectSet:
             return None
         car_arc = meas[rows, K.MS] if self.bots or self.racers else None
         return self._judge(inside, rows, car_arc, length)
-
-    def front_arc(self, rows) -> np.ndarray:
-        """(k, m) centre-line arc of the front point (`MODEL_POINT_AHEAD_M` ahead of the base) of each object of
-        cars `rows`: a car's progress, for telling which of two cars ran into the other (worked out when asked)."""
-        rows = np.asarray(rows, dtype=np.int64)
-        out = np.empty((rows.size, self.num_objects))
-        OK.front_arcs(rows, self.rev, self.xy, self.yaw, *self._geometry[:4], out)
-        return out
 
     def _judge(self, inside, rows, car_arc, length) -> tuple[np.ndarray, np.ndarray]:
         """(crashed, rear_ended) per car from `inside` (k, m): which objects hold a corner of the car."""

@@ -68,10 +68,6 @@ def catalogue() -> dict[str, AwsTrack]:
                 for r in csv.DictReader(f)}
 
 
-def is_aws_name(name: str) -> bool:
-    return name in catalogue()
-
-
 def fetch_hint(name: str) -> str | None:
     """One line saying how to get the AWS track `name` (None for a name that is not an AWS track)."""
     stem = name[:-4] if name.endswith(".npy") else name

@@ -34,6 +34,7 @@ from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episode
 from racerlab.train.health import Health
 from racerlab.train.progress import Progress
 from racerlab.train.records import TrainingLogs
+from racerlab.train.seams import Collection, IterationLogs
 from racerlab.train.worlds import LocalCollection, WorldBuilder
 
 
@@ -103,13 +104,14 @@ def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterati
 class Trainer:
     """Holds the pieces of one training run; `run()` iterates until a stop condition.
 
-    `collector` is where the episodes come from (default: a `LocalCollection` of this machine's worlds; the
-    cluster passes its Ray collection) and `logs` what writes the iteration's records (default: `TrainingLogs`;
-    the cluster passes its per-worker logs). The driver builds training worlds only for the local collection.
+    `collector` is where the episodes come from (a `train.seams.Collection`; default: a `LocalCollection` of this
+    machine's worlds; the cluster passes its Ray collection) and `logs` what writes the iteration's records (a
+    `train.seams.IterationLogs`; default: `TrainingLogs`; the cluster passes its per-worker logs). The driver
+    builds training worlds only for the local collection.
     """
 
-    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *, collector=None,
-                 logs=None, **overrides):
+    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *,
+                 collector: Collection | None = None, logs: IterationLogs | None = None, **overrides):
         self.t_created = time.perf_counter()  # --minutes counts the set-up (tracks, compiling the simulator) too
         self.stop_at_first_lap = stop_at_first_lap
         self.folder = ModelFolder(model_dir)

@@ -592,8 +592,9 @@ async function viewAnalysis() {
     pollTask(t.key, (done) => {
       go.disabled = false;
       if (done.status !== "done") return;
-      const s = done.result.summary;
-      lineOut.replaceChildren(el("p", { id: "line-summary", text: `theoretical best lap ${fmt(s.lap_time_s, 3)} s (flying ${fmt(s.flying_lap_time_s, 3)} s), ${s.length_m} m` }),
+      const s = done.result.summary, lim = done.result.limit;
+      lineOut.replaceChildren(el("p", { id: "line-summary", text: `this line: lap ${fmt(s.lap_time_s, 3)} s (flying ${fmt(s.flying_lap_time_s, 3)} s), ${s.length_m} m, the whole car inside the borders` }),
+        el("p", { id: "line-limit", text: lim.error ? `the limit: not solved (${lim.error})` : `the limit: lap ${fmt(lim.lap_time_s, 3)} s (flying ${fmt(lim.flying_lap_time_s, 3)} s), the theoretical best lap under the simulator's off-track rule (a car is off only when no wheel centre is on the road)` }),
         el("img", { src: `/api/lines/${encodeURIComponent(sel.value)}/${method.value}.png?t=${Date.now()}`, style: "max-width:100%" }),
         el("h3", { text: "racing_line for a reward function" }), el("pre", { text: done.result.python }));
     });

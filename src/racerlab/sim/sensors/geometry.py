@@ -29,6 +29,7 @@ ZED_XYZ_M = (0.0917, 0.0, 0.0800)
 CAMERA_IN_ZED_M = (0.0448, 0.0, 0.04)
 CAMERA_PITCH_RAD = 0.2618
 CAMERA_HFOV_RAD = 1.13
+AWS_CAMERA_HEIGHT_M = 0.163  # where the AWS simulator's frames show the camera, not the URDF's 0.130 m (look.py)
 STEREO_HALF_BASELINE_M = 0.03
 IMAGE_H, IMAGE_W = 120, 160
 
@@ -246,7 +247,3 @@ class RowPlan:
         self.sky_el = np.clip(np.floor(el / SKY_EL_STEP_RAD), 0, self.sky_el_bins - 1).astype(np.int64)
         self.sky_az = np.ascontiguousarray(np.arctan2(r[..., 1], r[..., 0]) * (SKY_AZ_BINS / (2 * math.pi)))
 
-    @property
-    def num_samples(self) -> int:
-        """Raster reads per frame and eye (ground lines × columns)."""
-        return int(self.sub_row.size * self.model.width)

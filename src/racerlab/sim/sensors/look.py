@@ -40,7 +40,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from racerlab.sim.sensors.geometry import camera_position
+from racerlab.model.config import LOOKS as LOOK_NAMES
+from racerlab.sim.sensors.geometry import AWS_CAMERA_HEIGHT_M, camera_position
 
 LUMA = np.array([0.2989, 0.5870, 0.1140])
 
@@ -104,7 +105,7 @@ class TrackLook:
     grain_seed: int = 2019
     # the camera's height above the ground, m, as the AWS simulator's frames show it (see the module docstring);
     # None: the URDF's (`geometry.camera_position`, 0.130 m)
-    camera_height_m: float | None = 0.163
+    camera_height_m: float | None = AWS_CAMERA_HEIGHT_M
 
     def colors(self) -> np.ndarray:
         """(N_MATERIALS, 3) RGB in material order."""
@@ -188,7 +189,7 @@ CLASSIC = dict(line_width_m=0.05, center_width_m=0.05, dash_m=0.15, gap_m=0.15, 
                line=(236, 236, 236), center=(235, 170, 40), ground=(96, 142, 82), sky=(200, 210, 222),
                wall_margin_m=None, haze_m=(4.0, 30.0), grain_fine=(0.0, 0.0, 0.0, 0.0),
                grain_blotch=(0.0, 0.0, 0.0, 0.0), camera_height_m=None)
-LOOKS = {"aws": TrackLook(), "classic": replace(TrackLook(), **CLASSIC)}
+LOOKS = dict(zip(LOOK_NAMES, (TrackLook(), replace(TrackLook(), **CLASSIC)), strict=True))  # run.look's names
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,59 @@
+"""The two seams of `Trainer(collector=, logs=)`, written down: what a collection and a logs writer must offer.
+
+This machine's implementations are `train.worlds.LocalCollection` and `train.records.TrainingLogs`; the cluster's
+are `cluster.training.ClusterCollection` and `cluster.training.WorkerLogs`. A test checks that each has every
+method with the signature given here.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+from racerlab.train.rollout import Rollout
+
+
+@runtime_checkable
+class Collection(Protocol):
+    """Where a training's episodes come from."""
+
+    def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0, *,
+                deadline: float | None = None, tick=None, tick_s: float = 10.0) -> Rollout:
+        """At least `target_episodes` whole episodes (at most `max_steps` steps kept), driven by `agent`; episodes
+        are numbered from `first_episode_number`; `deadline` is a `time.perf_counter()` value to stop at; `tick`
+        is called every `tick_s` seconds with the progress."""
+
+    def before_iteration(self, iteration: int) -> None:
+        """Called before each iteration's collection (a local run draws new generated tracks here)."""
+
+    def state(self) -> dict:
+        """What a checkpoint keeps to resume the collection (`TrainingState.collection`): JSON-able values under
+        the collection's own keys."""
+
+    def restore(self, saved: dict) -> None:
+        """Resume from a checkpoint's `state()` (an empty dict for a fresh run or another collection's)."""
+
+    def metrics(self, iteration: int) -> dict:
+        """Extra metrics.jsonl keys of an iteration."""
+
+    def close(self) -> None:
+        """Release what the collection holds (the cluster's workers)."""
+
+
+@runtime_checkable
+class IterationLogs(Protocol):
+    """What writes a training's records: simtrace, TrainingMetrics and metrics.jsonl."""
+
+    def write_iteration(self, iteration: int, ro, evals, first_episode: int) -> None:
+        """The iteration's simtrace and TrainingMetrics entries (its rollout `ro` and evaluation episodes)."""
+
+    def append_metrics(self, entry: dict) -> None:
+        """One metrics.jsonl line."""
+
+    def truncate(self, iteration: int, episodes: int) -> None:
+        """Forget what was logged after a checkpoint (iteration, episodes) a run resumes from."""
+
+    def disk_bytes(self) -> int:
+        """Bytes the logs take on disk."""
+
+    def close(self) -> None:
+        """Flush and close."""
