@@ -17,7 +17,7 @@ def test_a_model_in_a_running_race_is_not_deleted(trained):
     r = c.post("/api/races", json={"models": ["m1-racer"], "trials": 3, "track": "lab_oval"})
     assert r.status_code == 200, r.text
     gone = c.delete("/api/models/m1-racer?confirm=m1-racer")
-    assert gone.status_code == 409 and "a training, evaluation or race uses it" in gone.text
+    assert gone.status_code == 409 and "a running race uses it" in gone.text
     assert c.get("/api/models/m1-racer").json()["state"] == "racing"
     wait_task(c, "race")
     assert (w.root / "m1-racer" / "model_metadata.json").is_file()  # whole, not a ghost re-created by the race

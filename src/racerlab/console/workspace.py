@@ -145,9 +145,11 @@ class Workspace:
         lock = folder.lock()
         with self._lock:  # no task that uses the model starts between the check and the move
             state = self.state(name)
+            if state == "racing":
+                raise ConsoleError(f"{name}: a running race uses it; cancel the race or wait for it to end, then "
+                                   "delete", 409)
             if state != "idle":
-                raise ConsoleError(f"{name}: it is {state} (a training, evaluation or race uses it); stop it or wait "
-                                   "for it to end, then delete", 409)
+                raise ConsoleError(f"{name}: stop its {state} first", 409)
             try:
                 lock.acquire()
             except RacerlabError as exc:
