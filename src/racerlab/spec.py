@@ -444,3 +444,29 @@ def _row_function(per_row: tuple[str, ...], parts: tuple[tuple[str, int], ...]) 
     namespace: dict = {}
     exec(compile(source, f"<racerlab.spec params rows {len(per_row)}>", "exec"), namespace)  # noqa: S102
     return namespace["rows"]
+
+
+# ---- plausible cars ---------------------------------------------------------------------------------------
+# What a [car] table may set each constant to: CarParams takes any positive value (tests build extreme cars), a
+# user's table is checked against these, wide around every fitted car (docs/car.md), so that a wheelbase in mm, a
+# steering limit in radians or an inf is one line, not a silent nonsense car or a hang. MAX_SUBSTEPS bounds the
+# compiled step's inner loop for everyone.
+MAX_SUBSTEPS = 64
+CAR_PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # name -> (low, high, unit)
+    "wheelbase_m": (0.05, 1.0, "m"), "track_m": (0.05, 1.0, "m"), "max_steer_deg": (5.0, 60.0, "degrees"),
+    "min_speed_mps": (0.0, 10.0, "m/s"), "max_speed_mps": (0.1, 10.0, "m/s"),
+    "delay_steps": (0.0, MAX_DELAY_STEPS, "steps"), "steer_tau_s": (0.0, 2.0, "s"), "yaw_gain": (0.05, 5.0, ""),
+    "slide_mps": (0.0, 100.0, "m/s"), "yaw_tau_s": (0.0, 2.0, "s"), "speed_tau_s": (0.0, 5.0, "s"),
+    "accel_mps2": (0.1, 200.0, "m/s²"), "brake_mps2": (0.1, 200.0, "m/s²"), "ground_factor": (0.5, 2.0, ""),
+    "wheel_cap_mps": (0.1, 20.0, "m/s"), "grip_mps2": (0.1, 50.0, "m/s²"), "substeps": (1, MAX_SUBSTEPS, ""),
+}
+
+
+def implausible(name: str, value) -> str | None:
+    """Why `value` is no plausible `name` for a DeepRacer car (`CAR_PLAUSIBLE`), or None when it is."""
+    if name not in CAR_PLAUSIBLE or isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    low, high, unit = CAR_PLAUSIBLE[name]
+    if math.isfinite(value) and low <= value <= high:
+        return None
+    return f"{value!r} is not a plausible value for a DeepRacer car; give {low:g} to {high:g} {unit}".rstrip()

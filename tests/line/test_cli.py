@@ -81,3 +81,53 @@ def test_action_space_covers_the_line_within_the_cars_limits(aws_track):
     assert np.max(np.min(np.abs(need[:, None] - steer[None, :]), axis=1)) < 4.0
     # the same line gives the same actions
     assert action_space(line, 12) == acts
+
+
+def _own_tracks(tmp_path, monkeypatch) -> list[str]:
+    """Every track racerlab ships and one it generates (`racerlab tracks generate`, into a fresh user folder)."""
+    from racerlab.track import registry
+
+    monkeypatch.setenv("RACERLAB_HOME", str(tmp_path / "home"))
+    assert main(["tracks", "generate", "--seed", "3", "--width", "0.76"]) == 0
+    bundled = sorted(p.stem for p in registry.BUNDLED_DIR.glob("*.npy"))
+    assert {"lab_technical", "lab_oval", "lab_grand_prix"} <= set(bundled)
+    return [*bundled, "generated_3"]
+
+
+def test_line_prints_the_line_and_the_limit_on_every_track_racerlab_ships_or_generates(tmp_path, monkeypatch, capsys):
+    # the limit (the base point up to 0.115 m outside the borders) failed on all of them: the grown borders of a
+    # straight road meet end to end, and the zero-length joint between them read as a wall across the road
+    for name in _own_tracks(tmp_path, monkeypatch):
+        capsys.readouterr()
+        assert main(["line", name, "--out", str(tmp_path / name)]) == 0, capsys.readouterr().err
+        text = capsys.readouterr().out
+        line_lap = float(text.split("line:  lap ")[1].split(" s")[0])
+        limit_lap = float(text.split("limit: lap ")[1].split(" s")[0])
+        assert 0 < limit_lap < line_lap < 30, (name, text)  # the limit is faster than the line the car keeps inside
+
+
+def test_a_failed_solve_never_calls_a_wide_road_too_narrow():
+    from racerlab.errors import TrackError
+    from racerlab.line import solve as S
+    from racerlab.track import load
+
+    t = load("lab_oval")  # 1.07 m wide everywhere; a bogus wall of segments across the road at the start
+    ref = S.G.resample_polyline(t.center[:-1], 60, True)
+    segs = S.G.border_segments(t)
+    wall = (np.vstack([segs[0], t.inner[:1]]), np.vstack([segs[1], t.outer[:1] - t.inner[:1]]))
+    with pytest.raises(TrackError) as err:
+        S._room(t, ref, S.G.left_normals(ref, True), wall, 0.2, (2.0, 0.0))
+    msg = str(err.value)
+    assert "1.07 m wide" in msg and "too narrow" not in msg and "borders fold or cross" in msg
+
+
+def test_line_for_an_effort_control_car_writes_that_version_and_nan_margin_is_one_line(tmp_path, capsys):
+    assert main(["line", "lab_oval", "--simulator", "console", "--version", "4", "--out", str(tmp_path)]) == 0
+    assert "effort control" in capsys.readouterr().out
+    assert json.loads((tmp_path / "model_metadata.json").read_text())["version"] == "4"
+    for argv, words in ((["--margin", "nan"], "--margin nan: not a number"),
+                        (["--version", "five"], "--version five: not a model_metadata version")):
+        assert main(["line", "lab_oval", "--out", str(tmp_path / "x"), *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and "\n" not in err
+    assert not (tmp_path / "x").exists()

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
 
 from racerlab.calibrate.fit import Fit, constant_velocity_errors, errors, predict
+from racerlab.calibrate.out import PNG_MARK
+from racerlab.logs import atomic_write_bytes
 from racerlab.sim.car import rollout
 from racerlab.spec import STEP_S, CarParams
 
@@ -62,7 +65,7 @@ def plot_fit(fit: Fit, path, *, examples: int = 40, seed: int = 0) -> Path:
     ax[2].grid(alpha=0.3)
     fig.suptitle(f"racerlab calibrate: {fit.car.name}")
     fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=90)
+    buf = io.BytesIO()  # the Software text marks the picture as this command's (it may redraw it, nothing else)
+    fig.savefig(buf, dpi=90, format="png", metadata={"Software": PNG_MARK.decode()})
     plt.close(fig)
-    return out
+    return atomic_write_bytes(path, buf.getvalue())

@@ -20,7 +20,9 @@ def register(sub) -> None:
     p.add_argument("--version", default="5", metavar="V",
                    help="the model_metadata version of the logged model (3-4: effort control; default 5)")
     p.add_argument("--out", type=Path, default=Path("car.toml"), metavar="FILE",
-                   help="the [car] table (default car.toml); the picture goes beside it as .png")
+                   help="the .toml file for the [car] table (default car.toml): a new file, an earlier car.toml or a "
+                        "model's training.toml, whose other tables and keys are kept; the picture goes beside it "
+                        "as .png")
     p.add_argument("--resamples", type=int, default=3, metavar="N",
                    help="fits on resampled episodes for the constants' spread (default 3; 0: none)")
     p.set_defaults(func=run_calibrate)
@@ -28,9 +30,15 @@ def register(sub) -> None:
 
 def run_calibrate(args) -> int:
     from racerlab.calibrate import calibrate, car_toml
+    from racerlab.calibrate.out import check_out, table_text
     from racerlab.calibrate.plot import plot_fit
+    from racerlab.calibrate.run import check_log_path, check_resamples, on_bounds
     from racerlab.logs import atomic_write_text
 
+    out = check_out(args.out)  # all of it before the fit, which takes minutes
+    check_resamples(args.resamples)
+    for p in args.logs:
+        check_log_path(p)
     names = ", ".join(str(p) for p in args.logs)
     print(f"fitting the {args.simulator} car (version {args.version}) to {names} ...", file=sys.stderr, flush=True)
     fit = calibrate(args.logs, args.simulator, args.version, resamples=args.resamples)
@@ -41,7 +49,10 @@ def run_calibrate(args) -> int:
     print("  constant velocity" + "".join(f"{v:8.3f}" for v in fit.constant_velocity.values()))
     text = car_toml(fit, names)
     print(text, end="")
-    atomic_write_text(args.out, text)
-    png = plot_fit(fit, args.out.with_suffix(".png"))
-    print(f"wrote {args.out} and {png}")
+    for warning in on_bounds(fit):
+        print(f"warning: {warning}", file=sys.stderr)
+    merged = out.exists()
+    atomic_write_text(out, table_text(out, text))
+    png = plot_fit(fit, out.with_suffix(".png"))
+    print(f"{'merged the [car] table into' if merged else 'wrote'} {args.out}; the picture: {png}")
     return 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 from racerlab.errors import RacerlabError
@@ -9,11 +10,9 @@ from racerlab.errors import RacerlabError
 
 def require_ray() -> None:
     """Ray is an optional extra: say how to get it instead of a bare ImportError."""
-    try:
-        import ray  # noqa: F401
-    except ImportError as exc:
+    if importlib.util.find_spec("ray") is None:  # not imported here: cluster.collector chooses its auth mode first
         raise RacerlabError("ray is not installed: the cluster commands need it; run "
-                            "`pip install 'racerlab[cluster]'`") from exc
+                            "`pip install 'racerlab[cluster]'`")
 
 
 def register(sub) -> None:

@@ -3,6 +3,7 @@ racer uses in a reward function and an action space."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 
@@ -44,7 +45,10 @@ def run_line(args) -> int:
 
     margin = DEFAULT_MARGIN_M if args.margin is None else args.margin
     n_actions = DEFAULT_ACTIONS if args.actions is None else args.actions
-    car = car_params(args.simulator, args.version)
+    version = _version(args.version)
+    car = car_params(args.simulator, version)
+    if not math.isfinite(margin):
+        raise RacerlabError(f"--margin {margin}: not a number of metres; give e.g. --margin 0.1")
     if margin < min_margin(car):
         raise RacerlabError(f"--margin must be >= {min_margin(car):.3f} m (negative: the wheels hang over the border, "
                             f"at most as far as the simulator's off-track rule allows), got {margin}")
@@ -54,7 +58,7 @@ def run_line(args) -> int:
     line = racing_line(track, margin=margin, method=args.method, car=car)
     limit = theoretical_limit(track, car=car)
     out = args.out or Path(f"{line.track_name}_{args.method}_line")
-    paths = write_all(line, track, out, n_actions)
+    paths = write_all(line, track, out, n_actions, version)
     s = line.summary()
     state = "" if line.converged else " (not fully converged: the line may be a little off the optimum)"
     print(f"{line.track_name}: {args.method} line, margin {margin} m, "
@@ -69,3 +73,16 @@ def run_line(args) -> int:
     for kind, path in paths.items():
         print(f"  {kind:15s} {path.resolve()}")
     return 0
+
+
+def _version(text: str) -> float:
+    from racerlab.errors import RacerlabError
+
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (math.isfinite(v) and 1 <= v <= 100):
+        raise RacerlabError(f"--version {text}: not a model_metadata version; give e.g. --version 5 (velocity control) "
+                            "or --version 4 (effort control)")
+    return v

@@ -10,6 +10,7 @@ what to run next.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 DEFAULT_MODEL = Path("racerlab-out") / "quickstart-model"  # racerlab.cli.OUT_DIR; the console lists it
@@ -43,6 +44,7 @@ def run(args) -> int:
     from racerlab.model import ModelFolder, init_model
     from racerlab.train import train
 
+    check_args(args)
     folder = ModelFolder(args.model)
     if not folder.metadata_path.is_file():
         # The quickstart shows the fastest laps training found: its best checkpoint is the one with the
@@ -67,6 +69,19 @@ def run(args) -> int:
         print(fit(line))
     print(next_steps(folder.path))
     return 0
+
+
+def check_args(args) -> None:
+    """Everything the command line says, checked before a folder is made: one line naming the option."""
+    from racerlab.errors import RacerlabError
+
+    if args.model.exists() and not args.model.is_dir():
+        raise RacerlabError(f"--model {args.model}: a file, not a model folder; give a folder (new or a model's)")
+    for flag, value in (("--minutes", args.minutes), ("--iterations", args.iterations)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise RacerlabError(f"{flag} must be a number >= 0 (0 = no limit), got {value}")
+    if not math.isfinite(args.max_speed):
+        raise RacerlabError(f"--max-speed {args.max_speed}: give a speed in m/s, e.g. --max-speed 2")
 
 
 def checkpoint_line(folder, res) -> str:

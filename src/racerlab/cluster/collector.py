@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 import time
 from dataclasses import dataclass, field
 
@@ -39,8 +40,7 @@ def connect(address: str | None = None, num_cpus: int | None = None):
 
     Ray's nodes listen on every interface, so a local cluster is started with Ray's token authentication
     (RAY_AUTH_MODE=token, Ray >= 2.52), unless RAY_AUTH_MODE says otherwise."""
-    import ray
-
+    ray = import_ray(address)
     if _version(ray.__version__) < RAY_MIN:
         raise RacerlabError(f"ray {ray.__version__} is installed; racerlab needs ray >= "
                             f"{'.'.join(map(str, RAY_MIN))} (token authentication): pip install -U 'racerlab[cluster]'")
@@ -49,9 +49,30 @@ def connect(address: str | None = None, num_cpus: int | None = None):
         if address:
             ray.init(address=address, **kwargs)
         else:
-            os.environ.setdefault("RAY_AUTH_MODE", "token")
             ray.init(num_cpus=num_cpus, **kwargs)
     return ray
+
+
+def import_ray(address: str | None = None):
+    """Ray, imported after its authentication mode is chosen: Ray reads RAY_AUTH_MODE once, when it is imported,
+    and hands the environment to the node processes it starts, so a mode set after the import leaves the driver
+    without a token while the cluster asks for one. A local cluster (no `address`, no RAY_ADDRESS) gets token
+    authentication unless RAY_AUTH_MODE says otherwise; a Ray imported earlier in the process re-reads it."""
+    if not (address or os.environ.get("RAY_ADDRESS")) and "RAY_AUTH_MODE" not in os.environ:
+        os.environ["RAY_AUTH_MODE"] = "token"
+        if "ray" in sys.modules:
+            _reread_ray_config()
+    import ray
+
+    return ray
+
+
+def _reread_ray_config() -> None:
+    try:
+        from ray._raylet import Config  # what ray.init itself calls when it turns token authentication on
+    except ImportError:  # a Ray too old for token authentication: connect() refuses it next
+        return
+    Config.initialize("")
 
 
 def _version(text: str) -> tuple[int, ...]:

@@ -27,6 +27,8 @@ of the race, as the collector gives up a worker; an error inside a training is i
 from __future__ import annotations
 
 import json
+import re
+import shutil
 import time
 import tomllib
 from dataclasses import dataclass, fields
@@ -45,6 +47,7 @@ _INIT_KEYS = ("sensor", "action_space", "algorithm", "max_speed")
 # the worlds (the collector's WORKER_START_S) and collects (WORKER_TIMEOUT_S at most)
 TRAINING_STALL_S = WORKER_START_S + WORKER_TIMEOUT_S
 _MODEL_KEYS = {"name", "reward", "hyperparameters", *_INIT_KEYS}
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")  # a plain folder name inside out: no "..", no "/"
 
 
 @dataclass
@@ -69,10 +72,15 @@ def load_spec(path: Path) -> dict:
     models = spec.get("model") or []
     if not models:
         raise RacerlabError(f"{path}: no [[model]] entries; add at least one [[model]] with a name")
+    if not isinstance(models, list) or not all(isinstance(m, dict) for m in models):
+        raise RacerlabError(f"{path}: model must be [[model]] tables, each with a name; see `racerlab sweep --help`")
     names = set()
     for n, m in enumerate(models):
         if "name" not in m:
             raise RacerlabError(f"{path}: [[model]] number {n + 1} has no name; add name = \"...\"")
+        if not isinstance(m["name"], str) or not _NAME.fullmatch(m["name"]):
+            raise RacerlabError(f"{path}: [[model]] number {n + 1}: name = {m['name']!r} is not a folder name; give "
+                                "letters, digits, '.', '_' or '-' (the model's folder goes into the sweep's out)")
         unknown = set(m) - _MODEL_KEYS
         if unknown:
             raise RacerlabError(f"{path}: model {m['name']!r} has unknown key {sorted(unknown)[0]!r}; "
@@ -84,12 +92,57 @@ def load_spec(path: Path) -> dict:
     bad = set(spec.get("race", {})) - rule_names
     if bad:
         raise RacerlabError(f"{path}: [race] has unknown key {sorted(bad)[0]!r}; use {', '.join(sorted(rule_names))}")
+    _check_values(path, spec)
     return spec
+
+
+def _check_values(path: Path, spec: dict) -> None:
+    """Every value a sweep uses after its trainings, checked before the first one starts."""
+    try:
+        RaceRules(**spec.get("race", {}))
+    except (RacerlabError, TypeError, ValueError) as exc:
+        raise RacerlabError(f"{path}: [race] {exc}; fix it before the models train") from None
+    for key, default in (("iterations", 2), ("cars", 4)):
+        value = spec.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 10_000:
+            raise RacerlabError(f"{path}: {key} = {value!r}; give a whole number from 1 to 10000")
+    for key in ("out", "track"):
+        if key in spec and (not isinstance(spec[key], str) or not spec[key].strip()):
+            raise RacerlabError(f"{path}: {key} = {spec[key]!r}; give a folder or track name as a string")
+    for m in spec["model"]:
+        if "reward" in m and not (path.parent / str(m["reward"])).is_file():
+            raise RacerlabError(f"{path}: model {m['name']!r}: reward file {path.parent / str(m['reward'])} does not "
+                                "exist; fix the path")
+        if not isinstance(m.get("hyperparameters", {}), dict):
+            raise RacerlabError(f"{path}: model {m['name']!r}: hyperparameters must be a table, e.g. "
+                                "hyperparameters = { lr = 0.001 }")
+
+
+def prepare_models(spec_path: Path, spec: dict) -> list[Path]:
+    """A new model folder for each entry in the spec's `out`. A folder that is there already (an earlier model, an
+    earlier sweep's) is refused before any is written, and on an error the folders made so far are removed:
+    a sweep never re-initialises a model."""
+    out = (spec_path.parent / spec.get("out", spec_path.stem)).resolve()
+    for m in spec["model"]:
+        there = out / m["name"]
+        if there.exists() and not (there.is_dir() and not any(there.iterdir())):
+            raise RacerlabError(f"{spec_path}: model {m['name']!r}: {there} is there already; a sweep trains new "
+                                "models only: give another name or out, or move that folder away")
+    made: list[Path] = []
+    try:
+        for m in spec["model"]:
+            made.append(out / m["name"])
+            prepare_model(spec_path, out, m, spec.get("track"), spec.get("cars", 4))
+    except BaseException:
+        for d in made:
+            shutil.rmtree(d, ignore_errors=True)
+        raise
+    return made
 
 
 def prepare_model(spec_path: Path, out: Path, entry: dict, track: str, cars: int) -> Path:
     """An ordinary model folder for one sweep entry: init defaults, then the entry's reward and hyperparameters."""
-    folder = init_model(out / entry["name"], track=track, num_cars=cars, force=True,
+    folder = init_model(out / entry["name"], track=track, num_cars=cars,
                         **{k: entry[k] for k in _INIT_KEYS if k in entry})
     if "reward" in entry:
         src = (spec_path.parent / entry["reward"]).resolve()
@@ -129,8 +182,7 @@ def run_sweep(spec_path, address: str | None = None, *, stall_s: float = TRAININ
     spec = load_spec(spec_path)
     out = (spec_path.parent / spec.get("out", spec_path.stem)).resolve()
     track = spec.get("track")
-    cars = int(spec.get("cars", 4))
-    dirs = [prepare_model(spec_path, out, m, track, cars) for m in spec["model"]]
+    dirs = prepare_models(spec_path, spec)
     names = [m["name"] for m in spec["model"]]
     ray = connect(address)
     task = ray.remote(num_cpus=1, max_retries=1)(_train_one)

@@ -180,7 +180,7 @@ def _race_routes(app: FastAPI) -> None:
                 board = race(folders, track=track, rules=rules, out=out, progress=False, cancel=cancel)
             return {"race": out.name, "table": board.table()}
 
-        return w.run_task("race", "race", job, cancel=cancel).to_json()
+        return w.run_task("race", "race", job, cancel=cancel, models=[check_name(n) for n in names]).to_json()
 
     @app.get("/api/races")
     def races(request: Request):
@@ -214,7 +214,8 @@ def _analysis_routes(app: FastAPI) -> None:
 
         w = ws(request)
         folder = w.folder(name)
-        return w.run_task("report", f"report:{name}", lambda: {"report": write_report(folder.path).name}).to_json()
+        return w.run_task("report", f"report:{name}", lambda: {"report": write_report(folder.path).name},
+                          models=[name]).to_json()
 
     @app.api_route("/api/models/{name}/report", methods=["GET", "HEAD"])  # the page asks with HEAD if there is one
     def report(request: Request, name: str):

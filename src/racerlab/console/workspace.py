@@ -68,6 +68,7 @@ class Task:
     started: float = field(default_factory=time.time)
     finished: float | None = None
     cancel: threading.Event | None = None  # set to stop the job (a race), for those that can stop
+    models: tuple[str, ...] = ()  # the model folders it reads and writes: none may be deleted while it runs
 
     def to_json(self) -> dict:
         return {"kind": self.kind, "key": self.key, "status": self.status, "message": self.message,
@@ -140,20 +141,25 @@ class Workspace:
         """Remove a model folder, holding its training lock meanwhile (a trainer started from a terminal or the
         cluster holds it too, so its folder is refused, not half-removed); the folder is first moved aside in
         one rename, so it is either whole or gone."""
-        if self.state(name) != "idle":
-            raise ConsoleError(f"{name}: stop its {self.state(name)} first", 409)
         folder = self.folder(name)
         lock = folder.lock()
-        try:
-            lock.acquire()
-        except RacerlabError as exc:
-            raise ConsoleError(f"{name}: training in another process; stop it first ({exc})", 409) from None
-        try:
-            self.state_root.mkdir(parents=True, exist_ok=True)
-            trash = Path(tempfile.mkdtemp(prefix=f"deleting-{name}-", dir=self.state_root))
-            os.replace(folder.path, trash / name)
-        finally:
-            lock.release()
+        with self._lock:  # no task that uses the model starts between the check and the move
+            state = self.state(name)
+            if state == "racing":
+                raise ConsoleError(f"{name}: a running race uses it; cancel the race or wait for it to end, then "
+                                   "delete", 409)
+            if state != "idle":
+                raise ConsoleError(f"{name}: stop its {state} first", 409)
+            try:
+                lock.acquire()
+            except RacerlabError as exc:
+                raise ConsoleError(f"{name}: training in another process; stop it first ({exc})", 409) from None
+            try:
+                self.state_root.mkdir(parents=True, exist_ok=True)
+                trash = Path(tempfile.mkdtemp(prefix=f"deleting-{name}-", dir=self.state_root))
+                os.replace(folder.path, trash / name)
+            finally:
+                lock.release()
         shutil.rmtree(trash, ignore_errors=True)
         shutil.rmtree(self.state_root / name, ignore_errors=True)
 
@@ -164,6 +170,8 @@ class Workspace:
         task = self.tasks.get(f"evaluate:{name}")
         if task and task.status == "running":
             return "evaluating"
+        if any(t.status == "running" and name in t.models for t in list(self.tasks.values())):
+            return "racing"
         return "idle"
 
     def _training_file(self, name: str) -> Path:
@@ -226,14 +234,17 @@ class Workspace:
         return "\n".join(text.splitlines()[-lines:])
 
     # ---- background tasks --------------------------------------------------------------------
-    def run_task(self, kind: str, key: str, fn, cancel: threading.Event | None = None) -> Task:
+    def run_task(self, kind: str, key: str, fn, cancel: threading.Event | None = None, models=()) -> Task:
         """Run `fn()` (returning a dict) in a thread; one task per key at a time. `cancel` is the event `fn` watches
-        to stop early (`cancel_task` sets it); an error after it was set ends the task as "cancelled"."""
+        to stop early (`cancel_task` sets it); an error after it was set ends the task as "cancelled". `models`
+        (names) are the model folders it uses: they cannot be deleted while it runs, nor can a deleted one be used."""
         with self._lock:
             old = self.tasks.get(key)
             if old and old.status == "running":
                 raise ConsoleError(f"{key}: already running", 409)
-            task = self.tasks[key] = Task(kind, key, cancel=cancel)
+            for name in models:
+                self.folder(name)  # deleted meanwhile: 404, not a race that re-creates its folder
+            task = self.tasks[key] = Task(kind, key, cancel=cancel, models=tuple(models))
 
         def work():
             try:

@@ -88,10 +88,11 @@ def _kmeans(x: np.ndarray, w: np.ndarray, k: int, seed: int, iters: int = 100) -
     return c
 
 
-def model_metadata(line: RacingLine, n_actions: int = DEFAULT_ACTIONS) -> dict:
-    """An AWS `model_metadata.json` dict: the fitted discrete actions, front camera, shallow CNN, PPO."""
+def model_metadata(line: RacingLine, n_actions: int = DEFAULT_ACTIONS, version: float = 5.0) -> dict:
+    """An AWS `model_metadata.json` dict of `version` (the car the line was solved for): the fitted discrete actions,
+    front camera, shallow CNN, PPO."""
     meta = ModelMetadata(action_space(line, n_actions), ("FRONT_FACING_CAMERA",),
-                         "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "clipped_ppo", 5.0)
+                         "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "clipped_ppo", float(version))
     return meta.to_json()
 
 
@@ -147,8 +148,9 @@ def save_png(line: RacingLine, track: Track, path, dpi: int = 150) -> Path:
     return Path(path)
 
 
-def write_all(line: RacingLine, track: Track, out_dir, n_actions: int = DEFAULT_ACTIONS) -> dict[str, Path]:
-    """Write every file into `out_dir` (created); returns {kind: path}."""
+def write_all(line: RacingLine, track: Track, out_dir, n_actions: int = DEFAULT_ACTIONS,
+              version: float = 5.0) -> dict[str, Path]:
+    """Write every file into `out_dir` (created), model_metadata.json of `version`; returns {kind: path}."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = f"{_safe(line.track_name)}_{line.method}"
@@ -158,7 +160,7 @@ def write_all(line: RacingLine, track: Track, out_dir, n_actions: int = DEFAULT_
     np.save(paths["npy"], line.xy)
     paths["csv"].write_text(csv_text(line))
     paths["py"].write_text(python_text(line))
-    paths["model_metadata"].write_text(json.dumps(model_metadata(line, n_actions), indent=2) + "\n")
+    paths["model_metadata"].write_text(json.dumps(model_metadata(line, n_actions, version), indent=2) + "\n")
     return paths
 
 

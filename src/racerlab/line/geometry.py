@@ -180,7 +180,7 @@ def _capsule_hits(o, n, c, a, d, u_dir, length):
     with np.errstate(divide="ignore", invalid="ignore"):
         band_lo = np.maximum(_slab(u0, un, 0.0, length)[0], _slab(w0, wn, -c, c)[0])
         band_hi = np.minimum(_slab(u0, un, 0.0, length)[1], _slab(w0, wn, -c, c)[1])
-    band = band_lo < band_hi
+    band = (band_lo < band_hi) & (length > 1e-12)  # a segment of (clamped) zero length is its end discs only
     return np.where(band, np.minimum(lo, band_lo), lo), np.where(band, np.maximum(hi, band_hi), hi)
 
 

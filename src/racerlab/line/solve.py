@@ -185,10 +185,11 @@ def solve(track: Track, clearance: float, method: str = "mincurv", step_m: float
         segs = G.border_segments(track)
     reach = float(track.widths.max()) + 2.0 * overhang
     extra = np.full(m, CUSHION_M)  # clearance added to what the car needs
+    grown = GROWN_CLEARANCE_M + overhang if overhang > 0 else 0.0
     best, damping, move, it = np.inf, 0.0, np.inf, 0  # best = inf: the next step is taken whatever it gives
     for it in range(1, max_iter + 1):
         normal = G.left_normals(ref, closed)
-        lo, hi = _room(track, ref, normal, segs, clearance + extra, reach)
+        lo, hi = _room(track, ref, normal, segs, clearance + extra, (reach, grown))
         alpha = offsets(ref, normal, lo, hi, method, closed, damping, blend)
         move = float(np.abs(alpha - np.clip(0.0, lo, hi)).max())  # beyond what the bounds force
         if move < tol_m:
@@ -225,15 +226,22 @@ def _resample(track: Track, xy: np.ndarray, m: int, closed: bool) -> np.ndarray:
     return G.resample_smooth(xy, m, closed, start=track.center[0] if closed else None)
 
 
-def _room(track: Track, ref, normal, segs, clearance, reach: float) -> tuple[np.ndarray, np.ndarray]:
+def _room(track: Track, ref, normal, segs, clearance, reach_grown: tuple[float, float]):
+    """`G.lateral_room` of each point (borders grown by `grown` m); a point with none raises `TrackError`, which
+    says the road is too narrow only where it is."""
+    reach, grown = reach_grown
     lo, hi = G.lateral_room(ref, normal, *segs, clearance, reach)
     if np.any(lo > hi):
         i = int(np.argmax(lo - hi))
         where = track.project([ref[i]])
-        need = 2.0 * float(np.broadcast_to(clearance, lo.shape)[i])
-        raise TrackError(
-            f"{track.name}: the road is {float(where.width[0]):.2f} m wide {float(where.s[0]):.1f} m from the start, "
-            f"too narrow for the car and the margin (they need {need:.2f} m); use a smaller margin (--margin)")
+        need = 2.0 * (float(np.broadcast_to(clearance, lo.shape)[i]) - grown)
+        width, at = float(where.width[0]), f"{float(where.s[0]):.1f} m from the start"
+        if width > need + 0.01:
+            raise TrackError(f"{track.name}: the line finds no room {at}, though the road there is {width:.2f} m wide "
+                             f"and the car needs {max(need, 0.0):.2f} m: its borders fold or cross there; check them "
+                             f"with `racerlab tracks show {track.name}`")
+        raise TrackError(f"{track.name}: the road is {width:.2f} m wide {at}, too narrow for the car and the margin "
+                         f"(they need {need:.2f} m); use a smaller margin (--margin)")
     return lo, hi
 
 

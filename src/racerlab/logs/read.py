@@ -277,7 +277,8 @@ def read_sim_trace_log(data: bytes, name: str) -> tuple[pa.Table, dict]:
     """`SIM_TRACE_LOG:` lines of a robomaker / DROA simulation log -> (normalised table, header info).
 
     Lines may carry `[node]` prefixes or anything before the marker. The header info holds
-    `hyperparameters` (the JSON after "Using the following hyper-parameters") when present.
+    `hyperparameters` (the JSON after "Using the following hyper-parameters") when present. A malformed last line
+    (a log still being written, cut mid-line) is left out; a malformed line before it is an error.
     """
     lines = _TRACE.findall(data)
     info = {"hyperparameters": _hyperparameters(data)}
@@ -288,6 +289,9 @@ def read_sim_trace_log(data: bytes, name: str) -> tuple[pa.Table, dict]:
     if b"[" in text:
         text = _OLD_CONTINUOUS.sub(rb"[\1 \2]", text)
         lines = text.split(b"\n")
+    if _cut(lines):
+        lines = lines[:-1]
+        text = b"\n".join(lines)
     text += b"\n"
     fields = np.fromiter((line.count(b",") + 1 for line in lines), np.int64, len(lines))
     tables = []
@@ -313,6 +317,18 @@ def read_sim_trace_log(data: bytes, name: str) -> tuple[pa.Table, dict]:
     if len(tables) > 1:
         table = table.take(pa.array(np.argsort(np.concatenate(order), kind="stable")))
     return table, info
+
+
+def _cut(lines: list[bytes]) -> bool:
+    """Whether the last of several SIM_TRACE_LOG lines is a cut one: fewer fields than the line before, or a field
+    that does not parse."""
+    if len(lines) < 2:
+        return False
+    count = lines[-1].count(b",") + 1
+    names = _LOG_NAMES.get(count)
+    if names is None or count != lines[-2].count(b",") + 1:
+        return True
+    return _line_problem(lines[-1], list(names), _column_types(list(names))) is not None
 
 
 def _select_lines(text: bytes, where: np.ndarray) -> bytes:

@@ -13,7 +13,7 @@ from pathlib import Path
 from racerlab.errors import ConfigError
 from racerlab.logs.metrics import BEST_MODEL_METRICS
 from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
-from racerlab.spec import CAR_KEYS, DEFAULT_SIMULATOR, SIMULATORS, CarParams, RaceConfig, car_params
+from racerlab.spec import CAR_KEYS, DEFAULT_SIMULATOR, SIMULATORS, CarParams, RaceConfig, car_params, implausible
 
 REWARD_ORDERS = ("aws", "after_action")
 LOOKS = ("aws", "classic")  # run.look: the camera's world, named only here (sim.sensors.look.LOOKS holds each)
@@ -144,6 +144,9 @@ class CarSettings:
                 raise ConfigError(f"{where}: unknown key car.{key}; allowed in [car]: simulator, "
                                   f"{', '.join(allowed)}")
             value = _coerce(where, f"car.{key}", getattr(CarParams(), key), value)
+            why = implausible(key, value)
+            if why:
+                raise ConfigError(f"{where}: car.{key} = {why}, or remove the key to use the fitted one")
             try:
                 CarParams(**{key: value})
             except ValueError as exc:

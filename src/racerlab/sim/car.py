@@ -35,6 +35,7 @@ import math
 import numpy as np
 from numba import njit
 
+from racerlab.sim.rollout_inputs import check_rollout_inputs
 from racerlab.spec import (
     MAX_DELAY_STEPS,
     MODEL_POINT_AHEAD_M,
@@ -259,6 +260,7 @@ def rollout(start, actions, *, history=None, version="5", simulator="droa", car:
     each step's length (the tstamp differences; default 1/15 s).
     """
     car = car or car_params(simulator, version)
+    check_rollout_inputs(start, actions, history, dt, car)
     acts = np.asarray(actions, dtype=np.float64).reshape(-1, 2)
     steer0 = start.get("steering_angle")
     if history is None or len(history) == 0:
