@@ -44,7 +44,8 @@ def main() -> None:
     before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "drfc"
-        write_training_folder(folder, 400, max(1, round(args.rows / (400 * 120))), 1, 120, seed=3)  # 1 M rows, 400 files
+        # 1 M rows in 400 files
+        write_training_folder(folder, 400, max(1, round(args.rows / (400 * 120))), 1, 120, seed=3)
         times: dict[str, list[float]] = {"base": [], "branch": []}
         rows = {}
         for r in range(args.rounds):
