@@ -21,14 +21,19 @@ from pathlib import Path
 
 from racerlab.calibrate import HORIZONS, constant_velocity_errors, errors, fit_with_spread, load_stretches, medians
 from racerlab.calibrate.data import concat, split
+from racerlab.sim.car import TIMINGS, log_timing
 from racerlab.spec import CarParams, car_params, control_of
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "reference"
+FAST = "simtraces/console2025oct-v5-highspeed"  # other racers' console runs at up to 3.5-4 m/s (issue 34)
 # name: (paths, simulator, model version)
 SETS = {
     "drfc2022-v4": (["real_logs/sample-drfc-1-logs"], "console", "4"),
     "console2022": (["real_logs/sample-console-logs"], "console", "4"),
     "console2025-v5": (["simtraces/console2025aug-v5-ros1-2022_reinvent_champ_ccw"], "console", "5"),
+    "console2025-fast-3.5": ([f"{FAST}/deepModel-clone3"], "console", "5"),
+    "console2025-fast-4a": ([f"{FAST}/reinvencementModel-clone1/training"], "console", "5"),
+    "console2025-fast-4b": ([f"{FAST}/vitor"], "console", "5"),
     "droa2026-training": (["simtraces/droa2026-v6-Spain_track"], "droa", "5"),
     "droa2026-evaluation": (["simtraces/droa2026-v6-Spain_track-evaluation"], "droa", "5"),
     "droa2026-eval-only-tar": (["real_logs/sample-droa-eval-only.tar.gz"], "droa", "5"),
@@ -50,6 +55,11 @@ def _paths(rel: list[str], tmp: Path) -> list[Path]:
     return out
 
 
+def _timing(name: str, rule: str) -> str:
+    """The step timing a set is read with: its simulator's rule (`sim.car.LOG_TIMING`), or `rule` for all."""
+    return log_timing(car_params(SETS[name][1], SETS[name][2])) if rule == "simulator" else rule
+
+
 def _round(d: dict) -> dict:
     return {str(k): round(v, 4) for k, v in d.items()}
 
@@ -60,9 +70,12 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=None, help="a stretch starts at every N-th row (default: about "
                     "2 500 stretches per set)")
     ap.add_argument("--sets", nargs="*", default=list(SETS))
+    ap.add_argument("--timing", default="simulator", choices=("simulator", *TIMINGS),
+                    help="how the logs' tstamps give step lengths (default: each simulator's rule)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        loaded = {n: split(load_stretches(_paths(SETS[n][0], Path(tmp)), args.every)) for n in args.sets}
+        loaded = {n: split(load_stretches(_paths(SETS[n][0], Path(tmp)), args.every, _timing(n, args.timing)))
+                  for n in args.sets}
     if args.fit:
         groups: dict[tuple[str, str], list[str]] = {}
         for n in args.sets:

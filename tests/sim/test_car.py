@@ -2,13 +2,14 @@
 simulator, step jitter."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from racerlab.errors import ConfigError
 from racerlab.sim import Simulator, World
-from racerlab.sim.car import advance, pack, rollout, step_lengths
+from racerlab.sim.car import LOG_TIMING, advance, log_timing, pack, rollout, step_durations, step_lengths
 from racerlab.spec import (
     CAR_TABLE,
     MODEL_POINT_AHEAD_M,
@@ -201,3 +202,32 @@ def test_world_takes_the_simulator_and_the_model_version():
     assert w.sim.car_params.name.startswith("console, effort")
     assert World("lab_oval", 1).sim.car_params.simulator == "droa"
     assert World("lab_oval", 1, car={"simulator": "console", "yaw_gain": 0.5}).sim.car_params.yaw_gain == 0.5
+
+
+def test_step_durations_follow_each_log_kinds_rule():
+    t = [10.0, 10.05, 10.13, 10.20]
+    # console v5 / DRoA: a row's pose belongs to the previous row's tstamp: row 1 -> 2 lasts 10.05 - 10.0
+    assert step_durations(t, "previous")[1:] == pytest.approx([0.05, 0.08])
+    assert math.isnan(step_durations(t, "previous")[0])
+    assert step_durations(t, "next") == pytest.approx([0.05, 0.08, 0.07])
+    assert step_durations(t, "fixed") == pytest.approx([STEP_S] * 3)  # 2022 effort logs: tstamps say nothing
+    assert log_timing(car_params("console", "4")) == "fixed" and log_timing(car_params("console", "5")) == "previous"
+    assert set(LOG_TIMING) == set(CAR_TABLE)
+    with pytest.raises(ValueError, match="unknown step timing"):
+        step_durations(t, "whenever")
+
+
+def test_rollout_reads_tstamps_by_the_simulators_rule():
+    """A car at a constant 2 m/s straight ahead: each step moves it 2 m/s x that step's length, and the lengths
+    come from the tstamps of the history's row, the start row and the rows after (m + 1 + k values)."""
+    car = bare(simulator="console", ground_factor=1.0)
+    start = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 2.0, "steering_angle": 0.0}
+    hist, acts = [[0.0, 2.0]], [[0.0, 2.0]] * 3
+    t = [0.0, 0.05, 0.15, 0.20, 0.30]  # rows: history, start, 3 after
+    xs = rollout(start, acts, history=hist, car=car, tstamps=t)[:, 0]
+    # ROS 1 velocity ("previous"): steps last 0.05 (t1 - t0), 0.10 (t2 - t1), 0.05 (t3 - t2)
+    assert xs == pytest.approx(2.0 * np.cumsum([0.05, 0.10, 0.05]))
+    xs4 = rollout(start, acts, history=hist, car=replace(car, control="effort"), tstamps=t)[:, 0]
+    assert xs4 == pytest.approx(2.0 * STEP_S * np.arange(1, 4))  # the 2022 effort logs: 1/15 s steps
+    with pytest.raises(ValueError, match="m \\+ 1 \\+ k = 5"):
+        rollout(start, acts, history=hist, car=car, tstamps=t[:4])

@@ -9,15 +9,16 @@ from racerlab.analysis import load
 from racerlab.calibrate.data import Stretches, concat, split, stretches
 from racerlab.calibrate.fit import FITTED, Fit, fit_with_spread
 from racerlab.errors import ConfigError
-from racerlab.spec import DEFAULT_SIMULATOR
+from racerlab.sim.car import log_timing
+from racerlab.spec import DEFAULT_SIMULATOR, car_params
 
 MAX_STRETCHES = 2500  # per log, by default: stretches overlap, more mostly cost time
 
 
-def load_stretches(paths, every: int | None = None) -> Stretches:
+def load_stretches(paths, every: int | None = None, timing: str = "previous") -> Stretches:
     """The stretches of every log in `paths` (each a folder, export or robomaker log `racerlab.analysis.load` reads),
-    one starting at every `every`-th row (default: about MAX_STRETCHES per log); episodes of different logs stay
-    apart."""
+    one starting at every `every`-th row (default: about MAX_STRETCHES per log), steps timed by the rule `timing`
+    (`racerlab.sim.car.log_timing`); episodes of different logs stay apart."""
     parts = []
     offset = 0
     for p in paths:
@@ -25,7 +26,7 @@ def load_stretches(paths, every: int | None = None) -> Stretches:
             raise ConfigError(f"{p}: no such file or folder; give a simtrace folder, a console/DRoA export or a "
                               "robomaker log")
         df = load(p)
-        st = stretches(df, every=every or max(1, len(df) // MAX_STRETCHES), source=str(p))
+        st = stretches(df, every=every or max(1, len(df) // MAX_STRETCHES), source=str(p), timing=timing)
         st.episode = st.episode + offset
         offset = int(st.episode.max()) + 1
         parts.append(st)
@@ -36,7 +37,8 @@ def calibrate(paths, simulator: str = DEFAULT_SIMULATOR, version="5", *, every: 
               seed: int = 0) -> Fit:
     """Fit `simulator`'s car for a `version` model to the logs at `paths`: every third episode is held out and
     reported on (the `Fit` keeps those stretches in `held`)."""
-    fit_st, held_st = split(load_stretches(paths, every))
+    timing = log_timing(car_params(simulator, version))
+    fit_st, held_st = split(load_stretches(paths, every, timing))
     return fit_with_spread(fit_st, held_st, simulator, version, resamples=resamples, seed=seed)
 
 

@@ -21,6 +21,7 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
   False: version 3-4 models on the ROS 2 simulator) always drive toward the cap.
 * **step length**: a real step lasts 0.05-0.08 s of simulated time rather than 1/15 s; with `step_jitter`
   the simulator draws each car's step from the measured distribution (`spec.STEP_LENGTHS`, mean 1/15 s).
+  A log's tstamps give its steps' lengths by that simulator's rule (`LOG_TIMING`, `step_durations`).
 
 `rollout` replays logged actions from a logged state with this model (the calibration, `racerlab
 calibrate`, fits the constants with it); `advance` is the compiled integration the simulator steps every
@@ -57,6 +58,34 @@ def pack(car: CarParams) -> np.ndarray:
                      car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
                      float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
                      car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s], dtype=np.float64)
+
+
+# How each simulator's simtraces stamp their steps (docs/car.md, "The logs' step timing"), by (simulator, control):
+# "previous": a row's pose belongs to the previous row's tstamp, so the step from row j to j+1 lasts
+# t[j] - t[j-1] (console v5, ROS 1 velocity; DRoA, ROS 2); "fixed": the tstamps carry no information about the
+# motion (the 2022 effort-car logs), every step lasts 1/15 s; "next" (t[j+1] - t[j]) is the naive reading.
+TIMINGS = ("previous", "fixed", "next")
+LOG_TIMING = {("droa", "velocity"): "previous", ("droa", "effort"): "previous",
+              ("console", "velocity"): "previous", ("console", "effort"): "fixed"}
+
+
+def log_timing(car: CarParams) -> str:
+    """The timing rule of the logs of `car`'s simulator and control (`LOG_TIMING`)."""
+    return LOG_TIMING[(car.simulator, car.control)]
+
+
+def step_durations(tstamps, timing: str) -> np.ndarray:
+    """(n - 1,) the lengths (s) of the steps from row j to row j + 1 of n logged `tstamps` by the rule `timing`
+    (`TIMINGS`); NaN where the rule needs a row before the first."""
+    t = np.asarray(tstamps, dtype=np.float64).ravel()
+    n = len(t)
+    if timing == "fixed":
+        return np.full(max(n - 1, 0), STEP_S)
+    if timing == "next":
+        return np.diff(t)
+    if timing == "previous":
+        return np.concatenate([[math.nan], np.diff(t)[:-1]]) if n > 1 else np.empty(0)
+    raise ValueError(f"unknown step timing {timing!r}; use one of {', '.join(TIMINGS)}")
 
 
 def step_lengths(rng: np.random.Generator, n: int, simulator: str) -> np.ndarray:
@@ -241,22 +270,23 @@ def rollout_batch(start, commands, first, dts, car, mean_speed=False, prev_dt=No
 
 
 def rollout(start, actions, *, history=None, version="5", simulator="droa", car: CarParams | None = None,
-            dt=None) -> np.ndarray:
+            dt=None, tstamps=None) -> np.ndarray:
     """Where the car goes when it is given `actions` from `start`: (k, 3) front x, y (m) and heading (°).
 
     The semantics are a simtrace row's (facts §7): `start` is the state a row logs, a dict with `x`, `y`
     (the front point, m), `heading` (degrees), `speed` (the ground speed now, m/s) or instead `mean_speed` (the
-    last position difference over its tstamp difference `mean_dt`, default 1/15 s: the car's own speed model
-    then works out the speed now from the history's commands), `steering_angle` (the front wheels' angle, degrees;
-    None estimates it from `history`) and,
-    optionally, `yaw_rate` (°/s, e.g. the last heading difference over its step; missing: the one the wheel
-    angle and speed settle at);
+    last position difference over its step of `mean_dt` s, default 1/15 s: the car's own speed model then works out
+    the speed now from the history's commands), `steering_angle` (the front wheels' angle, degrees; None estimates
+    it from `history`) and, optionally, `yaw_rate` (°/s, e.g. the last heading difference over its step; missing:
+    the one the wheel angle and speed settle at);
     `actions` (k, 2) are the [steering_angle °, speed m/s] of that row and the k - 1 rows after it, as
     logged; row j of the result is the pose the next row logs after action j. `history` (m, 2) holds the
     actions of the rows before `start`, oldest first: the car is still acting on those for its delay
     (missing ones repeat the oldest given, or, with no history, stand for the start's wheel angle and
-    speed). The car is `simulator`'s for a model of `version` (`spec.car_params`), or `car`; `dt` gives
-    each step's length (the tstamp differences; default 1/15 s).
+    speed). The car is `simulator`'s for a model of `version` (`spec.car_params`), or `car`. The steps' lengths:
+    `dt` (k values, or one for all; default 1/15 s), or `tstamps`, the logged tstamps of the history's rows, the
+    start row and the k rows after (m + 1 + k values), read by the car's simulator's rule (`LOG_TIMING`; the start's
+    `mean_dt` then comes from them too).
     """
     car = car or car_params(simulator, version)
     acts = np.asarray(actions, dtype=np.float64).reshape(-1, 2)
@@ -264,16 +294,33 @@ def rollout(start, actions, *, history=None, version="5", simulator="droa", car:
     if history is None or len(history) == 0:
         v0 = float(start["speed"] if "speed" in start else start["mean_speed"])
         hist = np.array([[0.0 if steer0 is None else float(steer0), v0 / car.ground_factor]])
+        m = 0
     else:
         hist = np.asarray(history, dtype=np.float64).reshape(-1, 2)
+        m = len(hist)
     cmds = np.concatenate([hist, acts])
     cmds[:, 0] = np.radians(cmds[:, 0])
     k = len(acts)
-    dts = np.full((1, k), STEP_S) if dt is None else np.asarray(dt, dtype=np.float64).reshape(1, k)
+    dts, mean_dt = _step_times(k, m, dt, tstamps, car, start.get("mean_dt", STEP_S))
     w0 = start.get("yaw_rate")
     mean = "mean_speed" in start and "speed" not in start
     st = np.array([[start["x"], start["y"], math.radians(start["heading"]), start["mean_speed" if mean else "speed"],
                     math.nan if steer0 is None else math.radians(steer0),
                     math.nan if w0 is None else math.radians(w0)]], dtype=np.float64)
-    prev = np.array([float(start.get("mean_dt", STEP_S))])
-    return rollout_batch(st, cmds[None], len(hist), dts, pack(car), mean, prev)[0]
+    return rollout_batch(st, cmds[None], len(hist), dts[None], pack(car), mean, np.array([mean_dt]))[0]
+
+
+def _step_times(k: int, m: int, dt, tstamps, car: CarParams, mean_dt) -> tuple[np.ndarray, float]:
+    """`rollout`'s k step lengths and the start's `mean_dt`, from `dt` or the logged `tstamps`."""
+    if tstamps is None:
+        dts = np.full(k, STEP_S) if dt is None else np.broadcast_to(np.asarray(dt, dtype=np.float64).ravel(), (k,))
+        return np.ascontiguousarray(dts, dtype=np.float64), float(mean_dt)
+    if dt is not None:
+        raise ValueError("rollout takes dt or tstamps, not both")
+    t = np.asarray(tstamps, dtype=np.float64).ravel()
+    if len(t) != m + 1 + k:
+        raise ValueError(f"rollout's tstamps need m + 1 + k = {m + 1 + k} values (the history's rows, the start row "
+                         f"and the {k} rows after), got {len(t)}")
+    d = step_durations(t, log_timing(car))  # d[j]: row j -> j + 1; the start row is row m
+    d = np.where(np.isfinite(d), d, STEP_S)
+    return np.ascontiguousarray(d[m:m + k]), float(d[m - 1]) if m > 0 else float(mean_dt)
