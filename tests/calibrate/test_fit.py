@@ -49,7 +49,9 @@ def test_a_fit_recovers_the_car_that_drove_the_log():
     # the hinge's lag and the yaw rate's are two first-order lags in a row on the way from the command to the turn:
     # the logs tell their sum, not how it divides
     assert car.steer_tau_s + car.yaw_tau_s == pytest.approx(0.2, abs=0.03)
-    assert car.yaw_gain == pytest.approx(0.55, abs=0.05)
+    # the turn at the log's speeds: the yaw gain and the slide together (on held actions the hinge's kick at each
+    # command change trades a little against the gain: the fit may use some of it)
+    assert car.yaw_gain_at(1.4) == pytest.approx(TRUE.yaw_gain_at(1.4), rel=0.08)
     assert car.accel_mps2 == pytest.approx(4.0, rel=0.15)
     assert car.ground_factor == pytest.approx(1.05, abs=0.01)
     # and it predicts the held-out episodes almost exactly, far better than the constant-velocity guess
