@@ -18,12 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import tarfile
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from car_fidelity import _paths  # the benchmark beside this one: the shared logs, tarballs unpacked
 from racerlab.analysis import load
 from racerlab.sim import Simulator
 from racerlab.sim import _kernels as K
@@ -32,7 +32,6 @@ from racerlab.spec import MODEL_POINT_AHEAD_M, STEP_S, car_params
 from racerlab.track import load_file
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-REF = SHARED / "reference"
 # name: (evaluation log, track file stem, simulator, model version)
 LAPS = {
     "drfc2022-v4": (["real_logs/sample-drfc-1-logs/evaluation-20220709200242",
@@ -45,7 +44,7 @@ LAPS = {
 }
 
 
-LOOKAHEAD_M = 0.2  # short: the driver follows the logged path's weaving instead of cutting it
+LOOKAHEAD_M = 0.15  # short: the driver follows the logged path's weaving instead of cutting it
 
 
 class LoggedDriver:
@@ -114,18 +113,6 @@ def _path_gap(driven: np.ndarray, logged: np.ndarray) -> float:
     """Mean distance (m) from each driven front point to the nearest logged one."""
     d = np.hypot(driven[:, None, 0] - logged[None, :, 0], driven[:, None, 1] - logged[None, :, 1])
     return float(d.min(axis=1).mean())
-
-
-def _paths(rel, tmp: Path):
-    out = []
-    for r in rel:
-        p = REF / r
-        if p.name.endswith(".tar.gz"):
-            with tarfile.open(p) as tar:
-                tar.extractall(tmp / p.name, filter="data")
-            p = next((tmp / p.name).iterdir())
-        out.append(p)
-    return out
 
 
 def plot_lap(track, lap, driven, title: str, path) -> None:
