@@ -285,3 +285,17 @@ def test_randomised_dynamics_draw_within_the_spread(monkeypatch):
                                                                               first[1:])
     plain = Simulator("lab_oval", 3, car_params("droa"), seed=1)
     assert np.all(plain._car_arr[:, car_mod.P_YAW_GAIN] == car.yaw_gain)
+
+
+def test_randomised_dynamics_train_only(tmp_path):
+    """[car] randomise draws the training episodes' cars; evaluations drive the fitted car; a negative factor is one
+    line naming the key."""
+    from racerlab.model import load_training_config
+
+    p = tmp_path / "training.toml"
+    p.write_text('[car]\nsimulator = "console"\nrandomise = 1.5\n')
+    cfg = load_training_config(p)
+    assert cfg.car.params("5").randomise == 1.5 and cfg.car.params("5", training=False).randomise == 0.0
+    p.write_text("[car]\nrandomise = -1\n")
+    with pytest.raises(ConfigError, match="car.randomise"):
+        load_training_config(p)
