@@ -64,20 +64,23 @@ class CarParams:
     max_speed_mps: float = MAX_SPEED  # the command clip; the wheels' own cap is `wheel_cap_mps`
     simulator: str = DEFAULT_SIMULATOR
     control: str = "velocity"
-    # the defaults are the droa velocity car fitted on the DRoA 2026 logs (spread over resampled fits in docs/car.md)
-    delay_steps: float = 0.69  # the action starts to act this many steps after its row (fraction: within the step)
-    steer_tau_s: float = 0.158  # the hinge's first-order lag (the simapp's ROS 2 controller: 0.167 s)
-    yaw_gain: float = 0.632  # yaw rate / the kinematic bicycle's at low speed
+    # the defaults are the droa velocity car fitted on the DRoA 2026 logs (issue 34: steps timed by DRoA's rule)
+    delay_steps: float = 0.538  # the action starts to act this many steps after its row (fraction: within the step)
+    steer_tau_s: float = 0.161  # the hinge's first-order lag (the simapp's ROS 2 controller: 0.167 s)
+    steer_kick: float = 0.0  # share of a steering command's change the hinge takes at once (ROS 1's PID derivative)
+    yaw_gain: float = 0.638  # yaw rate / the kinematic bicycle's at low speed
     slide_mps: float = 0.0  # the gain halves at this speed (gain / (1 + (v / slide)²)); 0 = no slide
-    yaw_tau_s: float = 0.0  # first-order lag of the yaw rate toward the one the wheels ask for (body inertia, slip)
-    speed_tau_s: float = 0.0065  # first-order lag of the ground speed toward the target
-    accel_mps2: float = 21.6  # traction limits
-    brake_mps2: float = 29.3
-    ground_factor: float = 1.014  # ground speed / command (wheel mesh radius ~0.036 m against the controller's 0.035)
+    yaw_tau_s: float = 0.014  # first-order lag of the yaw rate toward the one the wheels ask for (body inertia, slip)
+    speed_tau_s: float = 0.0089  # first-order lag of the ground speed toward the target
+    accel_mps2: float = 14.9  # traction limits
+    brake_mps2: float = 13.0
+    accel_fade_mps: float = 0.0  # the acceleration falls as 1 - (v / fade)², < 0 above it (ROS 1); 0 = no fade
+    ground_factor: float = 1.0135  # ground speed / command (wheel mesh radius ~0.036 m against the controller's 0.035)
     wheel_cap_mps: float = WHEEL_CAP_MPS  # commands above it are clipped by the wheel joints' velocity limit
     regulated: bool = True  # False: effort control without a speed loop (droa, version 3-4): full traction always
     grip_mps2: float = 4.9  # lateral acceleration limit (mu 0.5 x g)
     step_jitter: bool = False  # steps last a length drawn from the simulator's measured distribution (training: on)
+    randomise: float = 0.0  # each episode draws the constants around these, this many times the fit's spread
     substeps: int = 4
 
     def __post_init__(self):
@@ -85,7 +88,8 @@ class CarParams:
                      "grip_mps2", "yaw_gain", "ground_factor", "wheel_cap_mps"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"CarParams.{name} must be > 0")
-        for name in ("steer_tau_s", "speed_tau_s", "slide_mps", "yaw_tau_s"):
+        for name in ("steer_tau_s", "speed_tau_s", "slide_mps", "yaw_tau_s", "accel_fade_mps", "steer_kick",
+                     "randomise"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"CarParams.{name} must be >= 0")
         if not 0 <= self.min_speed_mps <= self.max_speed_mps:
@@ -98,6 +102,8 @@ class CarParams:
             raise ValueError(f"CarParams.control must be one of {CONTROLS}, got {self.control!r}")
         if self.substeps < 1:
             raise ValueError("CarParams.substeps must be >= 1")
+        if not self.steer_kick <= 1:
+            raise ValueError("CarParams.steer_kick must be in [0, 1]")
 
     def wheel_offsets(self) -> np.ndarray:
         """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
@@ -111,9 +117,18 @@ class CarParams:
         return f"{self.simulator}, {self.control} control ({which})"
 
     def top_speed(self) -> float:
-        """The fastest ground speed the car settles at, m/s."""
-        return self.ground_factor * (self.wheel_cap_mps if not self.regulated
-                                     else min(self.max_speed_mps, self.wheel_cap_mps))
+        """The fastest ground speed the car settles at, m/s (the fade speed, where the acceleration runs out, caps
+        it)."""
+        top = self.ground_factor * (self.wheel_cap_mps if not self.regulated
+                                    else min(self.max_speed_mps, self.wheel_cap_mps))
+        return min(top, self.accel_fade_mps) if self.accel_fade_mps > 0 else top
+
+    def accel_limit(self, v):
+        """The most the ground speed can gain per second at `v` (m/s², scalar or array; `sim.car.accel_limit`)."""
+        v = np.asarray(v, dtype=np.float64)
+        a = self.accel_mps2 * (1.0 - (v / self.accel_fade_mps) ** 2) if self.accel_fade_mps > 0 else \
+            self.accel_mps2 + 0.0 * v
+        return np.maximum(a, -self.brake_mps2)
 
     def yaw_gain_at(self, v):
         """The effective yaw gain at ground speed `v` (scalar or array)."""
@@ -125,21 +140,40 @@ class CarParams:
 # The fitted cars: (simulator, control) -> the constants that differ from CarParams' defaults. Fitted by
 # `racerlab calibrate` on the shared real logs (docs/car.md has the fits, their spread and held-out errors).
 CAR_TABLE: dict[tuple[str, str], dict] = {
-    # DRoA 2026 (simapp 6.0), 867 fitted stretches: the defaults above
+    # DRoA 2026 (simapp 6.0, commands up to 2.5 m/s), 867 fitted stretches: the defaults above
     ("droa", "velocity"): {},
     # no log: the code's effort controllers forward the command as a torque clipped to 10 N·m (facts §3), so the
     # droa car without a speed loop, the rest unverified
     ("droa", "effort"): {"control": "effort", "regulated": False},
-    # console August 2025 (simapp 5.0, ROS 1), commands 0.5-1.0 m/s only (the slide above them is extrapolated);
-    # gazebo_ros_control saturates velocity commands at the URDF's 100 rad/s: the same 3.5 m/s cap as ROS 2
-    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.76, "steer_tau_s": 0.068, "yaw_gain": 0.740,
-                              "slide_mps": 1.49, "yaw_tau_s": 0.0, "speed_tau_s": 0.0005, "accel_mps2": 22.0,
-                              "brake_mps2": 30.0, "ground_factor": 1.054},
-    # DRfC July 2022 (model version 4) and the console's June 2022 export, 2 707 fitted stretches; an effort
-    # command is saturated in torque, not speed (a P loop on the wheel speed): no cap below the 4 m/s clip
-    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.29, "steer_tau_s": 0.045,
-                            "yaw_gain": 0.672, "slide_mps": 6.26, "yaw_tau_s": 0.469, "speed_tau_s": 0.129,
-                            "accel_mps2": 30.0, "brake_mps2": 18.7, "ground_factor": 0.981, "wheel_cap_mps": 4.0},
+    # console August 2025 (simapp 5.0, ROS 1, commands 0.5-1.0 m/s) and October 2025 (three runs at up to 3.5-4 m/s),
+    # 5 723 fitted stretches: about 3 m/s² from a standstill, fading to 0 at 3.75 m/s (1.8 m/s² at 2.5 m/s, where
+    # the real car's commands stop gaining it speed); gazebo_ros_control saturates velocity commands at the URDF's
+    # 100 rad/s: the same 3.5 m/s cap as ROS 2
+    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.225, "steer_tau_s": 0.055, "yaw_gain": 0.662,
+                              "slide_mps": 1.456, "yaw_tau_s": 0.065, "speed_tau_s": 0.117, "accel_mps2": 3.17,
+                              "brake_mps2": 5.04, "ground_factor": 1.041, "accel_fade_mps": 3.75},
+    # DRfC July 2022 (model version 4) and the console's June 2022 export, 2 715 fitted stretches (steps of 1/15 s:
+    # these logs' tstamps carry no motion); an effort command is saturated in torque, not speed (a P loop on the
+    # wheel speed): no cap below the 4 m/s clip; the fit finds no slide (1 / slide below the search's 1e-3)
+    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.126, "steer_tau_s": 0.066,
+                            "steer_kick": 0.187, "yaw_gain": 0.669, "slide_mps": 0.0, "yaw_tau_s": 0.498,
+                            "speed_tau_s": 0.181, "accel_mps2": 30.0, "brake_mps2": 30.0, "ground_factor": 0.977,
+                            "accel_fade_mps": 4.23, "wheel_cap_mps": 4.0},
+}
+# The spread (standard deviation) of each fitted car's constants, from the fits docs/car.md lists: randomised dynamics
+# (`CarParams.randomise`) draws each episode's car within it.
+CAR_SPREAD: dict[tuple[str, str], dict[str, float]] = {
+    # over fits on 2 resampled sets of the DRoA episodes (the fade held off: the logs stop at 2.5 m/s)
+    ("droa", "velocity"): {"delay_steps": 0.0043, "steer_tau_s": 0.0018, "yaw_gain": 0.0007, "yaw_tau_s": 0.002,
+                           "speed_tau_s": 0.011, "accel_mps2": 1.1, "brake_mps2": 0.14, "ground_factor": 0.0005},
+    ("droa", "effort"): {},  # no log
+    # over the three October 2025 runs fitted one by one (the runs that cover the car's whole speed range)
+    ("console", "velocity"): {"delay_steps": 0.035, "steer_tau_s": 0.0074, "yaw_gain": 0.041, "slide_mps": 0.13,
+                              "yaw_tau_s": 0.011, "speed_tau_s": 0.022, "accel_mps2": 0.5, "brake_mps2": 0.41,
+                              "ground_factor": 0.0073, "accel_fade_mps": 0.76},
+    # over fits on 2 resampled sets of the 2022 episodes
+    ("console", "effort"): {"delay_steps": 0.0012, "steer_tau_s": 0.015, "steer_kick": 0.088, "yaw_gain": 0.0027,
+                            "yaw_tau_s": 0.0092, "speed_tau_s": 0.0008, "ground_factor": 0.0013},
 }
 # The measured step lengths (s) of each simulator at the quantiles STEP_QUANTILES: simtrace tstamp differences of the
 # shared logs (droa: the DRoA 2026 runs, 2 026 steps; console: DRfC 2022, console 2022 and 2025, 99 830 steps), the
@@ -459,6 +493,7 @@ CAR_PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # name -> (low, high, un
     "slide_mps": (0.0, 100.0, "m/s"), "yaw_tau_s": (0.0, 2.0, "s"), "speed_tau_s": (0.0, 5.0, "s"),
     "accel_mps2": (0.1, 200.0, "m/s²"), "brake_mps2": (0.1, 200.0, "m/s²"), "ground_factor": (0.5, 2.0, ""),
     "wheel_cap_mps": (0.1, 20.0, "m/s"), "grip_mps2": (0.1, 50.0, "m/s²"), "substeps": (1, MAX_SUBSTEPS, ""),
+    "steer_kick": (0.0, 1.0, ""), "accel_fade_mps": (0.0, 20.0, "m/s"), "randomise": (0.0, 5.0, "spreads"),
 }
 
 

@@ -23,6 +23,8 @@ def test_calibrate_writes_a_car_table_training_takes(tmp_path, capsys):
     fitted = [float(v) for v in rows["fitted"][1:]]
     guess = [float(v) for v in rows["constant"][1:]]
     assert len(fitted) == 4 and all(f < g for f, g in zip(fitted, guess, strict=True))  # beats the guess at 1-15
+    floor = [float(v) for v in rows["learned"][1:5]]  # the fitted car corrected by a regression: the floor row
+    assert floor[3] < guess[3] and floor[3] < 1.5 * fitted[3]
     table = tomllib.loads(out.read_text())["car"]
     assert table["simulator"] == "droa" and 0.3 < table["yaw_gain"] < 1.0
     (tmp_path / "training.toml").write_text(out.read_text())

@@ -13,7 +13,8 @@ from racerlab.sim.pursuit import PurePursuit, drive_lap
 from racerlab.spec import car_params
 from racerlab.track import load
 
-SHARE = 0.9  # of the profile's speed: the car's delay and lags leave a feedback driver no room at the limit itself
+SHARE = 0.88  # of the profile's speed: the car's delay and lags leave a feedback driver no room at the limit itself
+# (0.9 until issue 34's refit; the droa car's 0.161 s hinge and 0.014 s yaw lags take lab_technical off at 0.9)
 
 
 def drive(track, line, car=None):
@@ -38,7 +39,7 @@ def test_pursuit_on_the_line_drives_the_predicted_lap(aws_track, which, simulato
     status, steps, lap_time, traj = drive(track, line, car)
     assert status == "lap_complete"  # the simulator's off-track rule never fired
     assert lap_time == pytest.approx(steps / 15.0)
-    # at 90 % of the speed the lap takes at most 1/0.9 of the limit (plus 3 % for the corners' entries and the
+    # at SHARE of the speed the lap takes at most 1/SHARE of the limit (plus 3 % for the corners' entries and the
     # standing start the slower target does not scale), and never less than the limit
     slowest = line.lap_time / SHARE * 1.03
     assert line.lap_time <= lap_time <= slowest, f"driven {lap_time:.3f} s, predicted {line.lap_time:.3f} s"

@@ -66,14 +66,16 @@ def test_the_limit_on_a_ring_hugs_the_inner_border_from_outside_it():
 
 
 def test_no_lap_the_simulator_accepts_beats_the_limit(aws_track):
-    # pure pursuit of the line with the base point on the border (clearance 0), at the profile's full speed: the
+    # pure pursuit of the line with the base point on the border (clearance 0), near the profile's full speed: the
     # simulator accepts the lap (a wheel centre stays on the road), and it beats the line-margin lap that
     # `racerlab line` used to call the theoretical best (6.667 s)
     t = aws_track("reInvent2019_track")
     car = car_params("droa")
     edge = racing_line(t, margin=-car_clearance(car, 0.0), car=car)
     sim = Simulator(t, 1, car)
-    status, steps, lap, _ = drive_lap(sim, PurePursuit(edge.xy, edge.speed, closed=True, car=car, lookahead_m=0.25))
+    # at 0.95 of the profile's speed: the refitted droa car's lags (issue 34) leave no room at its full speed
+    status, steps, lap, _ = drive_lap(sim, PurePursuit(edge.xy, 0.95 * edge.speed, closed=True, car=car,
+                                                       lookahead_m=0.25))
     assert status == "lap_complete"
     assert lap < racing_line(t, car=car).lap_time
     limit = theoretical_limit(t, car=car)

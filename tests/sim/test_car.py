@@ -2,13 +2,14 @@
 simulator, step jitter."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from racerlab.errors import ConfigError
 from racerlab.sim import Simulator, World
-from racerlab.sim.car import advance, pack, rollout, step_lengths
+from racerlab.sim.car import LOG_TIMING, advance, log_timing, pack, rollout, step_durations, step_lengths
 from racerlab.spec import (
     CAR_TABLE,
     MODEL_POINT_AHEAD_M,
@@ -26,7 +27,7 @@ DT = STEP_S
 def bare(**kw) -> CarParams:
     """A car with one mechanism at a time: no delay, no lags, full steering, no slide, instant traction."""
     base = dict(delay_steps=0.0, steer_tau_s=0.0, yaw_gain=1.0, slide_mps=0.0, yaw_tau_s=0.0, speed_tau_s=0.0,
-                accel_mps2=1000.0, brake_mps2=1000.0, ground_factor=1.0, grip_mps2=1000.0)
+                accel_mps2=1000.0, brake_mps2=1000.0, ground_factor=1.0, grip_mps2=1000.0, accel_fade_mps=0.0)
     return CarParams(**{**base, **kw})
 
 
@@ -120,6 +121,7 @@ def test_each_built_in_car(simulator, control):
     speed = rollout(start, [[0.0, 2.0]] * 60, history=hold, car=car)
     settled = np.hypot(*(speed[-1, :2] - speed[-2, :2])) / STEP_S
     expect = car.ground_factor * (min(2.0, car.wheel_cap_mps) if car.regulated else car.wheel_cap_mps)
+    expect = min(expect, car.top_speed())  # a fading acceleration runs out at the fade speed
     assert settled == pytest.approx(expect, rel=1e-3)
     # the held turn: heading gained per step once settled at 1 m/s (regulated cars)
     if car.regulated:
@@ -201,3 +203,99 @@ def test_world_takes_the_simulator_and_the_model_version():
     assert w.sim.car_params.name.startswith("console, effort")
     assert World("lab_oval", 1).sim.car_params.simulator == "droa"
     assert World("lab_oval", 1, car={"simulator": "console", "yaw_gain": 0.5}).sim.car_params.yaw_gain == 0.5
+
+
+def test_step_durations_follow_each_log_kinds_rule():
+    t = [10.0, 10.05, 10.13, 10.20]
+    # console v5 / DRoA: a row's pose belongs to the previous row's tstamp: row 1 -> 2 lasts 10.05 - 10.0
+    assert step_durations(t, "previous")[1:] == pytest.approx([0.05, 0.08])
+    assert math.isnan(step_durations(t, "previous")[0])
+    assert step_durations(t, "next") == pytest.approx([0.05, 0.08, 0.07])
+    assert step_durations(t, "fixed") == pytest.approx([STEP_S] * 3)  # 2022 effort logs: tstamps say nothing
+    assert log_timing(car_params("console", "4")) == "fixed" and log_timing(car_params("console", "5")) == "previous"
+    assert set(LOG_TIMING) == set(CAR_TABLE)
+    with pytest.raises(ValueError, match="unknown step timing"):
+        step_durations(t, "whenever")
+
+
+def test_rollout_reads_tstamps_by_the_simulators_rule():
+    """A car at a constant 2 m/s straight ahead: each step moves it 2 m/s x that step's length, and the lengths
+    come from the tstamps of the history's row, the start row and the rows after (m + 1 + k values)."""
+    car = bare(simulator="console", ground_factor=1.0)
+    start = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 2.0, "steering_angle": 0.0}
+    hist, acts = [[0.0, 2.0]], [[0.0, 2.0]] * 3
+    t = [0.0, 0.05, 0.15, 0.20, 0.30]  # rows: history, start, 3 after
+    xs = rollout(start, acts, history=hist, car=car, tstamps=t)[:, 0]
+    # ROS 1 velocity ("previous"): steps last 0.05 (t1 - t0), 0.10 (t2 - t1), 0.05 (t3 - t2)
+    assert xs == pytest.approx(2.0 * np.cumsum([0.05, 0.10, 0.05]))
+    xs4 = rollout(start, acts, history=hist, car=replace(car, control="effort"), tstamps=t)[:, 0]
+    assert xs4 == pytest.approx(2.0 * STEP_S * np.arange(1, 4))  # the 2022 effort logs: 1/15 s steps
+    with pytest.raises(ValueError, match="m \\+ 1 \\+ k = 5"):
+        rollout(start, acts, history=hist, car=car, tstamps=t[:4])
+
+
+def test_the_acceleration_fades_with_speed_and_slows_the_car_above_the_fade():
+    """ROS 1 velocity car: 3 m/s² from a standstill, 3 (1 - (v / 2.5)²) at v, and a slowdown above 2.5 m/s even
+    when asked for 4 m/s (one sub-step, so the limit is taken at the step's start speed)."""
+    car = bare(accel_mps2=3.0, accel_fade_mps=2.5, brake_mps2=6.0, substeps=1)
+    assert step(car, v=0.0, new=(0.0, 4.0))[3] == pytest.approx(3.0 / 15)
+    assert step(car, v=2.0, new=(0.0, 4.0))[3] == pytest.approx(2.0 + 3.0 * (1 - 0.64) / 15)  # 1.08 m/s²
+    assert step(car, v=3.0, new=(0.0, 4.0))[3] == pytest.approx(3.0 - 3.0 * 0.44 / 15)  # -1.32 m/s²
+    assert car.accel_limit(2.0) == pytest.approx(1.08) and car.top_speed() == 2.5
+    # no fade: the constant traction limit, as before
+    assert step(bare(accel_mps2=3.0, substeps=1), v=3.0, new=(0.0, 4.0))[3] == pytest.approx(3.2)
+    # a slow command is reached exactly, the fade only limits gaining speed
+    assert step(bare(accel_fade_mps=2.5), v=0.9, new=(0.0, 1.0))[3] == pytest.approx(1.0)
+
+
+def test_a_steering_change_kicks_the_hinge():
+    """A 20° step with kick 0.4 and τ 0.2 s: 8° at once, then the lag closes 1 - e^(-dt/τ) of the remaining 12°;
+    a held command kicks nothing."""
+    d = math.radians(20)
+    car = bare(steer_tau_s=0.2, steer_kick=0.4)
+    s = step(car, v=1.0, old=(0.0, 1.0), new=(d, 1.0))[4]
+    assert s == pytest.approx(d - 0.6 * d * math.exp(-DT / 0.2))
+    held = step(car, v=1.0, steer=0.1, old=(d, 1.0), new=(d, 1.0))[4]
+    assert held == pytest.approx(d - (d - 0.1) * math.exp(-DT / 0.2))
+    # the kick stays within the lock: 0.9 of a -30° -> 30° swing from -25° would reach 29°, not beyond 30°
+    big = step(bare(steer_tau_s=0.2, steer_kick=0.9), v=1.0, steer=math.radians(-25),
+               old=(math.radians(-30), 1.0), new=(math.radians(30), 1.0))[4]
+    assert math.radians(-25 + 54) < big <= math.radians(30)
+
+
+def test_randomised_dynamics_draw_within_the_spread(monkeypatch):
+    """`randomise` draws each car's constants normal around the fitted ones with the fit's spread, cut at two
+    spreads; a constant that is off stays off; no randomise, no draw."""
+    from racerlab.sim import car as car_mod
+
+    monkeypatch.setitem(car_mod.CAR_SPREAD, ("droa", "velocity"), {"yaw_gain": 0.05, "slide_mps": 0.3})
+    car = replace(car_params("droa"), randomise=1.0)
+    rows = car_mod.randomised(car, np.random.default_rng(0), 4000)
+    gains = rows[:, car_mod.P_YAW_GAIN]
+    assert gains.mean() == pytest.approx(car.yaw_gain, abs=0.005)
+    assert gains.std() == pytest.approx(0.05 * 0.96, rel=0.05)  # a unit normal clipped at ±2 has sd 0.96
+    assert np.abs(gains - car.yaw_gain).max() <= 0.1 + 1e-12
+    assert np.all(rows[:, car_mod.P_SLIDE] == 0.0)  # the droa car has no slide: it stays without
+    assert np.array_equal(rows[:, car_mod.P_DELAY], np.full(4000, car.delay_steps))  # no spread: fixed
+    sim = Simulator("lab_oval", 3, car, seed=1)
+    first = sim._car_arr[:, car_mod.P_YAW_GAIN].copy()
+    assert len(set(first)) == 3  # each car its own draw
+    sim.reset(np.array([True, False, False]))
+    assert sim._car_arr[0, car_mod.P_YAW_GAIN] != first[0] and np.array_equal(sim._car_arr[1:, car_mod.P_YAW_GAIN],
+                                                                              first[1:])
+    plain = Simulator("lab_oval", 3, car_params("droa"), seed=1)
+    assert np.all(plain._car_arr[:, car_mod.P_YAW_GAIN] == car.yaw_gain)
+
+
+def test_randomised_dynamics_train_only(tmp_path):
+    """[car] randomise draws the training episodes' cars; evaluations drive the fitted car; a negative factor is one
+    line naming the key."""
+    from racerlab.model import load_training_config
+
+    p = tmp_path / "training.toml"
+    p.write_text('[car]\nsimulator = "console"\nrandomise = 1.5\n')
+    cfg = load_training_config(p)
+    assert cfg.car.params("5").randomise == 1.5 and cfg.car.params("5", training=False).randomise == 0.0
+    p.write_text("[car]\nrandomise = -1\n")
+    with pytest.raises(ConfigError, match="car.randomise"):
+        load_training_config(p)

@@ -139,7 +139,7 @@ def test_grip_limit_makes_a_fast_corner_run_wide(aws_track):
     """Same steering, different speeds: the slow car turns tighter; the fast one slides outward. The grip alone:
     no delay, no lag, full kinematic steering, ground speed = command, no cap below 4 m/s."""
     t = aws_track("reInvent2019_track")
-    sim = Simulator(t, 2, CarParams(delay_steps=0.0, steer_tau_s=0.0, yaw_gain=1.0, ground_factor=1.0,
+    sim = Simulator(t, 2, CarParams(delay_steps=0.0, steer_tau_s=0.0, yaw_tau_s=0.0, yaw_gain=1.0, ground_factor=1.0,
                                     wheel_cap_mps=4.0))
     sim.step(0, 1)  # the prepare step holds both cars; then give them speed and full lock
     sim.state.speed[:] = [1.0, 4.0]

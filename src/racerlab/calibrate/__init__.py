@@ -14,10 +14,11 @@ from racerlab.calibrate.fit import (
                                     errors,
                                     fit_car,
                                     fit_with_spread,
+                                    learned_floor,
                                     medians,
 )
 from racerlab.calibrate.run import calibrate, car_toml, load_stretches
 
 __all__ = ["FITTED", "HORIZON", "HORIZONS", "Fit", "Stretches", "calibrate", "car_toml", "constant_velocity_errors",
-           "errors", "fit_car", "load_stretches",
+           "errors", "fit_car", "learned_floor", "load_stretches",
            "fit_with_spread", "medians", "split", "stretches"]

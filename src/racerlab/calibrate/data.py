@@ -4,7 +4,8 @@ A stretch starts at row t of an episode and covers `horizon` steps: its start is
 the mean ground speed over the last step (rows t-1, t; the car model works out the speed at row t from it) and
 the wheel angle left unknown (the car model estimates it from the `history` actions of rows t-h..t-1); its
 actions are those of rows t..t+horizon-1, its
-step lengths the tstamp differences and its targets the logged front points and headings of rows t+1..t+horizon.
+step lengths the tstamps read by the log's timing rule (`racerlab.sim.car.LOG_TIMING`) and its targets the logged
+front points and headings of rows t+1..t+horizon.
 
 Rows are left out where the real simulator did something else than drive: the prepare row (the reset's teleport
 falls into it), pause, crash and park rows, gaps in the step count, and steps whose length or position jump is
@@ -19,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from racerlab.errors import ConfigError
+from racerlab.sim.car import step_durations
 
 HISTORY = 8  # actions before the start a stretch carries (the delay needs MAX_DELAY_STEPS + 1, the hinge more)
 HORIZON = 15  # steps a stretch replays: one second
@@ -46,7 +48,7 @@ class Stretches:
         return Stretches(*(getattr(self, f)[mask] for f in self.__dataclass_fields__))
 
 
-def _episode_stretches(e: pd.DataFrame, horizon: int, every: int):
+def _episode_stretches(e: pd.DataFrame, horizon: int, every: int, timing: str):
     x = e["x"].to_numpy(float)
     y = e["y"].to_numpy(float)
     yaw = e["yaw"].to_numpy(float)
@@ -56,7 +58,7 @@ def _episode_stretches(e: pd.DataFrame, horizon: int, every: int):
     steps = e["steps"].to_numpy(float)
     status = e["episode_status"].astype(str).to_numpy() if "episode_status" in e else np.full(len(e), "in_progress")
     n = len(e)
-    dt = np.diff(t)
+    dt = step_durations(t, timing)  # dt[r]: the step from row r to r + 1 (NaN: unknown)
     jump = np.hypot(np.diff(x), np.diff(y))
     good_step = (np.diff(steps) == 1) & (dt > MIN_STEP_S) & (dt < MAX_STEP_S) & (jump < MAX_STEP_M)
     good_row = np.isin(status, DRIVING)
@@ -86,8 +88,10 @@ def _episode_stretches(e: pd.DataFrame, horizon: int, every: int):
     return start, commands, dts, target, prev, dt[s - 1]
 
 
-def stretches(df: pd.DataFrame, horizon: int = HORIZON, every: int = 1, source: str = "the log") -> Stretches:
-    """Every `every`-th stretch of `horizon` steps of every episode in a frame of `racerlab.analysis.load`."""
+def stretches(df: pd.DataFrame, horizon: int = HORIZON, every: int = 1, source: str = "the log",
+              timing: str = "previous") -> Stretches:
+    """Every `every`-th stretch of `horizon` steps of every episode in a frame of `racerlab.analysis.load`, its steps
+    timed by the rule `timing` (`racerlab.sim.car.TIMINGS`; `log_timing(car)` gives a simulator's)."""
     missing = [c for c in ("x", "y", "yaw", "steering_angle", "speed", "tstamp", "steps") if c not in df]
     if missing:
         raise ConfigError(f"{source}: the log has no {missing[0]!r} column; calibrate needs simtrace rows "
@@ -95,7 +99,7 @@ def stretches(df: pd.DataFrame, horizon: int = HORIZON, every: int = 1, source: 
     key = "unique_episode" if "unique_episode" in df else "episode"
     parts, eps = [], []
     for k, (_, e) in enumerate(df.groupby(key, sort=True)):
-        got = _episode_stretches(e.sort_values("steps"), horizon, every)
+        got = _episode_stretches(e.sort_values("steps"), horizon, every, timing)
         if got is not None:
             parts.append(got)
             eps.append(np.full(len(got[0]), k))

@@ -14,16 +14,18 @@ import numpy as np
 from scipy.optimize import minimize
 
 from racerlab.calibrate.data import Stretches
+from racerlab.calibrate.floor import floor_errors
 from racerlab.sim.car import pack, rollout_batch
 from racerlab.spec import CarParams, car_params
 
 HORIZONS = (1, 3, 8, 15)  # steps after which errors are reported
-# what is fitted, and where it is searched; `slide_mps` is searched as its inverse (0 = no slide)
+# what is fitted, and where it is searched; `slide_mps` and `accel_fade_mps` are searched as their inverses (0 = none)
 BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.15, 1.2), "slide_inv": (0.0, 2.5),
           "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
-          "ground_factor": (0.95, 1.12)}
+          "ground_factor": (0.95, 1.12), "fade_inv": (0.0, 1.0),
+          "steer_kick": (0.0, 0.9)}
 FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
-          "ground_factor")
+          "ground_factor", "accel_fade_mps", "steer_kick")
 
 
 def predict(st: Stretches, car: CarParams) -> np.ndarray:
@@ -54,6 +56,7 @@ def medians(err: np.ndarray, horizons=HORIZONS) -> dict[int, float]:
 def _to_vector(car: CarParams) -> np.ndarray:
     vals = {f: getattr(car, f) for f in FITTED}
     vals["slide_inv"] = 1.0 / vals.pop("slide_mps") if car.slide_mps > 0 else 0.0
+    vals["fade_inv"] = 1.0 / vals.pop("accel_fade_mps") if car.accel_fade_mps > 0 else 0.0
     return np.array([min(max(vals[k], lo), hi) for k, (lo, hi) in BOUNDS.items()])
 
 
@@ -61,6 +64,8 @@ def _to_car(base: CarParams, vec) -> CarParams:
     vals = {k: float(min(max(v, lo), hi)) for (k, (lo, hi)), v in zip(BOUNDS.items(), vec, strict=True)}
     inv = vals.pop("slide_inv")
     vals["slide_mps"] = 1.0 / inv if inv > 1e-3 else 0.0
+    inv = vals.pop("fade_inv")
+    vals["accel_fade_mps"] = 1.0 / inv if inv > 1e-3 else 0.0
     return replace(base, **vals)
 
 
@@ -86,6 +91,7 @@ class Fit:
     spread: dict[str, float]  # standard deviation of each fitted constant over resampled fits
     held_out: dict[int, float]  # median error (m) after each of HORIZONS steps
     constant_velocity: dict[int, float]
+    floor: dict[int, float]  # the fitted car corrected by a regression learned on the fit stretches (`learned_floor`)
     fit_stretches: int
     held_out_stretches: int
     held: Stretches | None = field(default=None, repr=False)  # the held-out stretches (the picture replays them)
@@ -106,4 +112,10 @@ def fit_with_spread(fit_st: Stretches, held_st: Stretches, simulator: str, versi
         samples.append(fit_car(fit_st.take(idx), car, max_evals=max_evals // 3))
     spread = {f: float(np.std([getattr(c, f) for c in samples])) if samples else math.nan for f in FITTED}
     return Fit(car, spread, medians(errors(held_st, car)), medians(constant_velocity_errors(held_st)),
-               len(fit_st), len(held_st), held_st)
+               learned_floor(fit_st, held_st, car), len(fit_st), len(held_st), held_st)
+
+
+def learned_floor(fit_st: Stretches, held_st: Stretches, car: CarParams, horizons=HORIZONS) -> dict[int, float]:
+    """Median held-out error (m) after each of `horizons` steps of `car` corrected by a regression learned on the
+    fit stretches of the same log (`calibrate.floor`): what a model of this log's motions could still gain."""
+    return medians(floor_errors(fit_st, held_st, predict(fit_st, car), predict(held_st, car), horizons), horizons)

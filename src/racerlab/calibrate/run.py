@@ -14,14 +14,15 @@ from racerlab.analysis import load
 from racerlab.calibrate.data import HORIZON, Stretches, concat, split, stretches
 from racerlab.calibrate.fit import BOUNDS, FITTED, Fit, fit_with_spread
 from racerlab.errors import ConfigError, RacerlabError
-from racerlab.spec import DEFAULT_SIMULATOR
+from racerlab.sim.car import log_timing
+from racerlab.spec import DEFAULT_SIMULATOR, car_params
 
 MAX_STRETCHES = 2500  # per log, by default: stretches overlap, more mostly cost time
 MIN_STRETCHES = 150  # fewer (about 10 s of driving) cannot pin nine constants down
 MAX_RESAMPLES = 50  # each is one more fit (seconds to minutes); the spread settles long before
 
 
-def load_stretches(paths, every: int | None = None) -> Stretches:
+def load_stretches(paths, every: int | None = None, timing: str = "previous") -> Stretches:
     """The stretches of every log in `paths` (each a folder, export or robomaker log `racerlab.analysis.load` reads),
     one starting at every `every`-th row (default: about MAX_STRETCHES per log); episodes of different logs stay
     apart."""
@@ -31,7 +32,7 @@ def load_stretches(paths, every: int | None = None) -> Stretches:
     offset = 0
     for p in paths:
         df = _read(p)
-        st = stretches(df, every=every or max(1, len(df) // MAX_STRETCHES), source=str(p))
+        st = stretches(df, every=every or max(1, len(df) // MAX_STRETCHES), source=str(p), timing=timing)
         _check_finite(st, p)
         st.episode = st.episode + offset
         offset = int(st.episode.max()) + 1
@@ -89,7 +90,7 @@ def calibrate(paths, simulator: str = DEFAULT_SIMULATOR, version="5", *, every: 
     reported on (the `Fit` keeps those stretches in `held`). Logs too short to pin the car down, with
     non-finite values, or damaged, and more than MAX_RESAMPLES resamples are refused before the fit."""
     check_resamples(resamples)
-    st = load_stretches(paths, every)
+    st = load_stretches(paths, every, log_timing(car_params(simulator, version)))
     if len(st) < MIN_STRETCHES:
         names = ", ".join(str(p) for p in paths)
         raise ConfigError(f"{names}: only {len(st)} stretches of {HORIZON} driven steps to fit (at least "

@@ -47,6 +47,8 @@ def run_calibrate(args) -> int:
     print("  after steps      " + "".join(f"{h:>8d}" for h in fit.held_out))
     print("  fitted car       " + "".join(f"{v:8.3f}" for v in fit.held_out.values()))
     print("  constant velocity" + "".join(f"{v:8.3f}" for v in fit.constant_velocity.values()))
+    print("  learned floor    " + "".join(f"{v:8.3f}" for v in fit.floor.values())
+          + "  (the fitted car corrected by a regression learned on the fit episodes)")
     text = car_toml(fit, names)
     print(text, end="")
     for warning in on_bounds(fit):

@@ -8,7 +8,8 @@ the path can reach the predicted time:
   of curvature κ allows the fastest v at which both hold;
 * speed cap: the car settles at `top_speed()` (the command clip and the wheels' cap, times the ground factor);
 * longitudinal: speed follows the command with a first-order lag `speed_tau_s`, bounded by
-  `accel_mps2` and `brake_mps2`. With the command at the cap the car can gain at most
+  `accel_mps2` (falling with speed: `accel_limit`) and `brake_mps2`. With the command at the cap the car can gain
+  at most
   (cap - v)/τ per second, so the usable acceleration is min(accel, (cap - v)/τ); the same holds
   for braking toward the minimum speed.
 
@@ -67,7 +68,8 @@ def lateral_limit(curvature: np.ndarray, car: CarParams) -> np.ndarray:
 
 def _accel(v: float, car: CarParams) -> float:
     top = car.top_speed()
-    return min(car.accel_mps2, (top - v) / car.speed_tau_s) if car.speed_tau_s > 0 else car.accel_mps2
+    a = float(car.accel_limit(v))  # traction, falling with speed where the car's acceleration fades
+    return min(a, (top - v) / car.speed_tau_s) if car.speed_tau_s > 0 else a
 
 
 def _brake(v: float, car: CarParams) -> float:

@@ -126,8 +126,13 @@ class CarSettings:
 
     def params(self, version="5", training: bool = True) -> CarParams:
         """The car for a model of `version`. Its steps jitter as the simulator's in training (evaluations drive
-        exact 1/15 s steps, so that they repeat); `step_jitter` in the table decides for both."""
-        return car_params(self.simulator, version, **{"step_jitter": training, **dict(self.overrides)})
+        exact 1/15 s steps, so that they repeat); `step_jitter` in the table decides for both. `randomise`
+        (randomised dynamics: each episode's constants drawn from the fit's spread) acts in training only:
+        evaluations drive the fitted car."""
+        table = {"step_jitter": training, **dict(self.overrides)}
+        if not training:
+            table["randomise"] = 0.0
+        return car_params(self.simulator, version, **table)
 
     @classmethod
     def from_mapping(cls, table: dict, where: str = "training.toml [car]") -> CarSettings:

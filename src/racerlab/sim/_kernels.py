@@ -157,8 +157,8 @@ def move(i, car, hold, car_params, dt):
 @njit(cache=True)
 def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dts, after_action, max_steps,
              truncated, trk_f, trk_r, road, wheel_off, closed, length, ccw_f):
-    """One step for every active car (car i's lasting dts[i] s); params[i] receives the measurement the reward
-    sees."""
+    """One step for every active car (car i's lasting dts[i] s, with its own packed constants car_params[i]);
+    params[i] receives the measurement the reward sees."""
     for i in range(car.shape[0]):
         truncated[i] = False
         if not active[i]:
@@ -170,7 +170,7 @@ def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dts, 
             car[i, CCMD_SPEED] = 0.0
             push(i, car, 0.0, 0.0)
             params[i, :] = meas[i, :]
-            move(i, car, True, car_params, dts[i])
+            move(i, car, True, car_params[i], dts[i])
             measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
             ctr[i, KSTATUS] = STATUS_PREPARE
             ctr[i, KPHASE] = RUN
@@ -179,14 +179,14 @@ def step_all(active, steer_deg, speed, car, ctr, meas, params, car_params, dts, 
         car[i, CCMD_SPEED] = speed[i]
         push(i, car, math.radians(steer_deg[i]), speed[i])
         if after_action:
-            move(i, car, False, car_params, dts[i])
+            move(i, car, False, car_params[i], dts[i])
             measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
             status = judge(i, car, ctr, meas)
             params[i, :] = meas[i, :]
         else:
             status = judge(i, car, ctr, meas)
             params[i, :] = meas[i, :]
-            move(i, car, False, car_params, dts[i])
+            move(i, car, False, car_params[i], dts[i])
             measure(i, car, ctr, meas, trk_f, trk_r, road, wheel_off, closed, length, ccw_f)
         ctr[i, KSTATUS] = status
         truncated[i] = status == IN_PROGRESS and ctr[i, KSTEPS] >= max_steps
@@ -233,8 +233,8 @@ def features(rows, car, ctr, meas, trk_f, trk_r, closed, length, lookahead, car_
     cos(heading error), width, then for each lookahead distance d the centre point at arc
     length s + d in the car's frame (x ahead, y left), divided by 2 m].
     """
-    vmax = car_params[3]
-    smax = car_params[1]
+    vmax = car_params[0, 3]
+    smax = car_params[0, 1]
     nla = lookahead.shape[0]
     for i in rows:
         rev = ctr[i, KREV] != 0

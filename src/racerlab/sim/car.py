@@ -10,17 +10,22 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
   the step: for that part the car still follows the action before). The compiled step keeps the last
   commands of every car for this.
 * **hinge lag**: the steering angle follows the (delayed) command with a first-order lag `steer_tau_s`
-  (ROS 2: the position controller closes 10 % of the error per 1/60 s tick, τ ≈ 0.167 s).
+  (ROS 2: the position controller closes 10 % of the error per 1/60 s tick, τ ≈ 0.167 s); with `steer_kick` a
+  change of the command moves the wheels that share of it at once (ROS 1's hinge PID answers through its derivative
+  term: the cars turned too little under fast-changing commands).
 * **yaw gain and slide**: the car turns like a kinematic bicycle whose tan δ is scaled by
   `yaw_gain / (1 + (v / slide_mps)²)` (no Ackermann, no differential, tyre slip: 0.55-0.63 at low speed;
   on ROS 1 it falls to 0.25-0.3 above 1.5 m/s); the lateral acceleration is also capped at `grip_mps2`.
 * **speed**: the ground speed follows a target with a first-order lag `speed_tau_s`, bounded by the
-  traction limits `accel_mps2` and `brake_mps2`. The target is the command clipped to the wheel joints'
-  velocity cap `wheel_cap_mps` (100 rad/s x 0.035 m) times `ground_factor` (the wheel mesh's 0.036 m
-  radius against the controller's 0.035 m: 1.03). Effort-controlled cars without a speed loop (`regulated`
-  False: version 3-4 models on the ROS 2 simulator) always drive toward the cap.
+  traction limits `accel_mps2` and `brake_mps2`; with `accel_fade_mps` (the ROS 1 velocity car) the acceleration
+  falls with speed as 1 - (v / fade)² and turns into a slowdown above the fade speed, the car's top speed. The
+  target is the command clipped to the wheel joints' velocity cap `wheel_cap_mps` (100 rad/s x 0.035 m) times
+  `ground_factor` (the wheel mesh's 0.036 m radius against the controller's 0.035 m: 1.03). Effort-controlled
+  cars without a speed loop (`regulated` False: version 3-4 models on the ROS 2 simulator) always drive toward
+  the cap.
 * **step length**: a real step lasts 0.05-0.08 s of simulated time rather than 1/15 s; with `step_jitter`
   the simulator draws each car's step from the measured distribution (`spec.STEP_LENGTHS`, mean 1/15 s).
+  A log's tstamps give its steps' lengths by that simulator's rule (`LOG_TIMING`, `step_durations`).
 
 `rollout` replays logged actions from a logged state with this model (the calibration, `racerlab
 calibrate`, fits the constants with it); `advance` is the compiled integration the simulator steps every
@@ -37,6 +42,7 @@ from numba import njit
 
 from racerlab.sim.rollout_inputs import check_rollout_inputs
 from racerlab.spec import (
+    CAR_SPREAD,
     MAX_DELAY_STEPS,
     MODEL_POINT_AHEAD_M,
     STEP_LENGTHS,
@@ -49,7 +55,7 @@ from racerlab.spec import (
 QUEUE = int(MAX_DELAY_STEPS) + 2  # commands kept per car: this step's and the ones before it
 # positions in `pack`'s array
 (P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED, P_SPEED_TAU, P_ACCEL, P_BRAKE, P_STEER_TAU, P_GRIP, P_SUBSTEPS,
- P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU) = range(17)
+ P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK) = range(19)
 
 
 def pack(car: CarParams) -> np.ndarray:
@@ -57,7 +63,63 @@ def pack(car: CarParams) -> np.ndarray:
     return np.array([car.wheelbase_m, math.radians(car.max_steer_deg), car.min_speed_mps, car.max_speed_mps,
                      car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
                      float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
-                     car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s], dtype=np.float64)
+                     car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s, car.accel_fade_mps,
+                     car.steer_kick],
+                    dtype=np.float64)
+
+
+# How each simulator's simtraces stamp their steps (docs/car.md, "The logs' step timing"), by (simulator, control):
+# "previous": a row's pose belongs to the previous row's tstamp, so the step from row j to j+1 lasts
+# t[j] - t[j-1] (console v5, ROS 1 velocity; DRoA, ROS 2); "fixed": the tstamps carry no information about the
+# motion (the 2022 effort-car logs), every step lasts 1/15 s; "next" (t[j+1] - t[j]) is the naive reading.
+TIMINGS = ("previous", "fixed", "next")
+LOG_TIMING = {("droa", "velocity"): "previous", ("droa", "effort"): "previous",
+              ("console", "velocity"): "previous", ("console", "effort"): "fixed"}
+
+
+def log_timing(car: CarParams) -> str:
+    """The timing rule of the logs of `car`'s simulator and control (`LOG_TIMING`)."""
+    return LOG_TIMING[(car.simulator, car.control)]
+
+
+def step_durations(tstamps, timing: str) -> np.ndarray:
+    """(n - 1,) the lengths (s) of the steps from row j to row j + 1 of n logged `tstamps` by the rule `timing`
+    (`TIMINGS`); NaN where the rule needs a row before the first."""
+    t = np.asarray(tstamps, dtype=np.float64).ravel()
+    n = len(t)
+    if timing == "fixed":
+        return np.full(max(n - 1, 0), STEP_S)
+    if timing == "next":
+        return np.diff(t)
+    if timing == "previous":
+        return np.concatenate([[math.nan], np.diff(t)[:-1]]) if n > 1 else np.empty(0)
+    raise ValueError(f"unknown step timing {timing!r}; use one of {', '.join(TIMINGS)}")
+
+
+# each randomised constant's place in `pack`'s array, and the least it may be drawn
+RANDOMISED = {"delay_steps": (P_DELAY, 0.0), "steer_tau_s": (P_STEER_TAU, 0.0), "steer_kick": (P_KICK, 0.0),
+              "yaw_gain": (P_YAW_GAIN, 0.05), "slide_mps": (P_SLIDE, 0.0), "yaw_tau_s": (P_YAW_TAU, 0.0),
+              "speed_tau_s": (P_SPEED_TAU, 0.0), "accel_mps2": (P_ACCEL, 0.1), "brake_mps2": (P_BRAKE, 0.1),
+              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0)}
+SPREAD_CLIP = 2.0  # draws stay within this many spreads of the fitted value
+
+
+def randomised(car: CarParams, rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, P) packed constants of n cars drawn around `car` (randomised dynamics, `[car] randomise`): each constant
+    of `spec.CAR_SPREAD` (the fit's spread over resampled episodes) normal around its value with `car.randomise`
+    times that spread, cut at SPREAD_CLIP spreads; a constant that is off (slide, fade: 0) stays off."""
+    out = np.tile(pack(car), (n, 1))
+    spread = CAR_SPREAD.get((car.simulator, car.control), {})
+    for name, sd in spread.items():
+        col, low = RANDOMISED[name]
+        value = getattr(car, name)
+        if value == 0 and name in ("slide_mps", "accel_fade_mps"):
+            continue
+        z = np.clip(rng.standard_normal(n), -SPREAD_CLIP, SPREAD_CLIP)
+        out[:, col] = np.maximum(value + car.randomise * sd * z, low)
+    out[:, P_DELAY] = np.minimum(out[:, P_DELAY], MAX_DELAY_STEPS)
+    out[:, P_KICK] = np.minimum(out[:, P_KICK], 1.0)
+    return out
 
 
 def step_lengths(rng: np.random.Generator, n: int, simulator: str) -> np.ndarray:
@@ -89,10 +151,22 @@ def _target_speed(speed_cmd, car):
 
 
 @njit(cache=True, inline="always")
+def accel_limit(v, car):
+    """The most the ground speed can gain per second at `v`: `accel_mps2`, falling as 1 - (v / accel_fade_mps)² when
+    the fade is set (ROS 1: traction and the wheel loop's effort run out), below 0 above the fade speed (the car
+    slows even when asked for more), never below -`brake_mps2`."""
+    a = car[P_ACCEL]
+    if car[P_FADE] > 0:
+        r = v / car[P_FADE]
+        a = a * (1.0 - r * r)
+    return max(a, -car[P_BRAKE])
+
+
+@njit(cache=True, inline="always")
 def _speed_sub(v, vt, a_speed, h, car):
     """One sub-step of the ground speed toward `vt`: (mid-step speed, new speed)."""
     dv = (vt - v) * a_speed
-    dv = min(max(dv, -car[P_BRAKE] * h), car[P_ACCEL] * h)
+    dv = min(max(dv, -car[P_BRAKE] * h), accel_limit(v, car) * h)
     return v + 0.5 * dv, v + dv
 
 
@@ -149,6 +223,17 @@ def _phase(x, y, yaw, v, steer, w, steer_cmd, speed_cmd, car, span, n):
     return x, y, yaw, v, steer, w, beta
 
 
+@njit(cache=True, inline="always")
+def _kick(steer, old, new, car):
+    """The hinge's jump when its (delayed) command changes from `old` to `new`: `steer_kick` of the change at once
+    (ROS 1's hinge PID answers a command step through its derivative term before the lag), kept within the lock."""
+    if car[P_KICK] <= 0:
+        return steer
+    ms = car[P_MAX_STEER]
+    steer += car[P_KICK] * (min(max(new, -ms), ms) - min(max(old, -ms), ms))
+    return min(max(steer, -ms), ms)
+
+
 @njit(cache=True)
 def advance(x, y, yaw, v, steer, w, old_steer, old_speed, new_steer, new_speed, hold, car, dt):
     """Integrate one car over one step of `dt` s; returns the new (x, y, yaw, v, steer, yaw rate ω, slip β).
@@ -165,6 +250,7 @@ def advance(x, y, yaw, v, steer, w, old_steer, old_speed, new_steer, new_speed, 
     if frac > 1e-9:
         n1 = max(1, int(round(n * frac)))
         x, y, yaw, v, steer, w, beta = _phase(x, y, yaw, v, steer, w, old_steer, old_speed, car, frac * dt, n1)
+    steer = _kick(steer, old_steer, new_steer, car)
     x, y, yaw, v, steer, w, beta = _phase(x, y, yaw, v, steer, w, new_steer, new_speed, car, (1.0 - frac) * dt,
                                           max(1, n - int(round(n * frac))))
     if yaw > math.pi:
@@ -180,10 +266,11 @@ def _settle(steer, old, new, car, dt):
     frac = car[P_DELAY] - math.floor(car[P_DELAY])
     tau = car[P_STEER_TAU]
     ms = car[P_MAX_STEER]
-    for target, span in ((old, frac * dt), (new, (1.0 - frac) * dt)):
-        t = min(max(target, -ms), ms)
-        steer = t + (steer - t) * (math.exp(-span / tau) if tau > 0 else 0.0)
-    return steer
+    t = min(max(old, -ms), ms)
+    steer = t + (steer - t) * (math.exp(-frac * dt / tau) if tau > 0 else 0.0)
+    steer = _kick(steer, old, new, car)
+    t = min(max(new, -ms), ms)
+    return t + (steer - t) * (math.exp(-(1.0 - frac) * dt / tau) if tau > 0 else 0.0)
 
 
 @njit(cache=True)
@@ -242,22 +329,23 @@ def rollout_batch(start, commands, first, dts, car, mean_speed=False, prev_dt=No
 
 
 def rollout(start, actions, *, history=None, version="5", simulator="droa", car: CarParams | None = None,
-            dt=None) -> np.ndarray:
+            dt=None, tstamps=None) -> np.ndarray:
     """Where the car goes when it is given `actions` from `start`: (k, 3) front x, y (m) and heading (°).
 
     The semantics are a simtrace row's (facts §7): `start` is the state a row logs, a dict with `x`, `y`
     (the front point, m), `heading` (degrees), `speed` (the ground speed now, m/s) or instead `mean_speed` (the
-    last position difference over its tstamp difference `mean_dt`, default 1/15 s: the car's own speed model
-    then works out the speed now from the history's commands), `steering_angle` (the front wheels' angle, degrees;
-    None estimates it from `history`) and,
-    optionally, `yaw_rate` (°/s, e.g. the last heading difference over its step; missing: the one the wheel
-    angle and speed settle at);
+    last position difference over its step of `mean_dt` s, default 1/15 s: the car's own speed model then works out
+    the speed now from the history's commands), `steering_angle` (the front wheels' angle, degrees; None estimates
+    it from `history`) and, optionally, `yaw_rate` (°/s, e.g. the last heading difference over its step; missing:
+    the one the wheel angle and speed settle at);
     `actions` (k, 2) are the [steering_angle °, speed m/s] of that row and the k - 1 rows after it, as
     logged; row j of the result is the pose the next row logs after action j. `history` (m, 2) holds the
     actions of the rows before `start`, oldest first: the car is still acting on those for its delay
     (missing ones repeat the oldest given, or, with no history, stand for the start's wheel angle and
-    speed). The car is `simulator`'s for a model of `version` (`spec.car_params`), or `car`; `dt` gives
-    each step's length (the tstamp differences; default 1/15 s).
+    speed). The car is `simulator`'s for a model of `version` (`spec.car_params`), or `car`. The steps' lengths:
+    `dt` (k values, or one for all; default 1/15 s), or `tstamps`, the logged tstamps of the history's rows, the
+    start row and the k rows after (m + 1 + k values), read by the car's simulator's rule (`LOG_TIMING`; the start's
+    `mean_dt` then comes from them too).
     """
     car = car or car_params(simulator, version)
     check_rollout_inputs(start, actions, history, dt, car)
@@ -266,16 +354,33 @@ def rollout(start, actions, *, history=None, version="5", simulator="droa", car:
     if history is None or len(history) == 0:
         v0 = float(start["speed"] if "speed" in start else start["mean_speed"])
         hist = np.array([[0.0 if steer0 is None else float(steer0), v0 / car.ground_factor]])
+        m = 0
     else:
         hist = np.asarray(history, dtype=np.float64).reshape(-1, 2)
+        m = len(hist)
     cmds = np.concatenate([hist, acts])
     cmds[:, 0] = np.radians(cmds[:, 0])
     k = len(acts)
-    dts = np.full((1, k), STEP_S) if dt is None else np.asarray(dt, dtype=np.float64).reshape(1, k)
+    dts, mean_dt = _step_times(k, m, dt, tstamps, car, start.get("mean_dt", STEP_S))
     w0 = start.get("yaw_rate")
     mean = "mean_speed" in start and "speed" not in start
     st = np.array([[start["x"], start["y"], math.radians(start["heading"]), start["mean_speed" if mean else "speed"],
                     math.nan if steer0 is None else math.radians(steer0),
                     math.nan if w0 is None else math.radians(w0)]], dtype=np.float64)
-    prev = np.array([float(start.get("mean_dt", STEP_S))])
-    return rollout_batch(st, cmds[None], len(hist), dts, pack(car), mean, prev)[0]
+    return rollout_batch(st, cmds[None], len(hist), dts[None], pack(car), mean, np.array([mean_dt]))[0]
+
+
+def _step_times(k: int, m: int, dt, tstamps, car: CarParams, mean_dt) -> tuple[np.ndarray, float]:
+    """`rollout`'s k step lengths and the start's `mean_dt`, from `dt` or the logged `tstamps`."""
+    if tstamps is None:
+        dts = np.full(k, STEP_S) if dt is None else np.broadcast_to(np.asarray(dt, dtype=np.float64).ravel(), (k,))
+        return np.ascontiguousarray(dts, dtype=np.float64), float(mean_dt)
+    if dt is not None:
+        raise ValueError("rollout takes dt or tstamps, not both")
+    t = np.asarray(tstamps, dtype=np.float64).ravel()
+    if len(t) != m + 1 + k:
+        raise ValueError(f"rollout's tstamps need m + 1 + k = {m + 1 + k} values (the history's rows, the start row "
+                         f"and the {k} rows after), got {len(t)}")
+    d = step_durations(t, log_timing(car))  # d[j]: row j -> j + 1; the start row is row m
+    d = np.where(np.isfinite(d), d, STEP_S)
+    return np.ascontiguousarray(d[m:m + k]), float(d[m - 1]) if m > 0 else float(mean_dt)

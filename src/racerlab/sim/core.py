@@ -17,7 +17,7 @@ import numpy as np
 from racerlab.model.config import REWARD_ORDERS
 from racerlab.sim import _kernels as K
 from racerlab.sim.car import pack as pack_car
-from racerlab.sim.car import step_lengths
+from racerlab.sim.car import randomised, step_lengths
 from racerlab.sim.objects import FEATURE_OBJECTS, ObjectSet, RaceConfig, as_race, base_from_model_point
 from racerlab.sim.state import CarState
 from racerlab.spec import STEP_S, CarParams
@@ -66,6 +66,7 @@ class Simulator:
         self.dt = STEP_S
         self.rng = np.random.default_rng(seed)
         self._jitter_rng = np.random.default_rng(self.rng.bit_generator.seed_seq.spawn(1)[0])
+        self._dyn_rng = None  # the randomised dynamics' stream, made at the first draw
         self._dts = np.full(self.num_cars, STEP_S)
         self.lookahead = np.asarray(lookahead_m, dtype=np.float64)
         self._pack_track()
@@ -102,7 +103,7 @@ class Simulator:
         bs, be, y0, bh = t.road_index
         self._road = (t.road_edges, bs, be, float(y0), float(bh))
         self._wheels = self.car_params.wheel_offsets()
-        self._car_arr = pack_car(self.car_params)
+        self._car_arr = np.ascontiguousarray(np.tile(pack_car(self.car_params), (self.num_cars, 1)))  # per car
         self._geom = (self._trk_f, self._trk_r, self._road, self._wheels, t.closed, t.length, t.is_ccw)
 
     # ---- episodes ------------------------------------------------------------------------------
@@ -110,6 +111,7 @@ class Simulator:
         """A new random stream for starts, noise and the race's random layouts and bot timings."""
         self.rng = np.random.default_rng(seed)
         self._jitter_rng = np.random.default_rng(self.rng.bit_generator.seed_seq.spawn(1)[0])
+        self._dyn_rng = None  # the randomised dynamics' stream, made at the first draw
         if self.objects is not None:
             self.objects.rng = self.rng
         self.episodes_started = 0
@@ -148,9 +150,17 @@ class Simulator:
             self.objects.clear_starts(idx, rev, pts, yaw)
         K.place_many(idx, pts[:, 0].copy(), pts[:, 1].copy(), yaw, np.ascontiguousarray(nd, dtype=np.float64),
                      self.car, self.ctr, self.meas, *self._geom)
+        self._draw_dynamics(idx)
         self.episode_start_time[idx] = self.time
         self._follow()
         return idx
+
+    def _draw_dynamics(self, idx) -> None:
+        """New constants for the cars `idx` starting an episode, with the car's `randomise` on."""
+        if self.car_params.randomise > 0:
+            if self._dyn_rng is None:
+                self._dyn_rng = np.random.default_rng(self.rng.integers(2**63))
+            self._car_arr[idx] = randomised(self.car_params, self._dyn_rng, len(idx))
 
     def _place(self, i, x, y, yaw, start_ndist):
         K.place(i, x, y, yaw, start_ndist, self.car, self.ctr, self.meas, *self._geom)

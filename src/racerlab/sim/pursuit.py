@@ -89,8 +89,10 @@ class PurePursuit:
         return np.mod(s, self.length) if self.closed else np.clip(s, 0.0, self.length)
 
     def _speed_command(self, s_base, v):
-        """The command that brings speed v to the target one step ahead through the lag exp(-t/τ)."""
-        target = np.interp(self._wrap(s_base + np.maximum(v, 0.0) * STEP_S), self.cum_s, self.speed)
+        """The command that brings speed v to the target through the lag exp(-t/τ), at the point the car will be at
+        when the command has acted: one step after its delay."""
+        ahead = (1.0 + self.car.delay_steps) * STEP_S
+        target = np.interp(self._wrap(s_base + np.maximum(v, 0.0) * ahead), self.cum_s, self.speed)
         tau = self.car.speed_tau_s
         if tau <= 0:
             return target
