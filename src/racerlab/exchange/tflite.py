@@ -28,8 +28,9 @@ def _tf_v1():
     return tf
 
 
-def tflite_from_frozen_graph(pb: bytes, inputs: dict[str, tuple[int, ...]], output: str) -> bytes:
-    """The `.tflite` flatbuffer of a frozen GraphDef: `inputs` placeholder name -> one observation's shape."""
+def tflite_from_frozen_graph(pb: bytes, inputs: dict[str, tuple[int, ...]], output: str, fp16: bool = False) -> bytes:
+    """The `.tflite` flatbuffer of a frozen GraphDef: `inputs` placeholder name -> one observation's shape.
+    `fp16` stores the weights as float16, as the community car's converter does by default (`--precision FP16`)."""
     tf = _tf_v1()
     with tempfile.TemporaryDirectory(prefix="racerlab-tflite-") as tmp:
         path = Path(tmp) / "model.pb"
@@ -37,6 +38,9 @@ def tflite_from_frozen_graph(pb: bytes, inputs: dict[str, tuple[int, ...]], outp
         converter = tf.lite.TFLiteConverter.from_frozen_graph(
             str(path), input_arrays=list(inputs), output_arrays=[output],
             input_shapes={name: [1, *shape] for name, shape in inputs.items()})
+        if fp16:
+            converter.optimizations = [tf.lite.Optimize.DEFAULT]
+            converter.target_spec.supported_types = [tf.float16]
         try:
             return converter.convert()
         except Exception as exc:  # noqa: BLE001 - the converter raises ConverterError, ValueError, ...
