@@ -45,13 +45,13 @@ def rendered(shapes: dict, n: int, track="lab_technical", seed: int = 0) -> dict
     """racerlab's observations of n cars at random poses (see the module docstring)."""
     from racerlab import track as tracks
     from racerlab.sim import Simulator
-    from racerlab.sim import _kernels as K
     from racerlab.sim.sensors import Camera
     from racerlab.sim.sensors.lidar import Lidar, sectors
 
     t = tracks.load(track)
     sim = Simulator(t, n, seed=seed)
-    sim.car[:, K.CX], sim.car[:, K.CY], sim.car[:, K.CYAW] = random_poses(t, n, np.random.default_rng(seed)).T
+    for i, (x, y, yaw) in enumerate(random_poses(t, n, np.random.default_rng(seed))):
+        sim.set_pose(i, x, y, yaw, start_ndist=0.0)
     out = {}
     for key in shapes:
         if key in ("camera", "stereo"):
