@@ -40,6 +40,7 @@ class OnnxRunner:
 class TfliteRunner:
     def __init__(self, path, threads: int = 1):
         interpreter = _need("ai_edge_litert.interpreter", "tflite").Interpreter
+        self.path = path
         self.it = interpreter(model_path=str(path), num_threads=threads)
         self.it.allocate_tensors()
         self.inputs = {d["name"]: d["index"] for d in self.it.get_input_details()}
@@ -48,7 +49,8 @@ class TfliteRunner:
     def __call__(self, feed: dict[str, np.ndarray]) -> np.ndarray:
         missing = set(self.inputs) - set(feed)
         if missing:
-            raise RacerlabError(f"the TFLite model needs inputs {sorted(missing)}")
+            raise RacerlabError(f"{self.path}: no value for the model's inputs {sorted(missing)}; feed every input by "
+                                "its name (racerlab.exchange.export.car_feed gives them for a racerlab model)")
         n = len(next(iter(feed.values())))
         rows = []
         for i in range(n):
