@@ -6,17 +6,23 @@ from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser("export", help="export a model for the physical car, DeepRacer-on-AWS or DRfC",
+    p = sub.add_parser("export", help="export a model for the physical car (TF, ONNX, TFLite), DRoA or DRfC",
                        description="--car writes <model>-car.tar.gz (model_metadata.json + agent/model.pb); "
-                                   "--droa writes <model>-droa.tar.gz for DRoA's Import model; --drfc DIR writes "
-                                   "the folder layout DRfC uploads and trains from.")
+                                   "--onnx writes <model>-onnx.tar.gz (model_metadata.json + model.onnx); --tflite "
+                                   "writes <model>-tflite.tar.gz, the community car's model folder (model.pb, "
+                                   "model.tflite, model_metadata.json, checksum.txt); --droa writes "
+                                   "<model>-droa.tar.gz for DRoA's Import model; --drfc DIR writes the folder layout "
+                                   "DRfC uploads and trains from.")
     p.add_argument("model", type=Path)
     dest = p.add_mutually_exclusive_group(required=True)
     dest.add_argument("--car", action="store_true", help="the physical car's .tar.gz")
+    dest.add_argument("--onnx", action="store_true", help="the policy as ONNX, beside model_metadata.json")
+    dest.add_argument("--tflite", action="store_true", help="the community car's TFLite model folder, as a .tar.gz")
     dest.add_argument("--droa", action="store_true", help="DeepRacer-on-AWS's import .tar.gz")
     dest.add_argument("--drfc", type=Path, metavar="DIR", help="DRfC's model folder layout, written into DIR")
     p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
-    p.add_argument("-o", "--output", type=Path, help="archive path (default: <model>-car.tar.gz / -droa.tar.gz)")
+    p.add_argument("-o", "--output", type=Path,
+                   help="archive path (default: <model>-car.tar.gz, -onnx, -tflite or -droa.tar.gz)")
     p.set_defaults(func=run_export)
 
     p = sub.add_parser("import", help="make a racerlab model from a console, DRoA, DRfC or car model",
@@ -52,11 +58,18 @@ def run_export(args) -> int:
     from racerlab.cli import require_path
 
     require_path(args.model, "model folder")
-    from racerlab.exchange import export_car, export_drfc, export_droa
+    from racerlab.exchange import export_car, export_drfc, export_droa, export_onnx, export_tflite
 
     if args.car:
         out = export_car(args.model, args.output, args.checkpoint)
         print(f"wrote {out}: upload it in the car's web console (Models > Upload)")
+    elif args.onnx:
+        out = export_onnx(args.model, args.output, args.checkpoint)
+        print(f"wrote {out}: model.onnx takes the car's inputs by their model.pb names (raw 0-255 NHWC images)")
+    elif args.tflite:
+        out = export_tflite(args.model, args.output, args.checkpoint)
+        print(f"wrote {out}: on a community-OS car, extract it into /opt/aws/deepracer/artifacts/<name>/ to run this "
+              "model.tflite, or upload it in the web console (the car then converts model.pb itself)")
     elif args.droa:
         out = export_droa(args.model, args.output, args.checkpoint)
         print(f"wrote {out}: upload its contents to DRoA's import bucket and choose Import model")

@@ -1,5 +1,5 @@
-"""Routes for model exchange (`racerlab.exchange`): exports of a model for the physical car, for
-DeepRacer-on-AWS and for DRfC, run in the background and offered for download by validated name, and
+"""Routes for model exchange (`racerlab.exchange`): exports of a model for the physical car (TF, ONNX, TFLite),
+for DeepRacer-on-AWS and for DRfC, run in the background and offered for download by validated name, and
 the import of an uploaded console / DRoA / DRfC / car archive into a new model folder."""
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from starlette.concurrency import run_in_threadpool
 
 from racerlab.console.security import ConsoleError, check_archive, check_name, inside, plain_file, save_upload
 
-EXPORTS = {"car": "Export for the car", "droa": "Export for DeepRacer-on-AWS", "drfc": "Export for DRfC"}
+EXPORTS = {"car": "Export for the car", "droa": "Export for DeepRacer-on-AWS", "drfc": "Export for DRfC",
+           "onnx": "Export as ONNX", "tflite": "Export for a TFLite car"}
 IMPORT_SUFFIXES = (".tar.gz", ".tgz", ".tar")
 
 
@@ -39,6 +40,10 @@ def _export(kind: str, model_dir: Path, out: Path, checkpoint: str) -> Path:
         return exchange.export_car(model_dir, out, checkpoint)
     if kind == "droa":
         return exchange.export_droa(model_dir, out, checkpoint)
+    if kind == "onnx":
+        return exchange.export_onnx(model_dir, out, checkpoint)
+    if kind == "tflite":
+        return exchange.export_tflite(model_dir, out, checkpoint)
     with tempfile.TemporaryDirectory(prefix="racerlab-drfc-", dir=out.parent) as tmp:
         tree = exchange.export_drfc(model_dir, Path(tmp) / "tree", checkpoint)
         packed = shutil.make_archive(str(Path(tmp) / "packed"), "gztar", root_dir=tree)

@@ -18,6 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from racerlab.errors import ConfigError, RacerlabError
 from racerlab.exchange.coach import CAR_SENSORS, POLICY_NETWORK, POLICY_OUTPUT, PREFIX, SAC_OUTPUT, ppo_towers
 from racerlab.exchange.coach import tower_from_torch as _tower
@@ -25,18 +27,39 @@ from racerlab.exchange.graphdef import build_graph, graph_bytes
 from racerlab.exchange.local import LocalModel, load_local_model
 
 
-def frozen_graph(model: LocalModel):
-    """The car's frozen GraphDef of a model's policy."""
+def policy_tower(model: LocalModel):
+    """(tower, scope, output node, activation) of the policy the car runs: clipped PPO's `network_1` with its
+    softmax (discrete) or mean (continuous), or SAC's actor with tanh of its mean."""
     meta = model.metadata
     if meta.training_algorithm == "sac":
         actor = model.networks["actor"]
         tower = _tower(actor, meta, model.shapes, "sac_policy_head_0/policy_mean")
         d = tower.head.kernel.shape[1] // 2  # the actor's head gives (mean, log-std); the car takes tanh(mean)
         tower.head.kernel, tower.head.bias = tower.head.kernel[:, :d], tower.head.bias[:d]
-        return build_graph(tower, SAC_OUTPUT.rsplit("/", 2)[0], SAC_OUTPUT, "tanh")
+        return tower, SAC_OUTPUT.rsplit("/", 2)[0], SAC_OUTPUT, "tanh"
     policy, _ = ppo_towers(model.networks["policy"], model.networks["value"], meta, model.shapes)
     activation = "softmax" if meta.action_space_type == "discrete" else "identity"
-    return build_graph(policy, f"{PREFIX}/{POLICY_NETWORK}", POLICY_OUTPUT, activation)
+    return policy, f"{PREFIX}/{POLICY_NETWORK}", POLICY_OUTPUT, activation
+
+
+def frozen_graph(model: LocalModel):
+    """The car's frozen GraphDef of a model's policy."""
+    return build_graph(*policy_tower(model))
+
+
+def car_inputs(model: LocalModel) -> dict[str, tuple[int, ...]]:
+    """The car's input placeholders (in the graph's order) -> one observation's shape."""
+    tower, scope, _, _ = policy_tower(model)
+    base = scope.rsplit("/", 1)[0] + "/network_0"
+    return {f"{base}/{e.sensor}/{e.sensor}": tuple(e.shape) for e in tower.embedders}
+
+
+def car_feed(model: LocalModel, obs: dict) -> dict:
+    """racerlab observations ({"camera": (N, 120, 160, 1) uint8, "lidar": ...}) as the car feeds its inputs:
+    {placeholder name: float32 array}, images raw 0-255."""
+    tower, scope, _, _ = policy_tower(model)
+    base = scope.rsplit("/", 1)[0] + "/network_0"
+    return {f"{base}/{e.sensor}/{e.sensor}": np.asarray(obs[e.key], np.float32) for e in tower.embedders}
 
 
 def _check_car_sensors(meta) -> None:
@@ -66,6 +89,36 @@ def export_car(model_dir, out=None, checkpoint: str | int = "best") -> Path:
     pb = graph_bytes(frozen_graph(model))
     out = Path(out) if out else Path(f"{model.name}-car.tar.gz")
     return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "agent/model.pb": pb}, out)
+
+
+def export_onnx(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+    """`<model>-onnx.tar.gz`: model_metadata.json and model.onnx at the root; the ONNX graph keeps the car
+    graph's input and output names, with a free batch dimension (`onnxgraph`)."""
+    from racerlab.exchange.onnxgraph import build_onnx, onnx_bytes
+
+    model = load_local_model(model_dir, checkpoint)
+    _check_car_sensors(model.metadata)
+    data = onnx_bytes(build_onnx(*policy_tower(model)))
+    out = Path(out) if out else Path(f"{model.name}-onnx.tar.gz")
+    return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "model.onnx": data}, out)
+
+
+def export_tflite(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+    """`<model>-tflite.tar.gz`: the community car's installed-model folder (`/opt/aws/deepracer/artifacts/<name>/`):
+    model_metadata.json, model.pb, model.tflite (what its optimizer would make of model.pb, float32) and
+    checksum.txt (md5 of model.pb, the car's mark of a finished install)."""
+    import hashlib
+
+    from racerlab.exchange.tflite import tflite_from_frozen_graph
+
+    model = load_local_model(model_dir, checkpoint)
+    _check_car_sensors(model.metadata)
+    _, _, output, _ = policy_tower(model)
+    pb = graph_bytes(frozen_graph(model))
+    lite = tflite_from_frozen_graph(pb, car_inputs(model), output)
+    out = Path(out) if out else Path(f"{model.name}-tflite.tar.gz")
+    return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "model.pb": pb,
+                 "model.tflite": lite, "checksum.txt": f"{hashlib.md5(pb).hexdigest()}\n".encode()}, out)
 
 
 def write_virtual_tree(model: LocalModel, root: Path) -> list[Path]:

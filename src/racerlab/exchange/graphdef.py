@@ -94,7 +94,7 @@ def build_graph(tower: Tower, scope: str, output: str, activation: str):
         for layer in emb.layers:
             x = _layer(b, scope, layer, x)
         if emb.image:
-            flat = int(np.prod(_feature_map(emb)))
+            flat = int(np.prod(feature_map(emb)))
             x = b.node(f"{scope}/{emb.sensor}/Flatten/Reshape", "Reshape",
                        [x, b.const(f"{scope}/{emb.sensor}/Flatten/shape", np.array([-1, flat], np.int32))],
                        T=b.type_attr(), Tshape=b.type_attr(b.types.DT_INT32))
@@ -110,7 +110,7 @@ def build_graph(tower: Tower, scope: str, output: str, activation: str):
     return b.graph
 
 
-def _feature_map(emb) -> tuple[int, int, int]:
+def feature_map(emb) -> tuple[int, int, int]:
     h, w, c = emb.shape
     for layer in emb.layers:
         k = layer.kernel.shape[0] if layer.kind == "conv" else 1
