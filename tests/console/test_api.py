@@ -65,7 +65,7 @@ def test_track_pictures_and_defaults(console):
     assert d["metadata"]["action_space"]["speed"]["high"] == 3.0
     assert set(d["help"]) == set(d["hyperparameters"])  # every hyperparameter has its one-line explanation
     x = c.get("/api/exchange").json()
-    assert [e["kind"] for e in x["exports"]] == ["car", "droa", "drfc"]
+    assert [e["kind"] for e in x["exports"]] == ["car", "droa", "drfc", "onnx", "tflite"]
 
 
 def test_reward_check_reports_problems(console):
