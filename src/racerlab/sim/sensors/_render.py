@@ -37,6 +37,9 @@ from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, objec
 
 TWO_PI = 2.0 * math.pi
 WALL_STEP = 8  # columns between the rays intersected with the walls
+# a texel's byte as float32 by a table read: one load, where the conversion takes two instructions more (a fifth of
+# the frame's time)
+U8_FLOAT = np.arange(256, dtype=np.float32)
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -45,10 +48,10 @@ def _bilinear(data, base, stride, ax, ay):
     b = np.uint64(base)
     st = np.uint64(stride)
     one = np.uint64(1)
-    v00 = np.float32(data[b])
-    v01 = np.float32(data[b + one])
-    v10 = np.float32(data[b + st])
-    v11 = np.float32(data[b + st + one])
+    v00 = U8_FLOAT[data[b]]
+    v01 = U8_FLOAT[data[b + one]]
+    v10 = U8_FLOAT[data[b + st]]
+    v11 = U8_FLOAT[data[b + st + one]]
     top = v00 + ax * (v01 - v00)
     bot = v10 + ax * (v11 - v10)
     return top + ay * (bot - top)
