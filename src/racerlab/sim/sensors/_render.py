@@ -37,7 +37,7 @@ from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, objec
 
 TWO_PI = 2.0 * math.pi
 WALL_STEP = 8  # columns between the rays intersected with the walls
-# a texel's byte as float32 by a table read: one load, where the conversion takes two instructions more (a fifth of
+# a texel's byte as float32 by a table read: one load, where the conversion takes two instructions more (a sixth of
 # the frame's time)
 U8_FLOAT = np.arange(256, dtype=np.float32)
 
@@ -323,7 +323,7 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
     """
     # every array leaves its tuple here, once: a tuple read in the row loop costs two atomic reference counts per
-    # array and row, which took a fifth of a frame's time
+    # array and row, which took an eighth of a frame's time
     row_first, row_haze, row_sky, lines, sky_el, sky_az, edge_dir = plan
     grey, gfrac, cfrac, levels, x0, y0 = raster
     plain, coef, tone, light, noise_amp, noise, noise_off = lit
