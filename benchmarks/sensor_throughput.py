@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -228,7 +229,7 @@ def export_commit(rev: str) -> Path:
         try:
             part.rename(root)  # atomic: a half-written export is never taken for a whole one
         except OSError:  # another run exported it meanwhile
-            pass
+            shutil.rmtree(part, ignore_errors=True)
     return root / "src"
 
 
@@ -251,7 +252,6 @@ def worker(track, seconds: float) -> None:
         print(json.dumps(req["cars"] * calls / elapsed), flush=True)
 
 
-
 def compare(rev: str, track: str, rounds: int, window: float, cpu_time: bool) -> None:
     """Base (REV) against this checkout, alternating windows in two worker processes (see the module docstring)."""
     import racerlab
@@ -268,7 +268,11 @@ def compare(rev: str, track: str, rounds: int, window: float, cpu_time: bool) ->
         p = procs[name]
         p.stdin.write(json.dumps({"obs": obs, "cars": cars}) + "\n")
         p.stdin.flush()
-        return json.loads(p.stdout.readline())
+        answer = p.stdout.readline()
+        if not answer:
+            raise SystemExit(f"--compare: the {name} worker stopped (its error is above); is {rev} a racerlab "
+                             f"checkout with {obs!r}?")
+        return json.loads(answer)
 
     load0 = os.getloadavg()[0]
     for obs, cars in COMPARE_CASES:
