@@ -25,7 +25,15 @@ average at the end, for judging how busy the machine was.
 `--only camera` stops after the camera and stereo renders. `--cpu-time` measures rates per second of this
 process's CPU time rather than wall time (steadier when other processes share the core).
 
+`--compare REV` measures the camera renders of another commit against this checkout in one run: REV's `src/` is
+exported (`git archive`) into a temporary folder kept per commit (so its compiled kernels are reused), and two
+worker processes, one importing each checkout, render in turn on the same core, base / branch / branch / base in
+every round, one short window each. It prints one `camera_compare` line per case (camera at 64 and at 1 car,
+camera with domain randomization, stereo) with the medians of both and their ratio (branch / base), and the
+median of the rounds' own ratios.
+
 Usage: python benchmarks/sensor_throughput.py [--track NAME_OR_PATH] [--seconds 3] [--only camera|objects|bots]
+       python benchmarks/sensor_throughput.py --compare e958da9 [--rounds 12] [--cpu-time]
 """
 
 from __future__ import annotations
@@ -33,8 +41,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -78,6 +91,23 @@ def camera_render(track, cars: int, name: str, seconds: float) -> tuple[float, f
     base, _, opts = name.partition(":")
     obs = build_observation(base, sim, options=tuple(o for o in opts.split(",") if o))
     return rates(obs, cars, seconds)
+
+
+def camera_renders(track, sec: float) -> float:
+    """The camera at 1 and 64 cars, with and without domain randomization, and stereo; returns the 64-car rate."""
+    cam64 = 0.0
+    for name in ("camera", "camera:dr"):
+        for cars in (1, 64):
+            best, med = camera_render(track, cars, name, sec)
+            line = {"bench": "camera_render", "observation": name, "cars": cars, "frames_per_s": round(best),
+                    "median": round(med)}
+            if cars == 64 and name == "camera":
+                cam64 = best
+                line["budget"] = ">= 10000"
+            emit(line)
+    best, med = camera_render(track, 64, "stereo", sec)
+    emit({"bench": "stereo_render", "cars": 64, "frames_per_s": round(best), "median": round(med)})
+    return cam64
 
 
 def env_stepper(track, cars: int, observation: str, boxes: int = 0, race=None, reward=None):
@@ -180,6 +210,88 @@ def carracing(seconds: float) -> tuple[float, float] | None:
     return rates(step, 1, seconds)
 
 
+COMPARE_CASES = (("camera", 64), ("camera", 1), ("camera:dr", 64), ("stereo", 64))
+
+
+def export_commit(rev: str) -> Path:
+    """REV's src/ in a temporary folder named after its commit (reused: its numba cache survives between runs)."""
+    repo = Path(__file__).resolve().parents[1]
+    sha = subprocess.run(["git", "rev-parse", "--verify", f"{rev}^{{commit}}"], cwd=repo, capture_output=True,
+                         text=True)
+    if sha.returncode:
+        raise SystemExit(f"--compare {rev}: not a commit of {repo} ({sha.stderr.strip()}); give a commit or branch")
+    root = Path(tempfile.gettempdir()) / f"racerlab-compare-{sha.stdout.strip()[:12]}"
+    if not (root / "src").is_dir():
+        part = Path(tempfile.mkdtemp(prefix=root.name + ".", dir=root.parent))
+        archive = subprocess.run(["git", "archive", sha.stdout.strip(), "src"], cwd=repo, capture_output=True,
+                                 check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(part)], input=archive, check=True)
+        try:
+            part.rename(root)  # atomic: a half-written export is never taken for a whole one
+        except OSError:  # another run exported it meanwhile
+            shutil.rmtree(part, ignore_errors=True)
+    return root / "src"
+
+
+def worker(track, seconds: float) -> None:
+    """Answer one JSON request a line on stdin ({"obs", "cars"}) with the rate of one window of that render."""
+    made = {}
+    for line in sys.stdin:
+        req = json.loads(line)
+        key = (req["obs"], req["cars"])
+        if key not in made:
+            sim = Simulator(track, req["cars"], seed=0)
+            base, _, opts = req["obs"].partition(":")
+            made[key] = build_observation(base, sim, options=tuple(o for o in opts.split(",") if o))
+            made[key]()  # compile or load the kernels outside the window
+        fn, calls = made[key], 0
+        t0 = CLOCK[0]()
+        while (elapsed := CLOCK[0]() - t0) < seconds or calls == 0:
+            fn()
+            calls += 1
+        print(json.dumps(req["cars"] * calls / elapsed), flush=True)
+
+
+def compare(rev: str, track: str, rounds: int, window: float, cpu_time: bool) -> None:
+    """Base (REV) against this checkout, alternating windows in two worker processes (see the module docstring)."""
+    import racerlab
+
+    here = Path(racerlab.__file__).resolve().parents[1]
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--track", track, "--seconds", str(window)]
+    procs = {}
+    for name, src in (("base", export_commit(rev)), ("branch", here)):
+        env = dict(os.environ, PYTHONPATH=str(src))
+        procs[name] = subprocess.Popen(cmd + (["--cpu-time"] if cpu_time else []), stdin=subprocess.PIPE,
+                                       stdout=subprocess.PIPE, text=True, env=env)
+
+    def ask(name, obs, cars):
+        p = procs[name]
+        p.stdin.write(json.dumps({"obs": obs, "cars": cars}) + "\n")
+        p.stdin.flush()
+        answer = p.stdout.readline()
+        if not answer:
+            raise SystemExit(f"--compare: the {name} worker stopped (its error is above); is {rev} a racerlab "
+                             f"checkout with {obs!r}?")
+        return json.loads(answer)
+
+    load0 = os.getloadavg()[0]
+    for obs, cars in COMPARE_CASES:
+        rates_ = {"base": [], "branch": []}
+        for name in ("base", "branch"):
+            ask(name, obs, cars)  # warm-up window
+        for k in range(rounds):
+            for name in ("base", "branch") if k % 2 == 0 else ("branch", "base"):
+                rates_[name].append(ask(name, obs, cars))
+        b, n = statistics.median(rates_["base"]), statistics.median(rates_["branch"])
+        per_round = statistics.median(x / y for x, y in zip(rates_["branch"], rates_["base"], strict=True))
+        emit({"bench": "camera_compare", "observation": obs, "cars": cars, "base": rev, "rounds": rounds,
+              "clock": "cpu" if cpu_time else "wall", "base_frames_per_s": round(b), "branch_frames_per_s": round(n),
+              "ratio": round(n / b, 3), "ratio_per_round": round(per_round, 3), "load_avg_start": round(load0, 2)})
+    for p in procs.values():
+        p.stdin.close()
+        p.wait()
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--track", default="lab_technical")
@@ -190,30 +302,29 @@ def main():
     ap.add_argument("--cpu-time", action="store_true",
                     help="rates per second of this process's CPU time instead of wall time: steadier on a shared "
                          "machine, where other processes take the core for part of the time")
+    ap.add_argument("--compare", metavar="REV",
+                    help="camera renders of commit REV against this checkout, alternating in one run")
+    ap.add_argument("--rounds", type=int, default=12, help="--compare: windows per checkout and case")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.cpu_time:
         CLOCK[0] = time.process_time
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     sec = args.seconds
+    if args.worker:
+        worker(args.track, sec)
+        return
+    if args.compare:
+        compare(args.compare, args.track, args.rounds, sec / TRIALS, args.cpu_time)
+        return
     if args.only == "objects":
         objects_vs_time_trial(args.track, 2 * sec)
         return
     if args.only == "bots":
         bots_vs_time_trial(args.track, 2 * sec)
         return
-    cam64 = None
-    for name in ("camera", "camera:dr"):
-        for cars in (1, 64):
-            best, med = camera_render(args.track, cars, name, sec)
-            line = {"bench": "camera_render", "observation": name, "cars": cars, "frames_per_s": round(best),
-                    "median": round(med)}
-            if cars == 64 and name == "camera":
-                cam64 = best
-                line["budget"] = ">= 10000"
-            emit(line)
-    best, med = camera_render(args.track, 64, "stereo", sec)
-    emit({"bench": "stereo_render", "cars": 64, "frames_per_s": round(best), "median": round(med)})
+    cam64 = camera_renders(args.track, sec)
     if args.only == "camera":
         return
     best, med = env_rate(args.track, 64, "camera", sec)

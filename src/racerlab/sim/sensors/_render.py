@@ -7,11 +7,13 @@ a car's lighting not `plain` (domain randomization) the raster's ground and cent
 are read too, so that each material takes its own grey under the car's light colour, and a tone
 curve, a brightness gradient and noise follow. Output is truncated to uint8 as AWS's filter does.
 
-Argument groups (tuples, so the signature stays readable; the kernel unpacks them once, and its
-helpers are inlined, because every array passed to a compiled call costs reference counting):
-- plan: row_first, row_haze, row_sky, sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sky_el, sky_az,
-  sub_fine (the fine grain's strength per ground line), edge_dir (H + 1, W, 3) rays through the rows' edges
-- raster: grey, ground, center (flat uint8 pyramids), off, stride, wmax, hmax, inv_cell, x0, y0
+Argument groups (tuples, so the signature stays readable; the kernel unpacks them once, before its loops, and its
+helpers are inlined, because every array read from a tuple or passed to a compiled call costs reference counting):
+- plan: row_first, row_haze, row_sky, lines (S, 7): per ground line its distance ahead, lateral offset of
+  column 0 and step per column, raster level, column step, weight and fine grain's strength (`RowPlan`'s sub_*
+  arrays side by side), sky_el, sky_az, edge_dir (H + 1, W, 3) rays through the rows' edges
+- raster: grey, ground, center (flat uint8 pyramids), levels (L, 5): per level its first texel, stride, last
+  column, last row and texels per metre; x0, y0
 - lit: plain, coef, tone, light, noise_amp, noise, noise_off
 - solids: pose (B, P, 3), dims (P, 4), grey (B, P), camera (cam_z, focal, cos pitch, sin pitch) — the objects
   each car sees (`racerlab.sim.sensors.solids`), drawn over the ground and sky where a pixel's ray meets one
@@ -35,14 +37,21 @@ from racerlab.sim.sensors.solids import FACES, FAR, face_greys, haze_fade, objec
 
 TWO_PI = 2.0 * math.pi
 WALL_STEP = 8  # columns between the rays intersected with the walls
+# a texel's byte as float32 by a table read: one load, where the conversion takes two instructions more (a sixth of
+# the frame's time)
+U8_FLOAT = np.arange(256, dtype=np.float32)
 
 
 @njit(cache=True, fastmath=True, inline="always")
 def _bilinear(data, base, stride, ax, ay):
-    v00 = np.float32(data[base])
-    v01 = np.float32(data[base + 1])
-    v10 = np.float32(data[base + stride])
-    v11 = np.float32(data[base + stride + 1])
+    # unsigned indices: numba checks a signed one for a negative value (to wrap it) on every read
+    b = np.uint64(base)
+    st = np.uint64(stride)
+    one = np.uint64(1)
+    v00 = U8_FLOAT[data[b]]
+    v01 = U8_FLOAT[data[b + one]]
+    v10 = U8_FLOAT[data[b + st]]
+    v11 = U8_FLOAT[data[b + st + one]]
     top = v00 + ax * (v01 - v00)
     bot = v10 + ax * (v11 - v10)
     return top + ay * (bot - top)
@@ -108,8 +117,8 @@ def _fine_grain(acc, fx, fy, sx, sy, gain, fine, amp):
     top = np.float32(255.0)
     for col in range(acc.shape[0]):
         v = acc[col]
-        t = fine[(((gy >> 16) & mask) << bits) | ((gx >> 16) & mask)]
-        acc[col] = v + gain * amp[np.int32(min(max(v, np.float32(0.0)), top))] * np.float32(t)
+        t = fine[np.uint64((((gy >> 16) & mask) << bits) | ((gx >> 16) & mask))]
+        acc[col] = v + gain * amp[np.uint32(min(max(v, np.float32(0.0)), top))] * np.float32(t)
         gx += dgx
         gy += dgy
 
@@ -126,64 +135,64 @@ def _spread(tmp, step, acc):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _sky_row(pano, el_row, az_row, yaw_bins, share, acc):
-    """acc[col] += share · the panorama at the pixel's azimuth turned by the car's yaw."""
+def _sky_row(pano, sky_el, sky_az, r, yaw_bins, share, acc):
+    """acc[col] += share · the panorama at row r's pixels' azimuths turned by the car's yaw."""
     nb = pano.shape[1] - 1
     for col in range(acc.shape[0]):
         # yaw_bins is in [0, nb) and the pixel's azimuth within half a turn, so one wrap each way is enough
-        a = az_row[col] + yaw_bins
+        a = sky_az[r, col] + yaw_bins
         a = a + nb if a < 0.0 else a
         a = a - nb if a >= nb else a
         i = min(int(a), nb - 1)
         fr = a - i
-        p0 = pano[el_row[col], i]
-        acc[col] += share * (p0 + fr * (pano[el_row[col], i + 1] - p0))
+        p0 = pano[sky_el[r, col], i]
+        acc[col] += share * (p0 + fr * (pano[sky_el[r, col], i + 1] - p0))
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_plain(acc, bias, dst):
+def _fill(acc, value):
+    v = np.float32(value)
+    for col in range(acc.shape[0]):
+        acc[col] = v
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _finish_plain(acc, bias, out, i, r, eye):
+    """Row r of car i's eye `eye`: acc + bias, truncated to uint8."""
     lo = np.float32(0.0)
     hi = np.float32(255.0)
     for col in range(acc.shape[0]):
-        dst[col] = np.uint8(np.int32(min(max(acc[col] + bias, lo), hi)))
+        out[i, r, col, eye] = np.uint8(np.int32(min(max(acc[col] + bias, lo), hi)))
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_lit(acc, r, height, tone, gain, grad_u, grad_v, amp, noise, base, bias, dst):
-    """Tone curve, brightness gradient and noise, then truncation (after adding `bias`) to uint8 into dst."""
+def _finish_lit(acc, r, i, eye, tone, light, noise_amp, noise, base, bias, out):
+    """Tone curve, brightness gradient and noise of car i's light, then truncation (after adding `bias`) to uint8
+    into row r of its eye `eye`."""
     w = acc.shape[0]
-    gv = gain + grad_v * (2.0 * r / height - 1.0)
-    gu = grad_u * 2.0 / w
+    gv = light[i, 0] + light[i, 2] * (2.0 * r / out.shape[1] - 1.0)
+    gu = light[i, 1] * 2.0 / w
+    amp = noise_amp[i]
     for col in range(w):
         v = min(max(acc[col], 0.0), 254.999)
         lo = int(v)
-        t = tone[lo] + (v - lo) * (tone[lo + 1] - tone[lo])
+        t = tone[i, lo] + (v - lo) * (tone[i, lo + 1] - tone[i, lo])
         t = t * (gv + gu * (col - 0.5 * w)) + amp * noise[base + col] + bias
-        dst[col] = np.uint8(min(max(t, 0.0), 255.0))
+        out[i, r, col, eye] = np.uint8(min(max(t, 0.0), 255.0))
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _finish_row(acc, r, i, eye, plain, tone, light, noise_amp, noise, noise_off, bias, out):
-    """Row r of car i's eye `eye` into `out`: as it is, or through the car's randomized light (`_finish_lit`)."""
-    if plain[i]:
-        _finish_plain(acc, bias, out[i, r, :, eye])
-    else:
-        _finish_lit(acc, r, out.shape[1], tone[i], light[i, 0], light[i, 1], light[i, 2], noise_amp[i], noise,
-                    noise_off[i, eye] + r * out.shape[2], bias, out[i, r, :, eye])
-
-
-@njit(cache=True, fastmath=True, inline="always")
-def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
-    """out[k]: the height at which the ray of one image-row edge through column min(k · WALL_STEP, W - 1) (car
-    frame, `rays` (W, 3)) meets the walls `box` (x min, y min, x max, y max) around the eye at (ex, ey, cam_z)
-    looking along (c, s): below 0 where the ray meets the ground first, above the wall's height where it passes
-    over. The columns between are interpolated (`_expand`): the heights change smoothly along a row, but at a
-    corner of the walls."""
-    w = rays.shape[0]
+def _wall_z(rays, row, c, s, ex, ey, cam_z, box, out):
+    """out[k]: the height at which the ray of image-row edge `row` through column min(k · WALL_STEP, W - 1) (car
+    frame, `rays` (H + 1, W, 3)) meets the walls `box` (x min, y min, x max, y max) around the eye at (ex, ey,
+    cam_z) looking along (c, s): below 0 where the ray meets the ground first, above the wall's height where it
+    passes over. The columns between are interpolated (`_expand`): the heights change smoothly along a row, but at
+    a corner of the walls."""
+    w = rays.shape[1]
     for k in range(out.shape[0]):
         q = min(k * WALL_STEP, w - 1)
-        fx = rays[q, 0]
-        fy = rays[q, 1]
+        fx = rays[row, q, 0]
+        fy = rays[row, q, 1]
         dx = c * fx - s * fy
         dy = s * fx + c * fy
         tx = FAR
@@ -196,7 +205,7 @@ def _wall_z(rays, c, s, ex, ey, cam_z, box, out):
             ty = (box[3] - ey) / dy
         elif dy < -1e-9:
             ty = (box[1] - ey) / dy
-        out[k] = cam_z + max(min(tx, ty), 0.0) * rays[q, 2]
+        out[k] = cam_z + max(min(tx, ty), 0.0) * rays[row, q, 2]
 
 
 @njit(cache=True, fastmath=True, inline="always")
@@ -227,48 +236,84 @@ def _blend_walls(acc, z_top, z_bot, height, wall, sky):
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _ground(j0, j1, ex, ey, c, s, plain, kn, kg, kc, plan, raster, world, acc, tmp):
-    """acc[col] += the ground lines j0..j1 of one image row (their share of each pixel), seen from the eye at
-    (ex, ey) looking along (c, s): every step-th column read from the raster, the others interpolated."""
-    sub_x, sub_y0, sub_dy, sub_level, sub_step, sub_weight, sub_fine = (plan[3], plan[4], plan[5], plan[6], plan[7],
-                                                                         plan[8], plan[11])
-    grey, gfrac, cfrac, off, stride, wmax, hmax, inv_cell, x0, y0 = raster
-    fine, fine_ratio, fine_amp = world[3], world[4], world[5]
-    width = acc.shape[0]
-    step = sub_step[j0] if j1 > j0 else 1
-    n = width if step == 1 else width // step + 1
-    dst = acc if step == 1 else tmp
-    if step > 1:
-        dst[:n] = 0.0
+def _wall_row(edge_dir, r, c, s, ex, ey, cam_z, box, zs_top, zs_bot):
+    """Image row r's wall heights: the last row's bottom edge (`zs_bot`) becomes its top edge (`zs_top`) and its
+    bottom edge's are worked out. Returns (the lowest at the bottom edge, the highest at the top edge)."""
+    hi = zs_bot[0]
+    for k in range(zs_top.shape[0]):
+        zs_top[k] = zs_bot[k]
+        hi = max(hi, zs_bot[k])
+    _wall_z(edge_dir, r + 1, c, s, ex, ey, cam_z, box, zs_bot)
+    lo = zs_bot[0]
+    for k in range(zs_bot.shape[0]):
+        lo = min(lo, zs_bot[k])
+    return lo, hi
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _blend_row(acc, sky_share, zs_top, zs_bot, z_top, z_bot, wall_h, wall, sky):
+    """Row acc (its ground lines read) as ground, wall and sky by the share of each pixel's height that sees each."""
+    if 0.0 < sky_share < 1.0:
+        f = np.float32(1.0 / (1.0 - sky_share))  # the ground lines cover only the part below the horizon
+        for col in range(acc.shape[0]):
+            acc[col] *= f
+    _expand(zs_top, z_top)
+    _expand(zs_bot, z_bot)
+    _blend_walls(acc, z_top, z_bot, wall_h, wall, sky)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _lines(j0, j1, n, ex, ey, c, s, plain, kn, kg, kc, lines, levels, grey, gfrac, cfrac, x0, y0, dst):
+    """dst[k] += the ground lines j0..j1 (rows of `lines`: x ahead, y of column 0, y step per column, raster level,
+    column step, weight, fine grain) read at n points each, seen from the eye at (ex, ey) looking along (c, s)."""
     for j in range(j0, j1):
-        # the ground line in texel coordinates of its level
-        lv = sub_level[j]
-        ic = inv_cell[lv]
-        fx0 = (ex + c * sub_x[j] - s * sub_y0[j] - x0) * ic - 0.5
-        fy0 = (ey + s * sub_x[j] + c * sub_y0[j] - y0) * ic - 0.5
-        sd = sub_dy[j] * ic * step
+        # the ground line in texel coordinates of its level (`levels` rows: offset, stride, w - 1, h - 1, 1 / cell)
+        lv = np.int64(lines[j, 3])
+        ic = levels[lv, 4]
+        fx0 = (ex + c * lines[j, 0] - s * lines[j, 1] - x0) * ic - 0.5
+        fy0 = (ey + s * lines[j, 0] + c * lines[j, 1] - y0) * ic - 0.5
+        sd = lines[j, 2] * ic * lines[j, 4]
         sx = -s * sd
         sy = c * sd
-        wm = wmax[lv]
-        hm = hmax[lv]
+        wm = levels[lv, 2]
+        hm = levels[lv, 3]
         fx1 = fx0 + (n - 1) * sx
         fy1 = fy0 + (n - 1) * sy
         clamp = not (min(fx0, fx1) >= 0.0 and max(fx0, fx1) <= wm and min(fy0, fy1) >= 0.0 and max(fy0, fy1) <= hm)
+        o = np.int64(levels[lv, 0])
+        stride = np.int64(levels[lv, 1])
         if not plain:
-            _lit_samples(grey, gfrac, cfrac, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp,
-                         np.float32(fx0), np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]),
-                         kn, kg, kc, dst, n)
+            _lit_samples(grey, gfrac, cfrac, o, stride, np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
+                         np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(lines[j, 5]), kn, kg, kc, dst, n)
         else:
-            _grey_samples(grey, off[lv], stride[lv], np.float32(wm), np.float32(hm), clamp, np.float32(fx0),
-                          np.float32(fy0), np.float32(sx), np.float32(sy), np.float32(sub_weight[j]), dst, n)
-    if step > 1 and j1 > j0:
+            _grey_samples(grey, o, stride, np.float32(wm), np.float32(hm), clamp, np.float32(fx0), np.float32(fy0),
+                          np.float32(sx), np.float32(sy), np.float32(lines[j, 5]), dst, n)
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _ground(j0, j1, ex, ey, c, s, plain, kn, kg, kc, lines, levels, grey, gfrac, cfrac, x0, y0, fine, fine_ratio,
+            fine_amp, acc, tmp):
+    """acc[col] += the ground lines j0..j1 of one image row (their share of each pixel), seen from the eye at
+    (ex, ey) looking along (c, s): every step-th column read from the raster, the others interpolated."""
+    if j1 <= j0:
+        return
+    width = acc.shape[0]
+    step = np.int64(lines[j0, 4])
+    if step == 1:
+        _lines(j0, j1, width, ex, ey, c, s, plain, kn, kg, kc, lines, levels, grey, gfrac, cfrac, x0, y0, acc)
+    else:
+        n = width // step + 1
+        for k in range(n):
+            tmp[k] = 0.0
+        _lines(j0, j1, n, ex, ey, c, s, plain, kn, kg, kc, lines, levels, grey, gfrac, cfrac, x0, y0, tmp)
         _spread(tmp, step, acc)
-    if j1 > j0 and sub_fine[j0] > 0.0:
+    if lines[j0, 6] > 0.0:
         # the fine grain, on the rows that read the finest level (one ground line each), added per column
-        ic = inv_cell[0] * fine_ratio
-        gx = (ex + c * sub_x[j0] - s * sub_y0[j0] - x0) * ic
-        gy = (ey + s * sub_x[j0] + c * sub_y0[j0] - y0) * ic
-        _fine_grain(acc, gx, gy, -s * sub_dy[j0] * ic, c * sub_dy[j0] * ic, np.float32(sub_fine[j0]), fine, fine_amp)
+        ic = levels[0, 4] * fine_ratio
+        gx = (ex + c * lines[j0, 0] - s * lines[j0, 1] - x0) * ic
+        gy = (ey + s * lines[j0, 0] + c * lines[j0, 1] - y0) * ic
+        _fine_grain(acc, gx, gy, -s * lines[j0, 2] * ic, c * lines[j0, 2] * ic, np.float32(lines[j0, 6]), fine,
+                    fine_amp)
 
 
 @njit(cache=True, fastmath=True)
@@ -277,12 +322,14 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
 
     `eyes` (E, 2): the cameras' foot points in the car frame (x ahead, y left).
     """
-    row_first, row_haze, row_sky, sky_el, sky_az, edge_dir = plan[0], plan[1], plan[2], plan[9], plan[10], plan[12]
+    # every array leaves its tuple here, once: a tuple read in the row loop costs two atomic reference counts per
+    # array and row, which took an eighth of a frame's time
+    row_first, row_haze, row_sky, lines, sky_el, sky_az, edge_dir = plan
+    grey, gfrac, cfrac, levels, x0, y0 = raster
     plain, coef, tone, light, noise_amp, noise, noise_off = lit
     spose, sdims, sgrey, cam = solids
-    walls, box, wall_h = world[0], world[1], world[2]
-    bias = np.float32(world[6])
-    hazy = world[7]
+    walls, box, wall_h, fine, fine_ratio, fine_amp, bias, hazy = world
+    bias = np.float32(bias)
     height, width = out.shape[1], out.shape[2]
     acc = np.empty(width, dtype=np.float32)
     tmp = np.empty(width + 1, dtype=np.float32)
@@ -316,39 +363,35 @@ def render(cars, pose_x, pose_y, pose_yaw, eyes, plan, raster, pano, lit, solids
                                  coef[i, 3] if hazy else -1.0, width, height, bounds, seen, shades, local)
             in_walls = walls
             if walls:
-                _wall_z(edge_dir[0], c, s, ex, ey, cam_z, box, zs_bot)
+                _wall_z(edge_dir, 0, c, s, ex, ey, cam_z, box, zs_bot)
             for r in range(height):
                 ground = True
                 blend = False
                 flat = False
                 hi = 0.0
                 if in_walls:
-                    zs_top[:] = zs_bot
-                    _wall_z(edge_dir[r + 1], c, s, ex, ey, cam_z, box, zs_bot)
-                    lo = zs_bot.min()
-                    hi = zs_top.max()
+                    lo, hi = _wall_row(edge_dir, r, c, s, ex, ey, cam_z, box, zs_top, zs_bot)
                     in_walls = hi > 0.0  # once every pixel's top edge sees the ground, so do all rows below
                     ground = lo < 0.0
                     flat = not ground and (hi <= wall_h or lo >= wall_h)  # all wall, or all sky above it
                     blend = in_walls and not flat
                 if flat:
-                    acc[:] = coef[i, 5] if hi <= wall_h else coef[i, 6]
+                    _fill(acc, coef[i, 5] if hi <= wall_h else coef[i, 6])
                 else:
-                    acc[:] = row_haze[r] * coef[i, 3]
+                    _fill(acc, row_haze[r] * coef[i, 3])
                     if row_sky[r] > 0.0 and not walls:
-                        _sky_row(pano, sky_el[r], sky_az[r], yaw_bins, row_sky[r] * coef[i, 4], acc)
-                    j0 = row_first[r]
-                    _ground(j0, row_first[r + 1] if ground else j0, ex, ey, c, s, plain[i], kn, kg, kc, plan, raster,
-                            world, acc, tmp)
+                        _sky_row(pano, sky_el, sky_az, r, yaw_bins, row_sky[r] * coef[i, 4], acc)
+                    _ground(row_first[r], row_first[r + 1] if ground else row_first[r], ex, ey, c, s, plain[i], kn,
+                            kg, kc, lines, levels, grey, gfrac, cfrac, x0, y0, fine, fine_ratio, fine_amp, acc, tmp)
                 if blend:
-                    if 0.0 < row_sky[r] < 1.0:
-                        acc *= np.float32(1.0 / (1.0 - row_sky[r]))  # the ground lines cover only the part below
-                    _expand(zs_top, z_top)
-                    _expand(zs_bot, z_bot)
-                    _blend_walls(acc, z_top, z_bot, wall_h, coef[i, 5], coef[i, 6])
+                    _blend_row(acc, row_sky[r], zs_top, zs_bot, z_top, z_bot, wall_h, coef[i, 5], coef[i, 6])
                 if nseen:
                     _objects_row(r, nseen, bounds, seen, shades, local, sdims, cam, width, height, zbuf, val, acc)
-                _finish_row(acc, r, i, eye, plain, tone, light, noise_amp, noise, noise_off, bias, out)
+                if plain[i]:
+                    _finish_plain(acc, bias, out, i, r, eye)
+                else:
+                    _finish_lit(acc, r, i, eye, tone, light, noise_amp, noise, noise_off[i, eye] + r * width, bias,
+                                out)
 
 
 @njit(cache=True, fastmath=True)

@@ -72,8 +72,9 @@ class Camera:
         r = self.raster
         g = r.grey
         gf, cf = r.fractions() if self.randomization else (g, g)
-        return (g.data, gf.data, cf.data, g.off, g.stride, (g.w - 1).astype(np.float64),
-                (g.h - 1).astype(np.float64), r.level_inv_cell, float(r.x0), float(r.y0))
+        # per level: first texel, stride, last column, last row, texels per metre (all exact in float64)
+        levels = np.column_stack([g.off, g.stride, g.w - 1, g.h - 1, r.level_inv_cell]).astype(np.float64)
+        return g.data, gf.data, cf.data, levels, float(r.x0), float(r.y0)
 
     def _pack_world(self, stereo: bool):
         look = self.look
@@ -95,8 +96,10 @@ class Camera:
                                 **options)
         self.panorama = self.look.panorama(SKY_EL_STEP_RAD, p.sky_el_bins, SKY_AZ_BINS)
         self._cam_args = (cam_z, self.model.focal_px, math.cos(self.model.pitch_rad), math.sin(self.model.pitch_rad))
-        self._plan_args = (p.row_first, p.row_haze, p.row_sky, p.sub_x, p.sub_y0, p.sub_dy, p.sub_level,
-                           p.sub_step, p.sub_weight, p.sky_el, p.sky_az, p.sub_fine, p.edge_dir)
+        # one row per ground line, in the renderer's order (`_render._lines`)
+        lines = np.column_stack([p.sub_x, p.sub_y0, p.sub_dy, p.sub_level, p.sub_step, p.sub_weight, p.sub_fine])
+        self._plan_args = (p.row_first, p.row_haze, p.row_sky, np.ascontiguousarray(lines, dtype=np.float64),
+                           p.sky_el, p.sky_az, p.edge_dir)
 
     @property
     def channels(self) -> int:
