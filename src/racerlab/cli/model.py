@@ -5,7 +5,7 @@ from __future__ import annotations
 import shlex
 from pathlib import Path
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ConfigError, RacerlabError
 
 DEFAULT_MAX_SPEED = 1.0  # the AWS console's default action space tops out at 1 m/s
 
@@ -31,7 +31,11 @@ def register(sub) -> None:
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
     p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
                    help="reward template: example (centre, heading and speed), centre_line, progress (progress "
-                        "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
+                        "per step), racing_line (the path of the track's limit from `racerlab line`, kept "
+                        "--line-margin from the borders, at its speeds)")
+    p.add_argument("--line-margin", type=float, default=None,
+                   help="racing_line: metres between the wheels and the borders (negative: over them; default "
+                        "-0.1, the least the off-track rule allows is about -0.23)")
     p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot", "head_to_model"],
                    default="time_trial",
                    help="object_avoidance: three boxes in [race], head_to_bot: three bot cars, head_to_model: the "
@@ -81,10 +85,8 @@ def run_init(args) -> int:
         line = None
         metadata = folder.metadata()
         if args.reward in NEEDS_LINE:
-            from racerlab.line import racing_line
-
             car = folder.config().car.params(metadata.version, training=False)  # the [car] it trains
-            line = racing_line(folder.config().track.names[0], car=car)
+            line = reward_line(folder.config().track.names[0], car, args.line_margin)
         folder.write_reward(reward_source(args.reward, line, metadata.actions.top_speed))
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
@@ -94,6 +96,19 @@ def run_init(args) -> int:
     minutes = 5 if args.sensor == "features" else CAMERA_MINUTES  # a camera model laps after many minutes on a CPU
     print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes {minutes}`")
     return 0
+
+
+def reward_line(track, car, margin: float | None = None):
+    """The line the racing_line reward follows: the limit's kind of path (`line.fastest_line`) `margin` m from
+    the borders (default `reward.templates.LINE_MARGIN_M`); a margin the car cannot keep is one line naming it."""
+    from racerlab.line import fastest_line, min_margin
+    from racerlab.reward.templates import LINE_MARGIN_M
+
+    margin = LINE_MARGIN_M if margin is None else margin
+    if not margin >= min_margin(car):
+        raise ConfigError(f"--line-margin {margin:g}: the off-track rule allows no less than {min_margin(car):.3f} m "
+                          "for this car; choose a larger margin")
+    return fastest_line(track, margin, car)
 
 
 QUICKSTART_MAX_SPEED = 2.0  # `racerlab quickstart --max-speed`'s default
