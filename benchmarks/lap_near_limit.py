@@ -11,7 +11,9 @@ falls in the run) and the load: the load average before and after, and the CPU s
 machine gives fewer iterations in the same minutes; read the ratio, and compare runs taken at a similar load).
 
 Usage: python benchmarks/lap_near_limit.py [--kinds features camera] [--minutes 30] [--reward racing_line]
-       [--line-margin M] [--seed N] [--track PATH] [--simulator droa|console] [--look aws|classic]
+       [--line-margin M] [--seed N] [--keep DIR] [--track PATH] [--simulator droa|console] [--look aws|classic]
+--keep: train in DIR/<kind> and keep the model folder (its metrics.jsonl holds the learning curves); default: a
+temporary folder, removed.
 --look: the camera's world (training.toml's run.look; default aws), recorded in the JSON.
 """
 
@@ -42,10 +44,11 @@ TARGET_RATIO = {"features": 1.05, "camera": 1.25}
 
 
 def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, line, car,
-             look: str = "aws", seed: int = 0) -> dict:
+             look: str = "aws", seed: int = 0, keep: Path | None = None) -> dict:
     load_before, cpu_before = os.getloadavg()[0], time.process_time()
     with tempfile.TemporaryDirectory() as tmp:
-        folder = init_model(Path(tmp) / "m", track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
+        where = keep / kind if keep else Path(tmp) / "m"
+        folder = init_model(where, track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
                             best_model_metric="laptime")
         cfg = folder.config()  # the simulator's car drives (its [car] table)
         cfg = replace(cfg, run=replace(cfg.run, look=look, seed=seed))  # the camera's look (--look), --seed
@@ -76,6 +79,7 @@ def main():
     ap.add_argument("--line-margin", type=float, default=None,
                     help="racing_line: the line's margin to the borders, m (default: the template's, -0.1)")
     ap.add_argument("--seed", type=int, default=0, help="training.toml's run.seed (default 0)")
+    ap.add_argument("--keep", type=Path, help="keep each model folder in DIR/<kind> (default: a temporary one)")
     ap.add_argument("--track", type=Path, default=REINVENT)
     ap.add_argument("--simulator", choices=["droa", "console"], default="droa", help="whose car (default droa)")
     ap.add_argument("--look", choices=list(LOOKS), default="aws", help="the camera's world (default aws)")
@@ -85,7 +89,7 @@ def main():
     line = reward_line(str(args.track), car, args.line_margin)
     for kind in args.kinds:
         print(json.dumps(best_lap(kind, args.track, args.minutes, args.reward, limit, line, car, args.look,
-                                  args.seed)),
+                                  args.seed, args.keep)),
               flush=True)
 
 
