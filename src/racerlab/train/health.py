@@ -15,7 +15,7 @@ from racerlab.agent.distributions import PPO_LOG_STD_MAX, PPO_LOG_STD_MIN
 from racerlab.errors import RacerlabError
 
 MAX_ROLLBACKS = 3
-VALUE_LOSS_LIMIT = 1e5  # PPO learns returns over a running scale (agent.ppo), so a loss past this is a learner gone wrong
+VALUE_LOSS_LIMIT = 1e5  # PPO learns returns over a running scale (agent.ppo): a loss past this is a learner gone wrong
 MAX_SENSIBLE_REWARD = 1e3
 COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
 # nats; below this a discrete policy's softmax is saturated (gradients ~0): it cannot explore or learn again
