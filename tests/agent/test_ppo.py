@@ -362,3 +362,41 @@ def test_a_reward_a_hundred_times_larger_learns_the_same_policy(fast_update):
     for a, b in zip(agents[0].policy_net.parameters(), agents[1].policy_net.parameters(), strict=True):
         assert torch.allclose(a, b, atol=1e-4)
     assert agents[1].return_scale == pytest.approx(100 * agents[0].return_scale, rel=1e-5)
+
+
+def test_the_learning_rate_follows_the_policys_step_within_the_rate_set_last():
+    # KL_TARGET 0.015: over 0.03 the rate is divided by 1.5, under 0.0075 multiplied by 1.5, never above the rate
+    # set last (the file's, or the NaN guard's) nor below a 30th of it
+    ppo = PPO((4,), MLP_CONTINUOUS, Hyperparameters(lr=3e-4), device="cpu", seed=0)
+    ppo.steer_lr(0.05)
+    assert ppo.lr == pytest.approx(2e-4)
+    ppo.steer_lr(0.02)  # between the bounds: kept
+    assert ppo.lr == pytest.approx(2e-4)
+    ppo.steer_lr(0.001)
+    ppo.steer_lr(0.001)
+    assert ppo.lr == pytest.approx(3e-4) and ppo.lr_ceiling == 3e-4  # back up, and no further
+    for _ in range(20):
+        ppo.steer_lr(1.0)
+    assert ppo.lr == pytest.approx(1e-5)
+    ppo.steer_lr(float("nan"))
+    assert ppo.lr == pytest.approx(1e-5)
+    ppo.lr = 1e-4  # the NaN guard halving, or an edited hyperparameters.json: the new ceiling
+    ppo.steer_lr(0.001)
+    assert ppo.lr == ppo.lr_ceiling == 1e-4
+    ppo.steer_lr(0.05)
+    again = PPO((4,), MLP_CONTINUOUS, device="cpu", seed=1)
+    again.load_state_dict(ppo.state_dict())
+    assert (again.lr, again.lr_ceiling) == (pytest.approx(1e-4 / 1.5), 1e-4)
+
+
+def test_learn_steers_the_rate_by_its_own_update():
+    # a rate far too high moves the policy well past 2 × KL_TARGET in one learn: the next runs at 1/1.5 of it
+    ppo = PPO((4,), MLP_CONTINUOUS, Hyperparameters(lr=0.05, num_epochs=10), device="cpu", seed=0)
+    obs = np.random.default_rng(0).normal(size=(64, 4)).astype(np.float32)
+    ends = np.zeros(64, bool)
+    ends[-1] = True
+    ro = _rollout(ppo, obs, [], np.zeros(64, bool), ends)
+    ro.rewards = -np.sum((ro.actions - 0.5) ** 2, 1).astype(np.float32)
+    metrics = ppo.learn(ro)
+    assert metrics["losses/approx_kl"] > 0.03 and metrics["charts/learning_rate"] == pytest.approx(0.05)
+    assert ppo.lr == pytest.approx(0.05 / 1.5) and ppo.lr_ceiling == 0.05

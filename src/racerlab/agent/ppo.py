@@ -80,6 +80,14 @@ VALUE_LOSS_WEIGHT = 1.0
 # where Huber's δ = 1 turns the value loss into |error| and the value net crawled (explained variance ~0.2
 # after 50 iterations, docs/learner.md). Scaled, the errors sit inside δ and any reward's scale learns alike.
 RETURN_SCALE_WEIGHT = 0.1
+# The learning rate follows the policy's step: after an update whose approx KL passed 2 × KL_TARGET it is divided
+# by LR_STEP, after one under KL_TARGET / 2 multiplied by it, never above the rate set last (hyperparameters.json's
+# lr, or what the NaN guard lowered it to) nor below that / LR_RANGE. As the policy's std shrinks, a fixed rate's
+# steps grow in KL: a 30-minute run's median went 0.01 -> 0.045 nats, clip fraction 0.13 -> 0.33, with spikes to
+# 59 nats, and its evaluation laps drifted from 92 to 95 steps (docs/learner.md). AWS's rate is fixed.
+KL_TARGET = 0.015
+LR_STEP = 1.5
+LR_RANGE = 30.0
 STATE_FORMAT = "racerlab.ppo/1"
 
 
@@ -263,6 +271,7 @@ class PPO:
             self.value_net.to(memory_format=torch.channels_last)
         # fused: one kernel for all weights (the same update as torch's per-tensor Adam)
         self.optimizer = torch.optim.Adam(params, lr=self.hp.lr, betas=(0.9, 0.999), eps=ADAM_EPS, fused=True)
+        self.lr_ceiling = float(self.hp.lr)  # the rate `steer_lr` never exceeds
         self.generator = make_generator(seed, self.device)
         # small vector networks on the CPU: the same update compiled (or in NumPy), without autograd's overhead
         covered = fast_update and MLPUpdater.covers(self.policy_net, self.value_net, self.device)
@@ -282,8 +291,22 @@ class PPO:
 
     @lr.setter
     def lr(self, value: float) -> None:
+        """Set the rate, and the ceiling `steer_lr` keeps under (the NaN guard, an edited hyperparameters.json)."""
+        self._set_lr(value)
+        self.lr_ceiling = float(value)
+
+    def _set_lr(self, value: float) -> None:
         for group in self.optimizer.param_groups:
             group["lr"] = float(value)
+
+    def steer_lr(self, approx_kl: float) -> None:
+        """After an update: the learning rate toward a step of KL_TARGET (LR_STEP, LR_RANGE)."""
+        if not math.isfinite(approx_kl):
+            return
+        if approx_kl > 2 * KL_TARGET:
+            self._set_lr(max(self.lr / LR_STEP, self.lr_ceiling / LR_RANGE))
+        elif approx_kl < KL_TARGET / 2:
+            self._set_lr(min(self.lr * LR_STEP, self.lr_ceiling))
 
     @property
     def epsilon(self) -> float:
@@ -380,7 +403,9 @@ class PPO:
                            np.asarray(rollout.rewards, dtype=np.float32) / unit, next_values / to_unit,
                            rollout.terminated, rollout.truncated, self.hp.discount_factor)
         diagnostics = self._diagnostics(batch)
-        return {**self.update(batch), **diagnostics}
+        metrics = self.update(batch)
+        self.steer_lr(metrics["losses/approx_kl"])
+        return {**metrics, **diagnostics}
 
     def _update_return_scale(self, rollout) -> float:
         """Blend this rollout's RMS discounted return (to each episode's end, γ = discount_factor) into
@@ -549,7 +574,7 @@ class PPO:
         return copy.deepcopy({"format": STATE_FORMAT, "policy": self.policy_net.state_dict(),
                 "value": self.value_net.state_dict(), "optimizer": self.optimizer.state_dict(),
                 "lr": self.lr, "env_steps": self.env_steps, "generator": generator_state(self.generator),
-                "return_scale": self.return_scale})
+                "return_scale": self.return_scale, "lr_ceiling": self.lr_ceiling})
 
     def load_state_dict(self, state: dict) -> None:
         if state.get("format") != STATE_FORMAT:
@@ -560,6 +585,7 @@ class PPO:
         # Optimizer.load_state_dict keeps the given tensors; copy them so the caller's dict stays apart.
         self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
         self.lr = state["lr"]
+        self.lr_ceiling = float(state.get("lr_ceiling", state["lr"]))
         self.env_steps = int(state["env_steps"])
         self.return_scale = state.get("return_scale")  # None in states saved before it: set by the next learn
         restore_generator(self.generator, state.get("generator"))

@@ -121,7 +121,7 @@ class Health:
     def lr_advice(self) -> str:
         """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): AWS's
         default 0.0003 when the file's is higher, else a tenth of the file's."""
-        lr, ours = self.hp.lr, self.agent.lr
+        lr, ours = self.hp.lr, getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering
         now = f" (halved to {ours:g} by rollbacks)" if ours < lr else ""
         hint = AWS_DEFAULT_LR if lr > AWS_DEFAULT_LR else lr / 10
         return f"the learning rate: lr {lr:g} in {self.hp.source}{now} is too high; try {hint:g} or lower"
@@ -130,7 +130,7 @@ class Health:
         """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
         after MAX_ROLLBACKS stop with TrainingDiverged."""
         self.rollbacks += 1
-        lr = self.agent.lr
+        lr = getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering (agent.ppo.KL_TARGET)
         self.agent.load_state_dict(self.last_good)
         self.agent.lr = lr / 2
         text = (f"{what} in iteration {iteration + 1}: rolled back to the last good weights, learning rate "
