@@ -25,7 +25,9 @@ Where racerlab differs from AWS, on purpose: AWS bootstraps 0 at every episode e
 *truncation* (a step limit, a completed lap, or an episode cut by the end of a rollout: bootstrap with
 V of the observation after the last step) — a timeout is not a wall, and neither is the finish line:
 no observation tells how near it is, and a 0 there made arriving sooner look worse (issue 17,
-`racerlab.train.rollout`).
+`racerlab.train.rollout`). Two more (issue 32, docs/learner.md): the value net learns the returns over a
+running scale (`RETURN_SCALE_WEIGHT`), and the learning rate is steered by each update's approx KL
+(`KL_TARGET`), within hyperparameters.json's lr.
 
 How the training loop feeds it (the batch representation):
 1. `actions, log_probs, values = ppo.act(obs)` for each step of B cars (numpy in, numpy out).
