@@ -179,8 +179,14 @@ def _spread_panel(ax, it):
     for c in shown:
         ax.plot(it.index, it[c], marker=".", label=c.removeprefix("action_std_"))
     if shown:
-        ax.set_title("Exploration: the policy's std ([-1, 1] action units)")
-        ax.legend(fontsize=8)
+        ax.set_title("Exploration: the policy's std ([-1, 1] action units), learning rate")
+        ax.legend(fontsize=8, loc="upper left")
+        if "learning_rate" in it and it["learning_rate"].notna().any():
+            ax2 = ax.twinx()
+            ax2.plot(it.index, it["learning_rate"], color="k", ls="--", lw=1, label="learning rate")
+            ax2.set_yscale("log")
+            ax2.tick_params(labelsize=8)
+            ax2.legend(fontsize=8, loc="upper right")
     elif "entropy" in it and it["entropy"].notna().any():
         ax.plot(it.index, it["entropy"], marker=".", color="C4")
         ax.set_title("Exploration: policy entropy")
