@@ -406,7 +406,7 @@ class PPO:
                            rollout.terminated, rollout.truncated, self.hp.discount_factor)
         diagnostics = self._diagnostics(batch)
         metrics = self.update(batch)
-        self.steer_lr(metrics["losses/approx_kl"])
+        self.steer_lr(metrics.get("losses/approx_kl", math.nan))  # none from a non-finite update: kept
         return {**metrics, **diagnostics}
 
     def _update_return_scale(self, rollout) -> float:
