@@ -309,3 +309,94 @@ def test_cuda_round_trip():
     cpu = PPO((4,), MLP_DISCRETE, device="cpu")
     cpu.load_state_dict(ppo.state_dict())
     assert np.array_equal(cpu.act(obs, True)[0], ppo.act(obs, True)[0])
+
+
+# -- the return scale (RETURN_SCALE_WEIGHT) ----------------------------------------------------------
+
+def _rollout(ppo, obs, rewards, terminated, truncated):
+    """A `train.rollout.Rollout`'s fields that `PPO.learn` reads, from `explore` on `obs`."""
+    from types import SimpleNamespace
+
+    actions, record = ppo.explore(obs)
+    return SimpleNamespace(obs=obs, actions=actions, record=record, rewards=np.asarray(rewards, np.float32),
+                           terminated=np.asarray(terminated, bool), truncated=np.asarray(truncated, bool),
+                           final_obs=obs[np.asarray(truncated, bool)])
+
+
+def test_return_scale_is_the_rms_discounted_return_then_a_running_blend():
+    # two episodes, γ = 0.5: [1, 1] terminated -> returns 1.5, 1; [2] truncated -> 2 (the scale bootstraps 0)
+    # RMS = sqrt((2.25 + 1 + 4) / 3) = sqrt(2.41667) = 1.55456; the second rollout's RMS 2 × 1.55456 blends in
+    # with weight 0.1: 1.55456 + 0.1 × 1.55456 = 1.71002
+    ppo = PPO((4,), MLP_CONTINUOUS, Hyperparameters(discount_factor=0.5), device="cpu", seed=0)
+    obs = np.random.default_rng(0).normal(size=(3, 4)).astype(np.float32)
+    ends = dict(terminated=[False, True, False], truncated=[False, False, True])
+    metrics = ppo.learn(_rollout(ppo, obs, [1.0, 1.0, 2.0], **ends))
+    assert ppo.return_scale == pytest.approx(1.55456, abs=1e-5) == metrics["learner/return_scale"]
+    ppo.learn(_rollout(ppo, obs, [2.0, 2.0, 4.0], **ends))
+    assert ppo.return_scale == pytest.approx(1.71002, abs=1e-5)
+    # act and value speak the reward's units: the value net's output times the scale
+    with torch.no_grad():
+        raw = ppo.value_net({ppo.keys[0]: torch.as_tensor(obs)}).numpy()
+    assert np.allclose(ppo.value(obs), raw * 1.71002, rtol=1e-5)
+    assert np.allclose(ppo.act(obs)[2], raw * 1.71002, rtol=1e-5)
+    again = PPO((4,), MLP_CONTINUOUS, device="cpu", seed=1)
+    again.load_state_dict(ppo.state_dict())
+    assert again.return_scale == ppo.return_scale
+
+
+@pytest.mark.parametrize("fast_update", [True, False])
+def test_a_reward_a_hundred_times_larger_learns_the_same_policy(fast_update):
+    # a racer's reward scale (0-1 per step, or bonuses of 1 000) should not change what is learnt: with the
+    # returns scaled, two agents fed r and 100·r end with the same policy weights after three iterations
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(96, 4)).astype(np.float32)
+    ends = np.zeros(96, bool)
+    ends[31::32] = True  # three episodes of 32 steps, cut by a step limit
+    agents = [PPO((4,), MLP_CONTINUOUS, Hyperparameters(num_epochs=2), device="cpu", seed=0,
+                  fast_update=fast_update) for _ in range(2)]
+    for _ in range(3):
+        for agent, k in zip(agents, (1.0, 100.0), strict=True):
+            ro = _rollout(agent, obs, [], np.zeros(96, bool), ends)
+            ro.rewards = (k * -np.sum((ro.actions - 0.3) ** 2, 1)).astype(np.float32)
+            agent.learn(ro)
+    for a, b in zip(agents[0].policy_net.parameters(), agents[1].policy_net.parameters(), strict=True):
+        assert torch.allclose(a, b, atol=1e-4)
+    assert agents[1].return_scale == pytest.approx(100 * agents[0].return_scale, rel=1e-5)
+
+
+def test_the_learning_rate_follows_the_policys_step_within_the_rate_set_last():
+    # KL_TARGET 0.015: over 0.03 the rate is divided by 1.5, under 0.0075 multiplied by 1.5, never above the rate
+    # set last (the file's, or the NaN guard's) nor below a 30th of it
+    ppo = PPO((4,), MLP_CONTINUOUS, Hyperparameters(lr=3e-4), device="cpu", seed=0)
+    ppo.steer_lr(0.05)
+    assert ppo.lr == pytest.approx(2e-4)
+    ppo.steer_lr(0.02)  # between the bounds: kept
+    assert ppo.lr == pytest.approx(2e-4)
+    ppo.steer_lr(0.001)
+    ppo.steer_lr(0.001)
+    assert ppo.lr == pytest.approx(3e-4) and ppo.lr_ceiling == 3e-4  # back up, and no further
+    for _ in range(20):
+        ppo.steer_lr(1.0)
+    assert ppo.lr == pytest.approx(1e-5)
+    ppo.steer_lr(float("nan"))
+    assert ppo.lr == pytest.approx(1e-5)
+    ppo.lr = 1e-4  # the NaN guard halving, or an edited hyperparameters.json: the new ceiling
+    ppo.steer_lr(0.001)
+    assert ppo.lr == ppo.lr_ceiling == 1e-4
+    ppo.steer_lr(0.05)
+    again = PPO((4,), MLP_CONTINUOUS, device="cpu", seed=1)
+    again.load_state_dict(ppo.state_dict())
+    assert (again.lr, again.lr_ceiling) == (pytest.approx(1e-4 / 1.5), 1e-4)
+
+
+def test_learn_steers_the_rate_by_its_own_update():
+    # a rate far too high moves the policy well past 2 × KL_TARGET in one learn: the next runs at 1/1.5 of it
+    ppo = PPO((4,), MLP_CONTINUOUS, Hyperparameters(lr=0.05, num_epochs=10), device="cpu", seed=0)
+    obs = np.random.default_rng(0).normal(size=(64, 4)).astype(np.float32)
+    ends = np.zeros(64, bool)
+    ends[-1] = True
+    ro = _rollout(ppo, obs, [], np.zeros(64, bool), ends)
+    ro.rewards = -np.sum((ro.actions - 0.5) ** 2, 1).astype(np.float32)
+    metrics = ppo.learn(ro)
+    assert metrics["losses/approx_kl"] > 0.03 and metrics["charts/learning_rate"] == pytest.approx(0.05)
+    assert ppo.lr == pytest.approx(0.05 / 1.5) and ppo.lr_ceiling == 0.05

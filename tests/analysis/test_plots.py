@@ -12,6 +12,7 @@ import pytest
 from racerlab.analysis import load
 from racerlab.analysis import plots as P
 from racerlab.analysis.episodes import episode_summary, iteration_summary, run_metrics
+from racerlab.analysis.report import fast_lap_share
 from tests.analysis.test_rescore import load_track_of, train_tiny_model
 
 # three points in cell (row 0, column 0) of a 10 cm grid, one in column 1, one outside the extent
@@ -63,6 +64,16 @@ def test_heatmap_cells_hold_the_statistic_of_the_steps(run):
     assert np.array_equal(np.isnan(got), np.isnan(want)) and np.allclose(got[~np.isnan(got)], want[~np.isnan(want)])
 
 
+def test_fast_lap_share_counts_training_laps_within_a_step_of_the_best_evaluation_lap():
+    # best evaluation lap 6.0 s (iteration 2); a step is 1/15 s = 0.0667 s, so laps up to 6.1 s count (6.0 + 1.5
+    # steps, a lap one step slower timed 6.0667 s). Iteration 1: 6.05 and 7.0 and an unfinished one -> 1 of 3;
+    # iteration 2: 6.0 and 6.2 -> 1 of 2
+    eps = pd.DataFrame({"iteration": [1, 1, 1, 2, 2], "lap_time": [6.05, 7.0, np.nan, 6.0, 6.2]})
+    its = pd.DataFrame({"eval_best_lap": [6.4, 6.0]}, index=[1, 2])
+    assert fast_lap_share(eps, its).tolist() == pytest.approx([1 / 3, 0.5])
+    assert fast_lap_share(eps, its.assign(eval_best_lap=np.nan)) is None
+
+
 def _png(fig, tmp_path, name):
     out = P.save_png(fig, tmp_path / f"{name}.png")
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 5000
@@ -73,6 +84,12 @@ def test_every_figure_draws_from_a_training_log(run, tmp_path):
     df, eps, its, track = run
     assert "entropy" in its and "eval_completion" in its
     _png(P.training_progress(its), tmp_path, "progress")
+    # the learner's figure: the run's own diagnostics (metrics.jsonl's learner/...); a discrete policy has no std,
+    # its spread is the entropy
+    assert its["value_rmse"].notna().all() and its["action_std_speed"].isna().all() and its["entropy"].notna().all()
+    fig = P.learner_health(its, fast_lap_share(eps, its))
+    assert len(fig.axes) >= 4 and fig.axes[0].lines
+    _png(fig, tmp_path, "learner")
     _png(P.track_heatmap(df, track, "true_speed", "p90", 0.1, min_count=2), tmp_path, "heat")
     _png(P.track_heatmap(df, track, "reward", "count", 0.1), tmp_path, "count")
     ids = eps.nlargest(2, "progress").index.tolist()

@@ -72,6 +72,11 @@ def test_quickstart_on_defaults(tmp_path, capsys):
     assert "sensor FEATURES" in out and "racerlab's own" in out
     assert (model / "quickstart" / "training.png").is_file()
     assert list(model.glob("evaluation-*/EvalMetrics.json"))
+    # its model: continuous actions up to 4 m/s and the racing_line reward on the limit's path 0.1 m over the borders
+    meta = json.loads((model / "model_metadata.json").read_text())
+    assert meta["action_space_type"] == "continuous" and meta["action_space"]["speed"]["high"] == 4.0
+    assert "RACING_LINE = [  # " in (model / "reward_function.py").read_text()
+    assert "margin -0.1 m" in (model / "reward_function.py").read_text()
     # the quickstart keeps the checkpoint with the fastest mean evaluation lap (newest on ties)
     assert 'best_model_metric = "laptime"' in (model / "training.toml").read_text()
     rows = [json.loads(line) for line in (model / "metrics" / "metrics.jsonl").read_text().splitlines()]

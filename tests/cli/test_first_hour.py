@@ -281,7 +281,9 @@ def test_one_late_lucky_lap_does_not_hide_an_early_best(tmp_path):
 def test_init_says_why_its_speeds_are_not_the_quickstart_s(tmp_path, capsys):
     assert main(["init", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out
-    assert "top speed 1 m/s, the AWS console's default; the quickstart's model has --max-speed 2" in out
+    assert ("top speed 1 m/s, the AWS console's default; the quickstart's model has continuous actions up to 4 m/s "
+            "and the racing_line reward (init with --action-space continuous --max-speed 4 --reward racing_line for "
+            "that)") in " ".join(out.split())
     assert max(json.loads((tmp_path / "a" / "model_metadata.json").read_text())["action_space"],
                key=lambda a: a["speed"])["speed"] == 1.0
     assert main(["init", str(tmp_path / "b"), "--max-speed", "2"]) == 0

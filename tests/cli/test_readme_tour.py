@@ -104,9 +104,13 @@ def test_the_tour_runs_as_written_on_the_models_it_makes():
     assert any(s in CAR_SENSORS for s in tour.models.values()) and tour.archives  # the car export is in it
 
 
-def test_the_tour_s_first_model_drives_at_the_quickstart_s_speed():
-    from racerlab.cli.model import QUICKSTART_MAX_SPEED
+def test_the_tour_s_first_model_is_the_quickstart_s_model():
+    # the README's `racerlab init` makes the model the quickstart made: its actions and its reward
+    from racerlab.cli.model import QUICKSTART_ACTIONS, QUICKSTART_MAX_SPEED, QUICKSTART_REWARD
 
     init = next(a for a in tour_lines() if a[:2] == ["racerlab", "init"])
     args = build_parser().parse_args(init[1:])
-    assert args.max_speed == QUICKSTART_MAX_SPEED == build_parser().parse_args(["quickstart"]).max_speed
+    quickstart = build_parser().parse_args(["quickstart"])
+    assert args.max_speed == QUICKSTART_MAX_SPEED == quickstart.max_speed
+    assert args.action_space == QUICKSTART_ACTIONS == quickstart.action_space
+    assert args.reward == QUICKSTART_REWARD == quickstart.reward

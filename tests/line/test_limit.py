@@ -11,7 +11,14 @@ import math
 import numpy as np
 import pytest
 
-from racerlab.line import car_clearance, min_margin, offtrack_overhang, racing_line, theoretical_limit
+from racerlab.line import (
+    car_clearance,
+    fastest_line,
+    min_margin,
+    offtrack_overhang,
+    racing_line,
+    theoretical_limit,
+)
 from racerlab.line import geometry as G
 from racerlab.line.profile import max_curvature
 from racerlab.sim import Simulator
@@ -63,6 +70,19 @@ def test_the_limit_on_a_ring_hugs_the_inner_border_from_outside_it():
     # the racing line keeps the whole car 0.1 m inside: r = 1.5 + 0.216 m, 3.62 s
     line = racing_line(ring(2.0, 1.0), car=car)
     assert line.kind == "line" and line.flying_lap_time == pytest.approx(2 * math.pi * math.sqrt(1.716 / 4.9), rel=0.01)
+
+
+def test_the_fastest_line_is_the_limits_path_at_the_racers_margin():
+    # on the same ring, margin -0.1 m: clearance 0.08 + 0.036 - 0.1 = 0.016 m, so the base point circles r = 1.516 m,
+    # 2π √(1.516 / 4.9) = 3.495 s a lap; at the rule's margin it is the limit itself
+    car = car_params("droa")
+    line = fastest_line(ring(2.0, 1.0), -0.1, car)
+    assert line.kind == "line" and line.margin_m == -0.1
+    assert np.median(np.hypot(*line.xy.T)) == pytest.approx(1.516, abs=0.01)
+    assert line.flying_lap_time == pytest.approx(2 * math.pi * math.sqrt(1.516 / 4.9), rel=0.01)
+    limit = theoretical_limit(ring(2.0, 1.0), car=car)
+    at_rule = fastest_line(ring(2.0, 1.0), min_margin(car), car)
+    assert (at_rule.lap_time, at_rule.flying_lap_time) == (limit.lap_time, limit.flying_lap_time)
 
 
 def test_no_lap_the_simulator_accepts_beats_the_limit(aws_track):

@@ -129,3 +129,17 @@ def test_init_writes_the_racing_line_of_the_models_track(tmp_path, capsys):
     exec(compile(text, "reward_function.py", "exec"), space)  # noqa: S102
     assert max(p[2] for p in space["RACING_LINE"]) <= 3.0
     assert "(racing_line)" in capsys.readouterr().out
+    # the limit's kind of path 0.1 m over the borders (reward.templates.LINE_MARGIN_M): its lap 6.133 s on the droa
+    # car, where the line 0.1 m inside took 6.667 s and the limit is 5.933 s
+    assert "margin -0.1 m" in text and "its lap 6.133 s" in text
+
+
+def test_init_takes_the_racers_line_margin_and_refuses_one_past_the_off_track_rule(tmp_path, capsys):
+    track = str(aws_track_path("reInvent2019_track"))
+    assert main(["init", str(tmp_path / "a"), "--track", track, "--reward", "racing_line", "--line-margin", "0.1"]) == 0
+    assert "margin 0.1 m" in (tmp_path / "a" / "reward_function.py").read_text()
+    capsys.readouterr()
+    args = ["--track", track, "--reward", "racing_line", "--line-margin", "-0.3"]
+    assert main(["init", str(tmp_path / "b"), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--line-margin -0.3" in err[0] and "-0.231" in err[0]

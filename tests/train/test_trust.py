@@ -165,13 +165,15 @@ def test_a_non_finite_loss_is_rolled_back_recorded_and_said(model, monkeypatch):
     assert entry["rollbacks"] == 1 and "rolled back" in entry["events"][0] and entry["lr"] == 0.00015
 
 
-def test_a_constant_huge_reward_is_caught_as_an_exploding_value_loss(model):
+def test_a_constant_huge_reward_trains_without_an_exploding_value_loss(model):
+    # it used to explode the value loss (returns of ~1e6 under Huber); the value net now learns returns over a
+    # running scale (agent.ppo.RETURN_SCALE_WEIGHT), so the largest reward a call may return trains like 1
     _small(model)
     model.reward_path.write_text("def reward_function(params):\n    return 1e5\n")
-    with pytest.raises(TrainingDiverged) as err:
-        train(model.path, iterations=3, **SMALL)
-    msg = str(err.value)
-    assert "value loss" in msg and "reward scale" in msg and str(model.reward_path) in msg
+    r = train(model.path, iterations=3, **SMALL)
+    assert r.iterations == 3
+    rows = read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")
+    assert all(row["losses/value"] < 10 and row["learner/return_scale"] > 1e5 for row in rows)
 
 
 def test_a_learning_rate_of_10_is_caught_and_named(model):

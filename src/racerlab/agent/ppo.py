@@ -25,7 +25,9 @@ Where racerlab differs from AWS, on purpose: AWS bootstraps 0 at every episode e
 *truncation* (a step limit, a completed lap, or an episode cut by the end of a rollout: bootstrap with
 V of the observation after the last step) — a timeout is not a wall, and neither is the finish line:
 no observation tells how near it is, and a 0 there made arriving sooner look worse (issue 17,
-`racerlab.train.rollout`).
+`racerlab.train.rollout`). Two more (issue 32, docs/learner.md): the value net learns the returns over a
+running scale (`RETURN_SCALE_WEIGHT`), and the learning rate is steered by each update's approx KL
+(`KL_TARGET`), within hyperparameters.json's lr.
 
 How the training loop feeds it (the batch representation):
 1. `actions, log_probs, values = ppo.act(obs)` for each step of B cars (numpy in, numpy out).
@@ -43,6 +45,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import math
 import time
 from collections.abc import Mapping
 from typing import NamedTuple
@@ -64,7 +67,7 @@ from racerlab.agent.common import (
     seeded,
     to_tensors,
 )
-from racerlab.agent.distributions import epsilon_greedy, epsilon_schedule
+from racerlab.agent.distributions import PPO_LOG_STD_MAX, PPO_LOG_STD_MIN, epsilon_greedy, epsilon_schedule
 from racerlab.agent.mlp_update import MLPUpdater
 from racerlab.agent.networks import PPO_MLP_HIDDEN, build_ppo_networks
 from racerlab.errors import ConfigError
@@ -74,6 +77,19 @@ CLIP_EPSILON = 0.2
 GAE_LAMBDA = 0.95
 ADAM_EPS = 1e-5
 VALUE_LOSS_WEIGHT = 1.0
+# The value network learns returns divided by `PPO.return_scale`, a running RMS of the discounted returns
+# (each iteration's RMS blended in with this weight): a lap of ~90 steps paid ~0.7 a step has returns near 50,
+# where Huber's δ = 1 turns the value loss into |error| and the value net crawled (explained variance ~0.2
+# after 50 iterations, docs/learner.md). Scaled, the errors sit inside δ and any reward's scale learns alike.
+RETURN_SCALE_WEIGHT = 0.1
+# The learning rate follows the policy's step: after an update whose approx KL passed 2 × KL_TARGET it is divided
+# by LR_STEP, after one under KL_TARGET / 2 multiplied by it, never above the rate set last (hyperparameters.json's
+# lr, or what the NaN guard lowered it to) nor below that / LR_RANGE. As the policy's std shrinks, a fixed rate's
+# steps grow in KL: a 30-minute run's median went 0.01 -> 0.045 nats, clip fraction 0.13 -> 0.33, with spikes to
+# 59 nats, and its evaluation laps drifted from 92 to 95 steps (docs/learner.md). AWS's rate is fixed.
+KL_TARGET = 0.015
+LR_STEP = 1.5
+LR_RANGE = 30.0
 STATE_FORMAT = "racerlab.ppo/1"
 
 
@@ -257,6 +273,7 @@ class PPO:
             self.value_net.to(memory_format=torch.channels_last)
         # fused: one kernel for all weights (the same update as torch's per-tensor Adam)
         self.optimizer = torch.optim.Adam(params, lr=self.hp.lr, betas=(0.9, 0.999), eps=ADAM_EPS, fused=True)
+        self.lr_ceiling = float(self.hp.lr)  # the rate `steer_lr` never exceeds
         self.generator = make_generator(seed, self.device)
         # small vector networks on the CPU: the same update compiled (or in NumPy), without autograd's overhead
         covered = fast_update and MLPUpdater.covers(self.policy_net, self.value_net, self.device)
@@ -264,6 +281,7 @@ class PPO:
         self._mlp = MLPUpdater(self.policy_net, self.value_net, self.optimizer, discrete=self.discrete,
                                engine=engine) if covered else None
         self.env_steps = 0  # car-steps acted while exploring: the ε-greedy schedule's clock
+        self.return_scale: float | None = None  # the value net's unit in reward (RETURN_SCALE_WEIGHT); None: not yet
         self._convolutional = any(isinstance(m, torch.nn.Conv2d) for m in self.policy_net.modules())
         self._inference: dict[str, ThreadChooser] = {}  # thread choice of act and policy, by method
 
@@ -275,8 +293,22 @@ class PPO:
 
     @lr.setter
     def lr(self, value: float) -> None:
+        """Set the rate, and the ceiling `steer_lr` keeps under (the NaN guard, an edited hyperparameters.json)."""
+        self._set_lr(value)
+        self.lr_ceiling = float(value)
+
+    def _set_lr(self, value: float) -> None:
         for group in self.optimizer.param_groups:
             group["lr"] = float(value)
+
+    def steer_lr(self, approx_kl: float) -> None:
+        """After an update: the learning rate toward a step of KL_TARGET (LR_STEP, LR_RANGE)."""
+        if not math.isfinite(approx_kl):
+            return
+        if approx_kl > 2 * KL_TARGET:
+            self._set_lr(max(self.lr / LR_STEP, self.lr_ceiling / LR_RANGE))
+        elif approx_kl < KL_TARGET / 2:
+            self._set_lr(min(self.lr * LR_STEP, self.lr_ceiling))
 
     @property
     def epsilon(self) -> float:
@@ -326,15 +358,15 @@ class PPO:
         else:
             actions = dist.sample(self.generator)
         log_probs = dist.log_prob(actions)
-        values = self.value_net(x)
+        values = self.value_net(x) * (self.return_scale or 1.0)
         if not greedy:
             self.env_steps += batch_size_of(x)
         return actions.cpu().numpy(), log_probs.cpu().numpy(), values.cpu().numpy()
 
     @torch.inference_mode()
     def value(self, obs: Obs) -> np.ndarray:
-        """V(s) [B], e.g. of the final observation of a truncated episode."""
-        return self.value_net(to_tensors(obs, self.keys, self.device)).cpu().numpy()
+        """V(s) [B] in the reward's units, e.g. of the final observation of a truncated episode."""
+        return self.value_net(to_tensors(obs, self.keys, self.device)).cpu().numpy() * (self.return_scale or 1.0)
 
     def policy(self, obs: Obs) -> np.ndarray:
         """The greedy actions [B] (argmax or mean), as evaluation drives. A vector network computes them in
@@ -354,7 +386,9 @@ class PPO:
     def learn(self, rollout) -> dict[str, float]:
         """One iteration's update from a training rollout (`racerlab.train.rollout.Rollout`: whole episodes,
         flat, with `explore`'s log-probs and values); a truncated episode bootstraps from V of its final
-        observation. Returns `update`'s metrics ({} for an empty rollout)."""
+        observation. Rewards and values are divided by `return_scale` (updated first, `RETURN_SCALE_WEIGHT`), so
+        the value net learns returns near 1 whatever the reward's scale. Returns `update`'s metrics ({} for an
+        empty rollout) and the learner's diagnostics (`learner/...`, in the reward's units)."""
         if rollout.rewards.size == 0:
             return {}
         values = np.asarray(rollout.record["values"], dtype=np.float32)
@@ -364,9 +398,41 @@ class PPO:
         if cut.any():
             end_values[cut] = self.value(rollout.final_obs)
         next_values = episode_next_values(values, ended, end_values)
-        batch = make_batch(rollout.obs, rollout.actions, rollout.record["log_probs"], values, rollout.rewards,
-                           next_values, rollout.terminated, rollout.truncated, self.hp.discount_factor)
-        return self.update(batch)
+        first = self.return_scale is None  # then the net's outputs are taken as already in the new unit
+        unit = np.float32(self._update_return_scale(rollout))
+        to_unit = np.float32(1.0) if first else unit
+        batch = make_batch(rollout.obs, rollout.actions, rollout.record["log_probs"], values / to_unit,
+                           np.asarray(rollout.rewards, dtype=np.float32) / unit, next_values / to_unit,
+                           rollout.terminated, rollout.truncated, self.hp.discount_factor)
+        diagnostics = self._diagnostics(batch)
+        metrics = self.update(batch)
+        self.steer_lr(metrics.get("losses/approx_kl", math.nan))  # none from a non-finite update: kept
+        return {**metrics, **diagnostics}
+
+    def _update_return_scale(self, rollout) -> float:
+        """Blend this rollout's RMS discounted return (to each episode's end, γ = discount_factor) into
+        `return_scale` with weight RETURN_SCALE_WEIGHT (the first rollout sets it) and return it."""
+        zeros = np.zeros(rollout.rewards.shape, dtype=np.float32)
+        returns, _ = compute_gae(rollout.rewards, zeros, zeros, rollout.terminated, rollout.truncated,
+                                 self.hp.discount_factor, lam=1.0)
+        rms = float(np.sqrt(np.mean(np.square(returns, dtype=np.float64))))
+        if math.isfinite(rms) and rms > 0:
+            old = self.return_scale
+            self.return_scale = rms if old is None else old + RETURN_SCALE_WEIGHT * (rms - old)
+        return self.return_scale or 1.0
+
+    def _diagnostics(self, batch: PPOBatch) -> dict[str, float]:
+        """What the plateau study reads (docs/learner.md): the value error before the update and the raw
+        advantages' spread (reward units), the return scale, and the exploring actions' spread (continuous:
+        the policy's std per action dimension, in [-1, 1] action units)."""
+        unit = self.return_scale or 1.0
+        out = {"learner/return_scale": unit,
+               "learner/value_rmse": unit * float(np.sqrt(np.mean(np.square(batch.returns - batch.values)))),
+               "learner/advantage_std": unit * float(np.std(batch.advantages))}
+        if not self.discrete:
+            std = self.policy_net.log_std.detach().clamp(PPO_LOG_STD_MIN, PPO_LOG_STD_MAX).exp().cpu().numpy()
+            out.update({f"learner/action_std_{i}": float(v) for i, v in enumerate(std)})
+        return out
 
     def update(self, batch: PPOBatch) -> dict[str, float]:
         """num_epochs passes of minibatch Adam over one iteration's batch; returns mean metrics.
@@ -509,7 +575,8 @@ class PPO:
         """
         return copy.deepcopy({"format": STATE_FORMAT, "policy": self.policy_net.state_dict(),
                 "value": self.value_net.state_dict(), "optimizer": self.optimizer.state_dict(),
-                "lr": self.lr, "env_steps": self.env_steps, "generator": generator_state(self.generator)})
+                "lr": self.lr, "env_steps": self.env_steps, "generator": generator_state(self.generator),
+                "return_scale": self.return_scale, "lr_ceiling": self.lr_ceiling})
 
     def load_state_dict(self, state: dict) -> None:
         if state.get("format") != STATE_FORMAT:
@@ -520,5 +587,7 @@ class PPO:
         # Optimizer.load_state_dict keeps the given tensors; copy them so the caller's dict stays apart.
         self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
         self.lr = state["lr"]
+        self.lr_ceiling = float(state.get("lr_ceiling", state["lr"]))
         self.env_steps = int(state["env_steps"])
+        self.return_scale = state.get("return_scale")  # None in states saved before it: set by the next learn
         restore_generator(self.generator, state.get("generator"))

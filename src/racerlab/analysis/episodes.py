@@ -160,7 +160,8 @@ def iteration_summary(episodes: pd.DataFrame, training_metrics: pd.DataFrame | N
     From TrainingMetrics.json: train_completion and eval_completion (mean completion_percentage of the
     training and of the in-training evaluation episodes), eval_lap_rate, eval_lap_time_min.
     From metrics.jsonl (racerlab; its iteration 1 wrote 0-iteration.csv): entropy, approx_kl, learning_rate,
-    env_steps_per_s.
+    env_steps_per_s, explained_variance, eval_best_lap, and the learner's diagnostics where the run wrote them
+    (`agent.ppo`: value_rmse, advantage_std, return_scale, action_std_steer, action_std_speed).
     """
     g = episodes.groupby("iteration")
     laps = episodes["lap_time"]
@@ -196,7 +197,10 @@ def _phase_columns(tm: pd.DataFrame) -> pd.DataFrame:
 
 
 _JSONL_KEYS = {"entropy": "losses/entropy", "approx_kl": "losses/approx_kl", "learning_rate": "lr",
-               "env_steps_per_s": "charts/env_steps_per_s"}
+               "env_steps_per_s": "charts/env_steps_per_s", "explained_variance": "losses/explained_variance",
+               "value_rmse": "learner/value_rmse", "advantage_std": "learner/advantage_std",
+               "return_scale": "learner/return_scale", "action_std_steer": "learner/action_std_0",
+               "action_std_speed": "learner/action_std_1", "eval_best_lap": "eval/best_lap"}
 
 
 def _jsonl_columns(entries: list[dict]) -> pd.DataFrame:

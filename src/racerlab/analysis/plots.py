@@ -2,6 +2,9 @@
 
 - `training_progress(iterations)`: reward, completion (training vs in-training evaluation), lap rate,
   lap times, entropy / KL, episode length per iteration.
+- `learner_health(iterations, fast_laps)`: exploration (the policy's std or entropy), the value net's explained
+  variance and error, the share of training laps as fast as the best evaluation lap, the evaluation's best lap
+  in 1/15 s steps (why a run stops getting faster, docs/learner.md).
 - `track_heatmap(df, track, column, stat, cell)`: any column aggregated per grid cell (mean, median, min,
   max, sum, std, count or a percentile like "p90"); every step counts (`cell_statistic`), never the last
   one written.
@@ -26,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from racerlab.spec import STEP_S
+from racerlab.spec import STEP_S, STEPS_PER_SECOND
 from racerlab.track import Track
 
 STATS = ("mean", "median", "min", "max", "sum", "std", "count")
@@ -142,6 +145,78 @@ def _entropy_panel(ax, it):
         ax2.plot(it.index, it["approx_kl"], color="C5", ls="--", label="approx. KL")
         ax2.tick_params(labelsize=8)
         ax2.set_ylabel("approx. KL", fontsize=8)
+
+
+def learner_health(it: pd.DataFrame, fast_laps: pd.Series | None = None, title: str = "The learner"):
+    """Why a run stops getting faster, per iteration (docs/learner.md): the exploring actions' spread, how well
+    the value net predicts the returns, how often the training laps are as fast as the best evaluation lap
+    (`fast_laps`, a share per iteration), and the evaluation's best lap on its 1/15 s steps."""
+    fig = _figure(13, 7)
+    axs = fig.subplots(2, 2)
+    _spread_panel(axs[0, 0], it)
+    _value_panel(axs[0, 1], it)
+    ax = axs[1, 0]
+    if fast_laps is not None and fast_laps.notna().any():
+        ax.plot(fast_laps.index, 100 * fast_laps, marker=".", color="C2")
+    else:
+        _no_data(ax, "no complete lap yet")
+    ax.set_title("Training laps within 1/15 s of the best evaluation lap (%)")
+    _eval_steps_panel(axs[1, 1], it)
+    for a in axs.flat:
+        a.set_xlabel("iteration", fontsize=8)
+        a.tick_params(labelsize=8)
+        a.grid(alpha=0.3)
+        _integer_x(a)
+    fig.suptitle(title)
+    return fig
+
+
+def _spread_panel(ax, it):
+    shown = [c for c in ("action_std_steer", "action_std_speed") if c in it and it[c].notna().any()]
+    for c in shown:
+        ax.plot(it.index, it[c], marker=".", label=c.removeprefix("action_std_"))
+    if shown:
+        ax.set_title("Exploration: the policy's std ([-1, 1] action units), learning rate")
+        ax.legend(fontsize=8, loc="upper left")
+        if "learning_rate" in it and it["learning_rate"].notna().any():
+            ax2 = ax.twinx()
+            ax2.plot(it.index, it["learning_rate"], color="k", ls="--", lw=1, label="learning rate")
+            ax2.set_yscale("log")
+            ax2.tick_params(labelsize=8)
+            ax2.legend(fontsize=8, loc="upper right")
+    elif "entropy" in it and it["entropy"].notna().any():
+        ax.plot(it.index, it["entropy"], marker=".", color="C4")
+        ax.set_title("Exploration: policy entropy")
+    else:
+        _no_data(ax, "no metrics.jsonl in this log")
+        ax.set_title("Exploration")
+
+
+def _value_panel(ax, it):
+    if "explained_variance" not in it or not it["explained_variance"].notna().any():
+        _no_data(ax, "no metrics.jsonl in this log")
+    else:
+        ax.plot(it.index, it["explained_variance"], marker=".", color="C0", label="explained variance")
+        ax.set_ylim(-0.5, 1.05)
+        ax.legend(fontsize=8, loc="upper left")
+        if "value_rmse" in it and it["value_rmse"].notna().any():
+            ax2 = ax.twinx()
+            ax2.plot(it.index, it["value_rmse"], color="C3", ls="--", label="value error (RMS, reward units)")
+            ax2.plot(it.index, it["advantage_std"], color="C1", ls=":", label="advantage std")
+            ax2.tick_params(labelsize=8)
+            ax2.legend(fontsize=8, loc="upper right")
+    ax.set_title("The value net: returns it explains, its error")
+
+
+def _eval_steps_panel(ax, it):
+    if "eval_best_lap" not in it or not it["eval_best_lap"].notna().any():
+        _no_data(ax, "no evaluation lap yet")
+    else:
+        steps = np.round(it["eval_best_lap"] * STEPS_PER_SECOND)
+        ax.plot(it.index, steps, marker=".", ls="none", color="C4", label="best evaluation lap")
+        ax.plot(it.index, steps.cummin(), color="k", lw=1, label="best so far")
+        ax.legend(fontsize=8)
+    ax.set_title("Evaluation: best lap in 1/15 s steps")
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -31,7 +31,7 @@ from racerlab.errors import RacerlabError
 from racerlab.logs import BEST_LAP_MEANING, BEST_LAP_NAME, best_eval_lap, eval_layouts_path
 from racerlab.logs.atomic import atomic_write_text
 from racerlab.model import ModelFolder, resolve_track
-from racerlab.spec import RaceConfig
+from racerlab.spec import STEP_S, RaceConfig
 from racerlab.track import Track
 
 PNG_DPI = 90
@@ -264,6 +264,10 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
         doc.figure(P.training_progress(its), "Per iteration (numbered as the console and the checkpoint names: "
                                              "iteration 1 is 0-iteration.csv): simtrace episodes, TrainingMetrics.json "
                                              "(training and in-training evaluation) and metrics.jsonl (entropy, KL)")
+        doc.figure(P.learner_health(its, fast_lap_share(eps, its)),
+                   "Why a run stops getting faster (docs/learner.md): the exploring actions' spread, the value "
+                   "net's fit, how often training laps are as fast as the best evaluation lap, and that lap in "
+                   "1/15 s steps")
         doc.table(_iteration_table(its), "Per iteration" if len(its) <= 40 else
                   f"Per iteration: the first 10 and the last 30 of {len(its)}")
     evaluations = _evaluation_summaries(path)
@@ -292,6 +296,15 @@ def _build(doc: _Doc, path: Path, df: pd.DataFrame, trk: Track | None, track_not
     doc.figure(P.waypoint_profile(rows_on_track(df, trk) if trk is not None else df, trk),
                "Commanded and true speed, and steering, averaged per waypoint (grey: turns tighter than 2 m radius)")
     return toc
+
+
+def fast_lap_share(eps: pd.DataFrame, its: pd.DataFrame) -> pd.Series | None:
+    """Per iteration, the share of training episodes whose lap was within one 1/15 s step of the run's best
+    evaluation lap: how often exploring still drives the fast line. None without an evaluation lap."""
+    if "eval_best_lap" not in its or not its["eval_best_lap"].notna().any() or "lap_time" not in eps:
+        return None
+    near = eps["lap_time"] <= its["eval_best_lap"].min() + 1.5 * STEP_S
+    return near.groupby(eps["iteration"]).mean()
 
 
 def _lap_items(df: pd.DataFrame, eps: pd.DataFrame, jsonl: list[dict]) -> dict[str, str]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import shlex
 from pathlib import Path
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ConfigError, RacerlabError
 
 DEFAULT_MAX_SPEED = 1.0  # the AWS console's default action space tops out at 1 m/s
 
@@ -31,7 +31,11 @@ def register(sub) -> None:
                    help="what picks the best checkpoint: mean eval progress (AWS default), reward or lap time")
     p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default="example",
                    help="reward template: example (centre, heading and speed), centre_line, progress (progress "
-                        "per step), racing_line (the track's racing line from `racerlab line`, at its speeds)")
+                        "per step), racing_line (the path of the track's limit from `racerlab line`, kept "
+                        "--line-margin from the borders, at its speeds)")
+    p.add_argument("--line-margin", type=float, default=None,
+                   help="racing_line: metres between the wheels and the borders (negative: over them; default "
+                        "-0.1, the least the off-track rule allows is about -0.23)")
     p.add_argument("--race", choices=["time_trial", "object_avoidance", "head_to_bot", "head_to_model"],
                    default="time_trial",
                    help="object_avoidance: three boxes in [race], head_to_bot: three bot cars, head_to_model: the "
@@ -74,18 +78,7 @@ def run_init(args) -> int:
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force, race=args.race,
                         preset=args.preset)
-    if args.reward != "example":
-        from racerlab.reward import reward_source
-        from racerlab.reward.templates import NEEDS_LINE
-
-        line = None
-        metadata = folder.metadata()
-        if args.reward in NEEDS_LINE:
-            from racerlab.line import racing_line
-
-            car = folder.config().car.params(metadata.version, training=False)  # the [car] it trains
-            line = racing_line(folder.config().track.names[0], car=car)
-        folder.write_reward(reward_source(args.reward, line, metadata.actions.top_speed))
+    write_template(folder, args.reward, args.line_margin)
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     print(speed_note(args.max_speed))
@@ -96,15 +89,50 @@ def run_init(args) -> int:
     return 0
 
 
-QUICKSTART_MAX_SPEED = 2.0  # `racerlab quickstart --max-speed`'s default
+def write_template(folder, reward: str, line_margin: float | None = None) -> None:
+    """Write reward template `reward` into a new model folder (the example is there already); racing_line gets
+    the line of the folder's first track for the car it trains (`reward_line`)."""
+    if reward == "example":
+        return
+    from racerlab.reward import reward_source
+    from racerlab.reward.templates import NEEDS_LINE
+
+    line = None
+    metadata = folder.metadata()
+    if reward in NEEDS_LINE:
+        car = folder.config().car.params(metadata.version, training=False)  # the [car] it trains
+        line = reward_line(folder.config().track.names[0], car, line_margin)
+    folder.write_reward(reward_source(reward, line, metadata.actions.top_speed))
+
+
+def reward_line(track, car, margin: float | None = None):
+    """The line the racing_line reward follows: the limit's kind of path (`line.fastest_line`) `margin` m from
+    the borders (default `reward.templates.LINE_MARGIN_M`); a margin the car cannot keep is one line naming it."""
+    from racerlab.line import fastest_line, min_margin
+    from racerlab.reward.templates import LINE_MARGIN_M
+
+    margin = LINE_MARGIN_M if margin is None else margin
+    if not margin >= min_margin(car):
+        raise ConfigError(f"--line-margin {margin:g}: the off-track rule allows no less than {min_margin(car):.3f} m "
+                          "for this car; choose a larger margin")
+    return fastest_line(track, margin, car)
+
+
+# `racerlab quickstart`'s new model: continuous actions up to the simulator's 4 m/s and the racing_line reward, so
+# that its best checkpoint comes late in its run (docs/learner.md; with 2 m/s discrete actions and the example
+# reward the car sat at its top speed within a minute and the best checkpoint was iteration 13 of 617)
+QUICKSTART_MAX_SPEED = 4.0  # `racerlab quickstart --max-speed`'s default
+QUICKSTART_ACTIONS = "continuous"
+QUICKSTART_REWARD = "racing_line"
 
 
 def speed_note(max_speed: float) -> str:
-    """What the action speeds are and why they differ from the quickstart's (17.7 s laps against 8.1 s)."""
+    """What the action speeds are and how they differ from the quickstart's."""
     if max_speed == DEFAULT_MAX_SPEED:
         return (f"actions: top speed {max_speed:g} m/s, the AWS console's default; the quickstart's model has "
-                f"--max-speed {QUICKSTART_MAX_SPEED:g} and laps about twice as fast (init with --max-speed "
-                f"{QUICKSTART_MAX_SPEED:g} for that)")
+                f"{QUICKSTART_ACTIONS} actions up to {QUICKSTART_MAX_SPEED:g} m/s and the {QUICKSTART_REWARD} reward "
+                f"(init with --action-space {QUICKSTART_ACTIONS} --max-speed {QUICKSTART_MAX_SPEED:g} --reward "
+                f"{QUICKSTART_REWARD} for that)")
     return f"actions: top speed {max_speed:g} m/s (--max-speed; the AWS console's default is {DEFAULT_MAX_SPEED:g})"
 
 

@@ -1,11 +1,13 @@
 """`racerlab quickstart`: the main job on built-in defaults.
 
-Creates the default model folder if it is missing, trains it on the default track for a few
-minutes, evaluates the best checkpoint (the fastest evaluation laps) under race rules (3 laps) and
-draws the evaluation and the training curve, then says which checkpoint drove the laps, what training
-changed (iteration 5's evaluation laps beside the raced checkpoint's and the race's; when the best lap came
-early, why: the action space's top speed, or a reward that does not pay for speed), where everything is and
-what to run next.
+Creates the default model folder if it is missing (continuous actions up to 4 m/s and the racing_line
+reward: the path of the track's limit 0.1 m over the borders, at the speeds the car can hold there, so that
+training has laps to get faster on for its whole run), trains it on the default track for a few minutes,
+evaluates the best checkpoint (the fastest evaluation laps) under race rules (3 laps) and draws the
+evaluation and the training curve, then says which checkpoint drove the laps, what training changed
+(iteration 5's evaluation laps beside the raced checkpoint's and the race's; when the best lap came early,
+why: the action space's top speed, or a reward that does not pay for speed), where everything is and what to
+run next.
 """
 
 from __future__ import annotations
@@ -28,11 +30,16 @@ def register(sub) -> None:
                    help=f"training time in minutes (default {DEFAULT_MINUTES:g}, or none with --iterations)")
     p.add_argument("--iterations", type=int, default=None,
                    help="stop after this many training iterations (with --minutes: whichever comes first)")
-    from racerlab.cli.model import QUICKSTART_MAX_SPEED
+    from racerlab.cli.model import QUICKSTART_ACTIONS, QUICKSTART_MAX_SPEED, QUICKSTART_REWARD
+    from racerlab.reward import TEMPLATES as REWARD_TEMPLATES
 
     p.add_argument("--max-speed", type=float, default=QUICKSTART_MAX_SPEED,
                    help=f"top speed of a new model's actions (default {QUICKSTART_MAX_SPEED:g}; `racerlab init` makes "
                         "1 m/s, the AWS console's default)")
+    p.add_argument("--action-space", choices=["discrete", "continuous"], default=QUICKSTART_ACTIONS,
+                   help=f"a new model's action space (default {QUICKSTART_ACTIONS})")
+    p.add_argument("--reward", choices=list(REWARD_TEMPLATES), default=QUICKSTART_REWARD,
+                   help=f"a new model's reward template, as `racerlab init --reward` (default {QUICKSTART_REWARD})")
     p.set_defaults(func=run)
 
 
@@ -50,8 +57,11 @@ def run(args) -> int:
         # The quickstart shows the fastest laps training found: its best checkpoint is the one with the
         # fastest greedy evaluation laps, not AWS's default (highest mean progress, newest on ties), which
         # keeps a late, slower checkpoint once every evaluation episode completes its lap.
-        init_model(folder.path, track=args.track, max_speed=args.max_speed, best_model_metric="laptime")
-        from racerlab.cli.model import FEATURES_NOTE
+        init_model(folder.path, track=args.track, max_speed=args.max_speed, action_space=args.action_space,
+                   best_model_metric="laptime")
+        from racerlab.cli.model import FEATURES_NOTE, write_template
+
+        write_template(folder, args.reward)
 
         print(f"created model folder {folder.path}")
         print(FEATURES_NOTE)

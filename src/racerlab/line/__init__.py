@@ -14,6 +14,7 @@ from racerlab.line.core import (
     DEFAULT_MARGIN_M,
     RacingLine,
     car_clearance,
+    fastest_line,
     min_margin,
     offtrack_overhang,
     racing_line,
@@ -22,6 +23,6 @@ from racerlab.line.core import (
 )
 from racerlab.line.solve import METHODS
 
-__all__ = ["DEFAULT_MARGIN_M", "METHODS", "RacingLine", "car_clearance", "min_margin", "offtrack_overhang",
-           "racing_line",
+__all__ = ["DEFAULT_MARGIN_M", "METHODS", "RacingLine", "car_clearance", "fastest_line", "min_margin",
+           "offtrack_overhang", "racing_line",
            "steering_for_curvature", "theoretical_limit"]

@@ -175,13 +175,22 @@ def theoretical_limit(track: Track | str, car: CarParams | str | None = None, st
     path could still be a little faster (the mixes gained up to 0.13 s over the better pure method on
     reInvent2019_track).
     """
-    t = track if isinstance(track, Track) else load_track(track)
     car = car_params(car) if isinstance(car, str) else car or CarParams()
     t0 = time.perf_counter()
-    lines = [racing_line(t, min_margin(car), method, car, step_m) for method in METHODS]
-    lines += [racing_line(t, min_margin(car), "mincurv", car, step_m, blend=w) for w in LIMIT_BLENDS]
-    best = min(lines, key=lambda line: (line.lap_time, line.flying_lap_time))
+    best = fastest_line(track, min_margin(car), car, step_m)
     return replace(best, kind="limit", solve_s=time.perf_counter() - t0)
+
+
+def fastest_line(track: Track | str, margin: float = DEFAULT_MARGIN_M, car: CarParams | str | None = None,
+                 step_m: float = 0.1) -> RacingLine:
+    """The fastest of the paths `theoretical_limit` tries (minimum curvature, shortest, their mixes
+    `LIMIT_BLENDS`) with `margin` kept to the borders, as in `racing_line`: the limit's kind of path at a margin
+    a racer chooses (the `racing_line` reward template follows it)."""
+    t = track if isinstance(track, Track) else load_track(track)
+    car = car_params(car) if isinstance(car, str) else car or CarParams()
+    lines = [racing_line(t, margin, method, car, step_m) for method in METHODS]
+    lines += [racing_line(t, margin, "mincurv", car, step_m, blend=w) for w in LIMIT_BLENDS]
+    return min(lines, key=lambda line: (line.lap_time, line.flying_lap_time))
 
 
 def _with_profile(t: Track, sol, method: str, margin: float, car: CarParams, clearance: float) -> RacingLine:

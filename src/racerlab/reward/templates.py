@@ -2,9 +2,11 @@
 templates of `racerlab init --reward NAME`.
 
 Each template is an ordinary AWS reward function file in `racerlab/data/rewards/` (the default, "example", is
-`data/examples/reward_function.py`). "racing_line" is filled in with a racing line (`racerlab.line.racing_line`
-of the model's track, computed by the caller): its points are written into the file with the speeds capped at
-the model's top action speed, so the file stays self-contained as AWS needs.
+`data/examples/reward_function.py`). "racing_line" is filled in with a racing line of the model's track, computed
+by the caller: the limit's kind of path (`racerlab.line.fastest_line`, the fastest of the paths
+`theoretical_limit` tries) kept `LINE_MARGIN_M` from the borders unless the racer chooses another margin
+(`racerlab init --line-margin`). Its points are written into the file with the speeds capped at the model's top
+action speed, so the file stays self-contained as AWS needs.
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ TEMPLATES = {
     "racing_line": DATA / "rewards" / "racing_line.py",
 }
 NEEDS_LINE = ("racing_line",)
+# The racing_line template's margin between the wheels and the borders, m. Negative: the wheels hang over the
+# border, as fast laps do; the off-track rule (all four wheels off) leaves -0.23 m on the droa car, so -0.1 keeps
+# 0.13 m of slack. On reInvent2019_track the line's own lap is 6.133 s (the limit 5.933 s; the former line, 0.1 m
+# inside, 6.667 s, held the learner at 6.467-6.667 s: docs/learner.md).
+LINE_MARGIN_M = -0.1
 LINE_POINT_SPACING_M = 0.2  # every other point of the solver's ~0.1 m line: half the search per step
 
 
@@ -42,6 +49,6 @@ def reward_source(name: str, line=None, max_speed: float | None = None) -> str:
     rows = ",\n".join(f"    [{x:.4f}, {y:.4f}, {v:.3f}]"
                       for (x, y), v in list(zip(line.xy, speeds, strict=True))[::step])
     return (text.replace("__TRACK__", line.track_name)
-            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method} line, its lap {line.lap_time:.3f} s "
-                                         f"({line.car.simulator} car)\n"
+            .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method} line, margin {line.margin_m:g} m, its lap "
+                                         f"{line.lap_time:.3f} s ({line.car.simulator} car)\n"
                                          f"{rows},\n]", 1))

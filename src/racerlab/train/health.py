@@ -15,7 +15,7 @@ from racerlab.agent.distributions import PPO_LOG_STD_MAX, PPO_LOG_STD_MIN
 from racerlab.errors import RacerlabError
 
 MAX_ROLLBACKS = 3
-VALUE_LOSS_LIMIT = 1e5  # a value loss past this means returns of ~1e4 per episode or more: rewards out of scale
+VALUE_LOSS_LIMIT = 1e5  # PPO learns returns over a running scale (agent.ppo): a loss past this is a learner gone wrong
 MAX_SENSIBLE_REWARD = 1e3
 COLLAPSED_ENTROPY = 0.05  # nats; a fresh discrete policy starts near ln(number of actions)
 # nats; below this a discrete policy's softmax is saturated (gradients ~0): it cannot explore or learn again
@@ -121,7 +121,7 @@ class Health:
     def lr_advice(self) -> str:
         """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): AWS's
         default 0.0003 when the file's is higher, else a tenth of the file's."""
-        lr, ours = self.hp.lr, self.agent.lr
+        lr, ours = self.hp.lr, getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering
         now = f" (halved to {ours:g} by rollbacks)" if ours < lr else ""
         hint = AWS_DEFAULT_LR if lr > AWS_DEFAULT_LR else lr / 10
         return f"the learning rate: lr {lr:g} in {self.hp.source}{now} is too high; try {hint:g} or lower"
@@ -130,7 +130,7 @@ class Health:
         """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
         after MAX_ROLLBACKS stop with TrainingDiverged."""
         self.rollbacks += 1
-        lr = self.agent.lr
+        lr = getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering (agent.ppo.KL_TARGET)
         self.agent.load_state_dict(self.last_good)
         self.agent.lr = lr / 2
         text = (f"{what} in iteration {iteration + 1}: rolled back to the last good weights, learning rate "

@@ -1,8 +1,10 @@
 """Reward template "racing_line": drive on a racing line at the speed the car can hold there.
 
 An ordinary AWS DeepRacer reward function, self-contained. `racerlab init --reward racing_line`
-fills RACING_LINE with the line `racerlab line` computes for the model's track (minimum curvature,
-the car's grip and acceleration limits), its speeds capped at the action space's top speed; it
+fills RACING_LINE with the kind of path of the track's theoretical limit (`racerlab line`: the
+fastest of minimum curvature, shortest path and their mixes, at the car's grip and acceleration
+limits) kept a margin from the borders (`--line-margin`, default -0.1 m: the wheels 0.1 m over the
+border, 0.13 m short of the off-track rule), its speeds capped at the action space's top speed; it
 runs unchanged in the AWS console on the same track.
 
 Each step earns closeness to the line (1 on it, 0 at half a track width away) times the pace: the
