@@ -375,7 +375,14 @@ class Trainer:
         return None
 
 
-def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, **overrides) -> TrainResult:
+def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, teacher=None,
+          **overrides) -> TrainResult:
     """Train the model in `model_dir` (resuming if it has checkpoints). Keyword overrides: minutes,
-    episodes, iterations, num_cars, device, seed, tracks."""
+    episodes, iterations, num_cars, device, seed, tracks. With a teacher (`teacher`, a features model's folder, or
+    training.toml's `[teacher] model`) the iterations are DAgger rounds from it (`racerlab.train.distill`)."""
+    if teacher is not None or ModelFolder(model_dir).config().teacher.model:
+        from racerlab.train.distill import DistillTrainer
+
+        return DistillTrainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, teacher=teacher,
+                              **overrides).run()
     return Trainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, **overrides).run()
