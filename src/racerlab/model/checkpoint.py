@@ -19,8 +19,9 @@ from racerlab.errors import RacerlabError
 CHECKPOINT_FORMAT = "racerlab.checkpoint/1"
 CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
 # what a collection keeps to resume: a local run's per-world round-robin counters, a cluster's per-worker
-# episode counts and counters (kept flat in the file, as racerlab has always written them)
-COLLECTION_KEYS = ("starts", "worker_episodes", "worker_starts")
+# episode counts and counters (kept flat in the file, as racerlab has always written them); a run with a features
+# teacher, the seconds its teacher has trained (racerlab.train.distill)
+COLLECTION_KEYS = ("starts", "worker_episodes", "worker_starts", "teacher_seconds")
 
 
 @dataclass(frozen=True)

@@ -160,7 +160,7 @@ class TeacherSettings:
     docs/learner.md "A camera model from a features teacher")."""
 
     model: str = ""  # the teacher's model folder, relative to this one ("" = none: plain reinforcement learning)
-    minutes: float = 1.0  # training of the model's own teacher, before the first round (within --minutes)
+    minutes: float = 0.75  # training of the model's own teacher, before the first round (within --minutes)
     mix: float = 0.5  # share of steps the teacher drives in DAgger round k: mix ** k (round 0 is all teacher's)
     noise: float = 0.1  # Gaussian noise on the student's continuous actions while data is collected
     passes: float = 4.0  # gradient-step rows per new step collected (rows = passes x new steps)
