@@ -58,7 +58,7 @@ class TrainingState:
     best_lap_time: float = math.nan
     best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
-    first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    first_lap: dict | None = None  # iteration, wall and CPU seconds and env steps of the first completed eval lap
     collection: dict = field(default_factory=dict)  # COLLECTION_KEYS
     cloned: bool = False  # cloned or imported: training goes on from these weights with fresh counters
     saved_at: float = 0.0

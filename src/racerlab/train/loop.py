@@ -66,7 +66,7 @@ class TrainResult:
     best_metric: float | None = None
     best_lap_time: float = math.nan  # the best eval lap (racerlab.logs.BEST_LAP_MEANING)
     best_lap_iteration: int | None = None
-    first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    first_lap: dict | None = None  # iteration, wall and CPU seconds and env steps of the first completed eval lap
     best_rule: str = "progress"  # [evaluation] best_model_metric: what picked best_checkpoint
     stopped: str = ""
     interrupted: bool = False  # Ctrl-C (SIGINT) ended it: the command exits 130, so `train && evaluate` stops
@@ -111,6 +111,7 @@ class Trainer:
     def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *, collector=None,
                  logs=None, **overrides):
         self.t_created = time.perf_counter()  # --minutes counts the set-up (tracks, compiling the simulator) too
+        self.cpu_created = time.process_time()  # the first lap's CPU seconds (a shared machine's wall time varies)
         self.stop_at_first_lap = stop_at_first_lap
         self.folder = ModelFolder(model_dir)
         self.folder.require()
@@ -237,6 +238,7 @@ class Trainer:
                 s.best_lap_time, s.best_lap_iteration = min(laps), s.iteration
             if s.first_lap is None:
                 s.first_lap = {"iteration": s.iteration, "wall_seconds": time.perf_counter() - t_start,
+                               "cpu_seconds": round(time.process_time() - self.cpu_created, 1),
                                "env_steps": s.env_steps}
         return value
 
