@@ -15,7 +15,7 @@ seconds (user + system, children included) beside the wall time, since the machi
 
 Usage: python benchmarks/lap_near_limit.py [--kinds features camera] [--minutes 30] [--reward racing_line]
        [--track PATH] [--simulator droa|console] [--look aws|classic] [--device auto|cpu|cuda] [--keep DIR]
-       [--no-teacher]
+       [--no-teacher] [--seed N]
 --look: the camera's world (training.toml's run.look; default aws), recorded in the JSON.
 --keep DIR: keep each trained model folder as DIR/<kind> (for `racerlab evaluate`, `export`, ...).
 """
@@ -51,11 +51,11 @@ def _cpu_seconds() -> float:
 
 
 def _train_model(path: Path, kind: str, track: Path, minutes: float, reward: str, car, look: str, device: str,
-                 teacher: bool):
+                 teacher: bool, seed: int = 0):
     folder = init_model(path, track=str(track), sensor=kind, max_speed=4.0, action_space="continuous",
                         best_model_metric="laptime")
     cfg = folder.config()  # the simulator's car drives (its [car] table)
-    cfg = replace(cfg, run=replace(cfg.run, look=look, device=device))  # the camera's look (--look), --device
+    cfg = replace(cfg, run=replace(cfg.run, look=look, device=device, seed=seed))  # --look, --device, --seed
     if not teacher:
         cfg = replace(cfg, teacher=replace(cfg.teacher, model=""))
     folder.config_path.write_text(replace(cfg, car=CarSettings(car.simulator)).to_toml())
@@ -65,14 +65,15 @@ def _train_model(path: Path, kind: str, track: Path, minutes: float, reward: str
 
 
 def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float, line_s: float, car,
-             look: str = "aws", device: str = "auto", keep: Path | None = None, teacher: bool = True) -> dict:
+             look: str = "aws", device: str = "auto", keep: Path | None = None, teacher: bool = True,
+             seed: int = 0) -> dict:
     load_before = os.getloadavg()[0]
     cpu0, wall0 = _cpu_seconds(), time.perf_counter()
     if keep is not None:
-        r = _train_model(keep / kind, kind, track, minutes, reward, car, look, device, teacher)
+        r = _train_model(keep / kind, kind, track, minutes, reward, car, look, device, teacher, seed)
     else:
         with tempfile.TemporaryDirectory() as tmp:
-            r = _train_model(Path(tmp) / "m", kind, track, minutes, reward, car, look, device, teacher)
+            r = _train_model(Path(tmp) / "m", kind, track, minutes, reward, car, look, device, teacher, seed)
     cpu_s, wall_s = _cpu_seconds() - cpu0, time.perf_counter() - wall0
     laps = [(h["eval/best_lap"], h["iteration"], h["env_steps"]) for h in r.history if h.get("eval/best_lap")]
     best = min(laps) if laps else (float("nan"), None, None)
@@ -82,7 +83,7 @@ def best_lap(kind: str, track: Path, minutes: float, reward: str, limit_s: float
             "theoretical_limit_s": round(limit_s, 3), "ratio_to_limit": round(best[0] / limit_s, 3),
             "racing_line_lap_s": round(line_s, 3),
             "target_ratio": TARGET_RATIO.get(kind), "aws_record_s": AWS_RECORD_S, "car": car.name,
-            "first_lap": r.first_lap, "device": device, "teacher": teacher and kind != "features",
+            "first_lap": r.first_lap, "device": device, "seed": seed, "teacher": teacher and kind != "features",
             "wall_s": round(wall_s, 1), "cpu_s": round(cpu_s, 1), "kept": str(keep / kind) if keep else None,
             "loadavg_1min_before_after": [round(load_before, 2),
                                                                     round(os.getloadavg()[0], 2)]}
@@ -99,13 +100,14 @@ def main():
     ap.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="where the networks train")
     ap.add_argument("--keep", type=Path, help="keep each trained model folder as DIR/<kind>")
     ap.add_argument("--no-teacher", action="store_true", help="a camera model learns by PPO alone (no teacher)")
+    ap.add_argument("--seed", type=int, default=0, help="training.toml's run.seed (a second run: another seed)")
     args = ap.parse_args()
     car = car_params(args.simulator, "5")  # a new continuous model is version 5
     limit = theoretical_limit(str(args.track), car=car).lap_time
     line = racing_line(str(args.track), car=car).lap_time
     for kind in args.kinds:
         result = best_lap(kind, args.track, args.minutes, args.reward, limit, line, car, args.look, args.device,
-                          args.keep, not args.no_teacher)
+                          args.keep, not args.no_teacher, args.seed)
         print(json.dumps(result), flush=True)
 
 
