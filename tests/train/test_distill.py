@@ -114,7 +114,7 @@ def test_init_camera_trains_its_own_teacher_inside_the_folder(tmp_path):
     model.write_hyperparameters(model.hyperparameters().replace(num_episodes_between_training=4))
     cfg = model.config()
     assert cfg.teacher.model == "teacher"
-    model.config_path.write_text(model.config_path.read_text().replace("minutes = 0.75", "minutes = 0.05"))
+    model.config_path.write_text(model.config_path.read_text().replace("iterations = 30", "iterations = 2"))
     r = train(model.path, iterations=1, progress=False)
     assert r.iterations == 1 and any("phase teacher" in n for n in r.notes)
     teacher = ModelFolder(model.path / "teacher")
@@ -122,7 +122,7 @@ def test_init_camera_trains_its_own_teacher_inside_the_folder(tmp_path):
     assert teacher.reward_path.read_text() == model.reward_path.read_text() and teacher.checkpoints()
     # the teacher's seconds are kept with the student's checkpoint, so a resumed run does not train it again
     saved = model.load_state(model.resolve_checkpoint("last")).collection
-    assert 0 < saved["teacher_seconds"] < 30
+    assert 0 < saved["teacher_seconds"] < 30 and teacher.checkpoints()[-1].iteration == 2
     assert init_model(tmp_path / "plain", sensor="camera", teacher=False).config().teacher.model == ""
     assert init_model(tmp_path / "f", sensor="features").config().teacher.model == ""
 

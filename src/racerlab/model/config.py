@@ -160,7 +160,8 @@ class TeacherSettings:
     docs/learner.md "A camera model from a features teacher")."""
 
     model: str = ""  # the teacher's model folder, relative to this one ("" = none: plain reinforcement learning)
-    minutes: float = 0.75  # training of the model's own teacher, before the first round (within --minutes)
+    iterations: int = 30  # the model's own teacher trains this many iterations before the first round ...
+    minutes: float = 2.0  # ... or for this long, whichever comes first (within --minutes)
     mix: float = 0.5  # share of steps the teacher drives in DAgger round k: mix ** k (round 0 is all teacher's)
     noise: float = 0.1  # Gaussian noise on the student's continuous actions while data is collected
     passes: float = 4.0  # gradient-step rows per new step collected (rows = passes x new steps)
@@ -366,7 +367,8 @@ def _validate_randomise(r: RandomiseSettings, s: str) -> None:
 
 
 def _validate_teacher(t: TeacherSettings, s: str) -> None:
-    _check(t.minutes >= 0 and t.noise >= 0, s, "teacher.minutes and teacher.noise must be >= 0")
+    _check(t.minutes >= 0 and t.noise >= 0 and t.iterations >= 0, s,
+           "teacher.iterations, teacher.minutes and teacher.noise must be >= 0")
     _check(0 <= t.mix <= 1, s, f"teacher.mix must be in [0, 1] (the teacher's share of round k is mix ** k), "
            f"got {t.mix:g}")
     _check(t.passes > 0 and t.lr > 0, s, "teacher.passes and teacher.lr must be > 0")

@@ -4,8 +4,8 @@ The method (docs/learner.md, "A camera model from a features teacher"):
 1. **Teacher.** A `features` model learns the track by PPO in a minute or two (it sees the car's speed, offset,
    heading and the centre line ahead: a small vector and a small network). A model's own teacher lives in its
    folder (`[teacher] model = "teacher"`, created on first use with the same track, car, actions and reward) and
-   trains for `teacher.minutes` before the first round (a resumed run: what is left of them). A teacher given
-   with `racerlab train --teacher DIR` is used as it is.
+   trains `teacher.iterations` iterations or `teacher.minutes`, whichever ends first, before the first round (a
+   resumed run: what is left of them). A teacher given with `racerlab train --teacher DIR` is used as it is.
 2. **DAgger rounds**, one per iteration. The cars drive whole episodes as usual, but each step is driven by the
    teacher with probability `mix ** k` in round k and otherwise by the student (its greedy action plus
    `noise`); every step is labelled with the teacher's greedy action computed from the features vector of the
@@ -198,7 +198,7 @@ class DistillTrainer(Trainer):
     # ---- the teacher ---------------------------------------------------------------------------
     def _teach(self) -> None:
         """Before the run's first round: create the model's own teacher if it has none yet, train it for what is
-        left of teacher.minutes (within --minutes), and load it."""
+        left of teacher.iterations and teacher.minutes (within --minutes), and load it."""
         if self.teacher is not None:
             return
         if self.trains_teacher:
@@ -209,18 +209,21 @@ class DistillTrainer(Trainer):
             left = self.settings.minutes * 60 - self.collector.teacher_seconds
             if self.deadline is not None:
                 left = min(left, self.deadline - time.perf_counter())
-            if left >= 1:
-                self._train_teacher(left)
+            done = max((c.iteration for c in ModelFolder(self.teacher_path).checkpoints()), default=0)
+            if left >= 1 and done < self.settings.iterations:
+                self._train_teacher(left, self.settings.iterations - done)
         self.teacher, self.teacher_meta = load_teacher(self.teacher_path, self.features_space)
         self.driver = DaggerDriver(self.imitation, self.teacher, self.teacher_meta.actions, self.metadata.actions,
                                    noise=self.settings.noise, seed=self.cfg.run.seed + self.state.iteration)
 
-    def _train_teacher(self, seconds: float) -> None:
+    def _train_teacher(self, seconds: float, iterations: int) -> None:
         from racerlab.train.loop import train
 
-        self.note(f"phase teacher: training {self.teacher_path.name}/ for {seconds:.0f} s")
+        self.note(f"phase teacher: training {self.teacher_path.name}/ for {iterations} iterations, at most "
+                  f"{seconds:.0f} s")
         t0 = time.perf_counter()
-        r = train(self.teacher_path, minutes=seconds / 60, progress=self.progress.enabled, device="cpu")
+        r = train(self.teacher_path, minutes=seconds / 60, iterations=iterations, progress=self.progress.enabled,
+                  device="cpu")
         spent = time.perf_counter() - t0
         self.collector.teacher_seconds += spent
         lap = "no lap yet" if math.isnan(r.best_lap_time) else f"best lap {r.best_lap_time:.2f} s"
