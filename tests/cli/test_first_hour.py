@@ -331,7 +331,7 @@ def test_a_camera_training_on_the_cpu_says_what_to_expect(tmp_path, capsys, monk
     from types import SimpleNamespace
 
     import racerlab.train
-    from racerlab.cli.model import CAMERA_FIRST_LAP, CAMERA_MINUTES, CAMERA_UPDATE_S
+    from racerlab.cli.model import CAMERA_FIRST_LAP, CAMERA_MINUTES, CAMERA_UPDATE_S, TAUGHT_MINUTES
 
     runs = []
 
@@ -340,7 +340,7 @@ def test_a_camera_training_on_the_cpu_says_what_to_expect(tmp_path, capsys, monk
         return SimpleNamespace(model_dir=model, first_lap=None, interrupted=False)
 
     monkeypatch.setattr(racerlab.train, "train", no_lap_yet)
-    assert main(["init", str(tmp_path / "cam"), "--sensor", "camera"]) == 0
+    assert main(["init", str(tmp_path / "cam"), "--sensor", "camera", "--no-teacher"]) == 0
     assert f"`racerlab train {tmp_path / 'cam'} --minutes {CAMERA_MINUTES}`" in capsys.readouterr().out
     assert main(["train", str(tmp_path / "cam"), "--minutes", "2", "--device", "cpu"]) == 0
     out = " ".join(capsys.readouterr().out.split())
@@ -357,6 +357,12 @@ def test_a_camera_training_on_the_cpu_says_what_to_expect(tmp_path, capsys, monk
     assert main(["train", str(tmp_path / "f"), "--minutes", "2"]) == 0
     assert main(["train", str(tmp_path / "cam"), "--minutes", "2", "--device", "cuda"]) == 0
     assert "learns from pixels" not in capsys.readouterr().out and len(runs) == 3
+    # a camera model with its features teacher (init's default, issue 31) laps within minutes: no such note, and
+    # init suggests TAUGHT_MINUTES
+    assert main(["init", str(tmp_path / "taught"), "--sensor", "camera"]) == 0
+    assert f"`racerlab train {tmp_path / 'taught'} --minutes {TAUGHT_MINUTES}`" in capsys.readouterr().out
+    assert main(["train", str(tmp_path / "taught"), "--minutes", "2", "--device", "cpu"]) == 0
+    assert "learns from pixels" not in capsys.readouterr().out and len(runs) == 4
 
 
 def test_a_generalising_training_says_it_trains_on_generated_circuits(tmp_path, capsys):

@@ -36,9 +36,16 @@ def _cluster():
     return ClusterCollection, WorkerLogs
 
 
-@pytest.mark.parametrize("side", ["local", "cluster"])
+def _taught():
+    from racerlab.train.distill import PairedCollection
+
+    return PairedCollection, TrainingLogs
+
+
+@pytest.mark.parametrize("side", ["local", "cluster", "taught"])
 def test_the_collections_and_logs_offer_what_the_trainer_calls(side):
-    collection, logs = (LocalCollection, TrainingLogs) if side == "local" else _cluster()
+    pick = {"local": lambda: (LocalCollection, TrainingLogs), "cluster": _cluster, "taught": _taught}
+    collection, logs = pick[side]()
     assert _members(Collection) == ["collect", "before_iteration", "state", "restore", "metrics", "close"]
     assert _members(IterationLogs) == ["write_iteration", "append_metrics", "truncate", "disk_bytes", "close"]
     assert _mismatches(Collection, collection) == []

@@ -44,6 +44,9 @@ def register(sub) -> None:
     p.add_argument("--preset", choices=list(PRESETS),
                    help="training preset: generalise (8 generated tracks, new ones every 5 iterations; a lidar "
                         "model sees the borders as walls)")
+    p.add_argument("--no-teacher", action="store_true",
+                   help="a camera model learns by PPO alone (default: it first trains a features teacher in its "
+                        "folder and learns the teacher's actions, near the limit in minutes on a CPU)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an existing folder")
     p.set_defaults(func=run_init)
 
@@ -58,6 +61,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int)
     p.add_argument("--workers", type=int, help="collect with N Ray rollout workers (needs racerlab[cluster])")
     p.add_argument("--ray-address", help="an existing Ray cluster, e.g. 10.0.0.1:6379 (default: a local Ray)")
+    p.add_argument("--teacher", type=Path,
+                   help="a trained features model whose actions a camera model learns (DAgger), used as it is; "
+                        "default: training.toml's [teacher] model")
     p.set_defaults(func=run_train)
 
     p = sub.add_parser("clone", help="start a new model from another model's checkpoint")
@@ -77,14 +83,15 @@ def run_init(args) -> int:
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force, race=args.race,
-                        preset=args.preset)
+                        preset=args.preset, teacher=not args.no_teacher)
     write_template(folder, args.reward, args.line_margin)
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     print(speed_note(args.max_speed))
     if args.sensor == "features":
         print(FEATURES_NOTE)
-    minutes = 5 if args.sensor == "features" else CAMERA_MINUTES  # a camera model laps after many minutes on a CPU
+    taught = folder.config().teacher.model  # a camera model with a features teacher laps within a few minutes
+    minutes = 5 if args.sensor == "features" else TAUGHT_MINUTES if taught else CAMERA_MINUTES
     print(f"next: edit the reward function, then `racerlab train {shlex.quote(str(folder.path))} --minutes {minutes}`")
     return 0
 
@@ -152,9 +159,12 @@ def run_train(args) -> int:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     overrides = {"minutes": args.minutes, "episodes": args.episodes, "iterations": args.iterations,
                  "num_cars": args.cars, "device": args.device, "seed": args.seed, "tracks": args.track}
+    if args.teacher is not None and args.workers is not None:
+        raise RacerlabError(f"--teacher {args.teacher}: a teacher trains on this machine only; drop --workers")
     if args.workers is None and args.ray_address:
         raise RacerlabError(f"--ray-address {args.ray_address}: give --workers N as well to train on the cluster")
     from racerlab.cli import require_models
+    from racerlab.model import ModelFolder
 
     require_models(args.model)
     if args.workers is not None:
@@ -166,10 +176,11 @@ def run_train(args) -> int:
     else:
         from racerlab.train import train
 
-        pixels = pixels_on_cpu(args.model, args.device)
+        teacher = args.teacher is not None or bool(ModelFolder(args.model).config().teacher.model)
+        pixels = "" if teacher else pixels_on_cpu(args.model, args.device)
         if pixels:
             print(fit(camera_expectation(pixels)))
-        result = train(args.model, **overrides)
+        result = train(args.model, teacher=args.teacher, **overrides)
         if pixels and not getattr(result, "first_lap", None) and not getattr(result, "interrupted", False):
             print(fit(f"no evaluation lap yet: as expected so early for a {pixels} model on the CPU (see the note "
                        f"above); `racerlab train {shlex.quote(str(args.model))} --minutes {CAMERA_MINUTES}` goes on "
@@ -189,6 +200,7 @@ INTERRUPTED = 130  # the shell's code for a command ended by SIGINT
 CAMERA_UPDATE_S = (45, 98)  # one iteration's update, seconds (metrics.jsonl learn_seconds, iterations 1-7)
 CAMERA_FIRST_LAP = (7, 10.1, 6.5)  # (iteration, minutes, load average) of the first evaluation lap (10.00 s)
 CAMERA_MINUTES = 20  # what `init` and the note suggest for a camera model's first training
+TAUGHT_MINUTES = 10  # ... and for one with a features teacher (docs/learner.md)
 
 
 def fit(text: str) -> str:

@@ -44,24 +44,10 @@ def random_poses(track, n: int, rng) -> np.ndarray:
 def rendered(shapes: dict, n: int, track="lab_technical", seed: int = 0) -> dict[str, np.ndarray]:
     """racerlab's observations of n cars at random poses (see the module docstring)."""
     from racerlab import track as tracks
-    from racerlab.sim import Simulator
-    from racerlab.sim.sensors import Camera
-    from racerlab.sim.sensors.lidar import Lidar, sectors
+    from racerlab.sim.poses import readings_at
 
     t = tracks.load(track)
-    sim = Simulator(t, n, seed=seed)
-    for i, (x, y, yaw) in enumerate(random_poses(t, n, np.random.default_rng(seed))):
-        sim.set_pose(i, x, y, yaw, start_ndist=0.0)
-    out = {}
-    for key in shapes:
-        if key in ("camera", "stereo"):
-            out[key] = Camera(sim, stereo=key == "stereo").render().copy()
-        elif key in ("lidar", "sector_lidar"):
-            ranges = Lidar(sim, walls=True).scan().copy()
-            out[key] = ranges if key == "lidar" else sectors(ranges).astype(np.float32)
-        else:
-            raise ValueError(f"no rendered observation for input {key!r}")
-    return out
+    return readings_at(t, random_poses(t, n, np.random.default_rng(seed)), list(shapes), seed=seed)
 
 
 def car_observations(shapes: dict, n: int, real_dir=None, track="lab_technical", seed: int = 0):

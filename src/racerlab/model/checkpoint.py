@@ -54,10 +54,10 @@ class TrainingState:
     best_lap_time: float = math.nan
     best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
-    first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    first_lap: dict | None = None  # iteration, wall and CPU seconds and env steps of the first completed eval lap
     # what the collection keeps to resume (`train.seams.Collection.state`: a local run's round-robin counters, a
-    # cluster's per-worker episode counts), under the collection's own keys, kept flat in the file as racerlab has
-    # always written them: every key of the file that is not one of these fields
+    # cluster's per-worker episode counts, a taught run's teacher seconds), under the collection's own keys, kept
+    # flat in the file as racerlab has always written them: every key of the file that is not one of these fields
     collection: dict = field(default_factory=dict)
     cloned: bool = False  # cloned or imported: training goes on from these weights with fresh counters
     saved_at: float = 0.0

@@ -16,6 +16,7 @@ from racerlab.model.metadata import OBSERVATION_NAMES, split_observation_name
 from racerlab.spec import CAR_KEYS, DEFAULT_SIMULATOR, SIMULATORS, CarParams, RaceConfig, car_params, implausible
 
 REWARD_ORDERS = ("aws", "after_action")
+PRECISIONS = ("auto", "float32", "bfloat16")  # teacher.precision: the student's fit (racerlab.agent.imitate)
 LOOKS = ("aws", "classic")  # run.look: the camera's world, named only here (sim.sensors.look.LOOKS holds each)
 
 
@@ -162,6 +163,23 @@ class CarSettings:
 
 
 @dataclass(frozen=True)
+class TeacherSettings:
+    """[teacher]: a camera (or other sensor) model learns a features teacher's actions first (`racerlab.train.distill`,
+    docs/learner.md "A camera model from a features teacher")."""
+
+    model: str = ""  # the teacher's model folder, relative to this one ("" = none: plain reinforcement learning)
+    iterations: int = 30  # the model's own teacher trains this many iterations before the first round ...
+    minutes: float = 2.0  # ... or for this long, whichever comes first (within --minutes)
+    mix: float = 0.5  # share of steps the teacher drives in DAgger round k: mix ** k (round 0 is all teacher's)
+    noise: float = 0.1  # Gaussian noise on the student's continuous actions while data is collected
+    passes: float = 4.0  # gradient-step rows per new step collected (rows = passes x new steps)
+    batch_size: int = 256
+    lr: float = 0.0005
+    max_steps: int = 60_000  # the aggregated data set's size (a camera frame is 19.2 kB)
+    precision: str = "auto"  # auto (bfloat16 on CUDA and CPUs with bfloat16 units) | float32 | bfloat16
+
+
+@dataclass(frozen=True)
 class TrainingConfig:
     track: TrackSettings = field(default_factory=TrackSettings)
     run: RunSettings = field(default_factory=RunSettings)
@@ -171,6 +189,7 @@ class TrainingConfig:
     race: RaceConfig = field(default_factory=RaceConfig)  # [race]: DRfC's names (racerlab.spec.RaceConfig)
     randomise: RandomiseSettings = field(default_factory=RandomiseSettings)
     car: CarSettings = field(default_factory=CarSettings)  # [car]: the simulator's car (racerlab.spec.car_params)
+    teacher: TeacherSettings = field(default_factory=TeacherSettings)  # [teacher]: learn a features model's actions
     source: str = "training.toml"
     # [[worker]] tables: what rollout worker k changes for itself ({section: {key: value}}), DRfC's multi-config
     workers: tuple[dict, ...] = ()
@@ -224,7 +243,8 @@ def _toml_value(v) -> str:
 
 
 SECTIONS = {"track": TrackSettings, "run": RunSettings, "stop": StopSettings, "evaluation": EvaluationSettings,
-            "logs": LogSettings, "randomise": RandomiseSettings, "race": RaceConfig, "car": CarSettings}
+            "logs": LogSettings, "randomise": RandomiseSettings, "race": RaceConfig, "car": CarSettings,
+            "teacher": TeacherSettings}
 
 
 def _coerce(src: str, key: str, default, value):
@@ -311,6 +331,7 @@ def _validate(c: TrainingConfig) -> None:
            "run.num_cars must be at least the number of tracks")
     _validate_generated(c.track, s)
     _validate_randomise(c.randomise, s)
+    _validate_teacher(c.teacher, s)
     _check(c.run.threads >= 0, s, "run.threads must be >= 0")
     base = split_observation_name(c.run.observation)[0]
     _check(base in ("", *OBSERVATION_NAMES), s,
@@ -351,6 +372,17 @@ def _validate_randomise(r: RandomiseSettings, s: str) -> None:
         _check(0 <= getattr(r, name) < 1, s, f"randomise.{name} must be in [0, 1): a range around 1")
     _check(r.latency_steps in (0, 1, 2), s, "randomise.latency_steps must be 0, 1 or 2")
     _check(r.speed_scale > 0 and r.top_speed >= 0, s, "randomise.speed_scale must be > 0 and top_speed >= 0")
+
+
+def _validate_teacher(t: TeacherSettings, s: str) -> None:
+    _check(t.minutes >= 0 and t.noise >= 0 and t.iterations >= 0, s,
+           "teacher.iterations, teacher.minutes and teacher.noise must be >= 0")
+    _check(0 <= t.mix <= 1, s, f"teacher.mix must be in [0, 1] (the teacher's share of round k is mix ** k), "
+           f"got {t.mix:g}")
+    _check(t.passes > 0 and t.lr > 0, s, "teacher.passes and teacher.lr must be > 0")
+    _check(t.batch_size >= 1 and t.max_steps >= t.batch_size, s, "teacher.batch_size must be >= 1 and "
+           "teacher.max_steps at least teacher.batch_size")
+    _check(t.precision in PRECISIONS, s, f"teacher.precision is {t.precision!r}; use one of {', '.join(PRECISIONS)}")
 
 
 def load_training_config(path) -> TrainingConfig:

@@ -12,6 +12,7 @@ from racerlab.model.metadata import ContinuousActions, ModelMetadata, default_di
 from racerlab.reward import EXAMPLE_REWARDS
 from racerlab.spec import MAX_SPEED, MAX_STEERING_DEG, MIN_SPEED, RaceConfig
 
+OWN_TEACHER = "teacher"  # a camera model's features teacher, a folder inside it (racerlab.train.distill)
 # `init --race head_to_bot`: DRfC's template (DR_H2B_NUMBER_OF_BOT_CARS=3), the simulator's bot defaults
 HEAD_TO_BOT_CARS = 3
 # `init --race object_avoidance`: three fixed boxes that pass the console's rules (first >= 7 %, last <= 90 %,
@@ -67,7 +68,7 @@ def apply_preset(cfg: TrainingConfig, preset: str | None, sensor: str) -> Traini
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
                best_model_metric: str | None = None, force: bool = False, race: str = "time_trial",
-               preset: str | None = None) -> ModelFolder:
+               preset: str | None = None, teacher: bool = True) -> ModelFolder:
     folder = ModelFolder(path)
     existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
@@ -89,6 +90,9 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
     if sensor != "features":
         # pixels cost more per step; fewer cars keep an iteration's memory and time moderate
         cfg = replace(cfg, run=replace(cfg.run, num_cars=num_cars or 16))
+    if sensor == "camera" and algorithm == "clipped_ppo" and teacher:
+        # learns a features teacher's actions first (racerlab.train.distill): near the limit in minutes, not hours
+        cfg = replace(cfg, teacher=replace(cfg.teacher, model=OWN_TEACHER))
     if race not in EXAMPLE_REWARDS:
         raise RacerlabError(f"race must be one of {', '.join(EXAMPLE_REWARDS)}, got {race!r}")
     if race == "object_avoidance":

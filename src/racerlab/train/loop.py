@@ -67,7 +67,7 @@ class TrainResult:
     best_metric: float | None = None
     best_lap_time: float = math.nan  # the best eval lap (racerlab.logs.BEST_LAP_MEANING)
     best_lap_iteration: int | None = None
-    first_lap: dict | None = None  # iteration, wall seconds and env steps of the first completed eval lap
+    first_lap: dict | None = None  # iteration, wall and CPU seconds and env steps of the first completed eval lap
     best_rule: str = "progress"  # [evaluation] best_model_metric: what picked best_checkpoint
     stopped: str = ""
     interrupted: bool = False  # Ctrl-C (SIGINT) ended it: the command exits 130, so `train && evaluate` stops
@@ -113,6 +113,7 @@ class Trainer:
     def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *,
                  collector: Collection | None = None, logs: IterationLogs | None = None, **overrides):
         self.t_created = time.perf_counter()  # --minutes counts the set-up (tracks, compiling the simulator) too
+        self.cpu_created = time.process_time()  # the first lap's CPU seconds (a shared machine's wall time varies)
         self.stop_at_first_lap = stop_at_first_lap
         self.folder = ModelFolder(model_dir)
         self.folder.require()
@@ -239,6 +240,7 @@ class Trainer:
                 s.best_lap_time, s.best_lap_iteration = min(laps), s.iteration
             if s.first_lap is None:
                 s.first_lap = {"iteration": s.iteration, "wall_seconds": time.perf_counter() - t_start,
+                               "cpu_seconds": round(time.process_time() - self.cpu_created, 1),
                                "env_steps": s.env_steps}
         return value
 
@@ -377,7 +379,14 @@ class Trainer:
         return None
 
 
-def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, **overrides) -> TrainResult:
+def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, teacher=None,
+          **overrides) -> TrainResult:
     """Train the model in `model_dir` (resuming if it has checkpoints). Keyword overrides: minutes,
-    episodes, iterations, num_cars, device, seed, tracks."""
+    episodes, iterations, num_cars, device, seed, tracks. With a teacher (`teacher`, a features model's folder, or
+    training.toml's `[teacher] model`) the iterations are DAgger rounds from it (`racerlab.train.distill`)."""
+    if teacher is not None or ModelFolder(model_dir).config().teacher.model:
+        from racerlab.train.distill import DistillTrainer
+
+        return DistillTrainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, teacher=teacher,
+                              **overrides).run()
     return Trainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, **overrides).run()
