@@ -55,6 +55,7 @@ def test_track_pictures_and_defaults(console):
     c = console.client
     names = c.get("/api/tracks").json()["tracks"]
     assert "lab_oval" in names
+    assert c.get("/api/lines/methods").json() == {"methods": ["mincurv", "shortest"]}  # the panel's choices
     svg = c.get("/api/tracks/lab_oval.svg")
     assert svg.headers["content-type"].startswith("image/svg+xml")
     import xml.etree.ElementTree as ET

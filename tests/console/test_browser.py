@@ -206,3 +206,19 @@ def test_a_running_race_is_cancelled_from_its_button(browser, tmp_path):
     finally:
         page.close()
         console.stop()
+
+
+def test_the_line_panel_offers_the_line_methods_the_solver_has(browser, tmp_path):
+    """The racing-line panel's method choices come from the server (line.METHODS), not a list of the page's own."""
+    from racerlab.line import METHODS
+
+    console = Console(tmp_path / "ws")
+    page = browser.new_page(viewport={"width": 1280, "height": 900})
+    try:
+        page.goto(console.url + "/#analysis")
+        page.locator("#line-track").wait_for()
+        options = page.evaluate("[...document.querySelector('#line-method').options].map(o => o.text)")
+        assert options == list(METHODS)
+    finally:
+        page.close()
+        console.stop()

@@ -53,6 +53,7 @@ def test_shortest_method_and_default_folder(tmp_path, monkeypatch, capsys):
     (["--margin", "0.3"], "too narrow"),
     (["--margin", "-0.3"], "--margin must be >= -0.231 m"),
     (["--actions", "2"], "--actions must be at least 3"),
+    (["--method", "fastest"], "--method 'fastest' is not a line method; use one of mincurv, shortest"),
 ])
 def test_user_mistakes_are_one_line(tmp_path, capsys, argv, words):
     track = str(aws_track_path("Virtual_May19_Train_track"))  # 0.60 m wide

@@ -21,8 +21,8 @@ def register(sub) -> None:
     p.add_argument("--margin", type=float, default=None, metavar="M",
                    help="metres kept between the car's wheels and each border (default 0.1; negative lets them hang "
                         "over it, down to what the off-track rule allows)")
-    p.add_argument("--method", choices=["mincurv", "shortest"], default="mincurv",
-                   help="minimum curvature (the fast line, default) or shortest path")
+    p.add_argument("--method", default="mincurv",  # checked against line.METHODS in run_line (its one home)
+                   help="mincurv: minimum curvature (the fast line, default); shortest: the shortest path")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="folder for the files (default ./<track>_<method>_line, <track>_reversed_... with --reverse)")
     p.add_argument("--reverse", action="store_true", help="the track driven the other way")
@@ -38,7 +38,7 @@ def register(sub) -> None:
 
 def run_line(args) -> int:
     from racerlab.errors import RacerlabError
-    from racerlab.line import DEFAULT_MARGIN_M, min_margin, racing_line, theoretical_limit
+    from racerlab.line import DEFAULT_MARGIN_M, METHODS, min_margin, racing_line, theoretical_limit
     from racerlab.line.export import DEFAULT_ACTIONS, write_all
     from racerlab.spec import car_params
     from racerlab.track import load
@@ -52,6 +52,8 @@ def run_line(args) -> int:
     if margin < min_margin(car):
         raise RacerlabError(f"--margin must be >= {min_margin(car):.3f} m (negative: the wheels hang over the border, "
                             f"at most as far as the simulator's off-track rule allows), got {margin}")
+    if args.method not in METHODS:
+        raise RacerlabError(f"--method {args.method!r} is not a line method; use one of {', '.join(METHODS)}")
     if n_actions < 3:
         raise RacerlabError(f"--actions must be at least 3, got {n_actions}")
     track = load(args.track, reverse=args.reverse)

@@ -214,6 +214,12 @@ def _live_routes(app: FastAPI) -> None:
 
         return {"tracks": registry.names()}
 
+    @app.get("/api/lines/methods")
+    def line_methods():
+        from racerlab.line import METHODS  # numba-heavy: loaded when the racing-line panel opens
+
+        return {"methods": list(METHODS)}
+
     @app.get("/api/tracks/{name}.svg")
     def track_svg(name: str):
         from racerlab.console.pictures import track_svg as draw

@@ -581,9 +581,10 @@ async function viewRaces() {
 // ---- analysis: racing line and uploaded logs ------------------------------------------------------------------------
 async function viewAnalysis() {
   const tracks = await guarded(() => api("GET", "/api/tracks"));
-  if (!tracks) return;
+  const methods = await guarded(() => api("GET", "/api/lines/methods"));
+  if (!tracks || !methods) return;
   const sel = el("select", { id: "line-track" }, ...tracks.tracks.map(t => el("option", { value: t, text: t })));
-  const method = el("select", {}, el("option", { text: "mincurv" }), el("option", { text: "shortest" }));
+  const method = el("select", { id: "line-method" }, ...methods.methods.map(m => el("option", { text: m })));
   const lineOut = el("div");
   const go = el("button", { id: "line-make", text: "Solve racing line", onclick: async () => {
     const t = await guarded(() => api("POST", "/api/lines", { track: sel.value, method: method.value }));
