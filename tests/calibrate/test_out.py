@@ -196,3 +196,12 @@ def test_dev_zero_is_refused_in_a_fresh_process_within_seconds(tmp_path):
     out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "car.toml")], capture_output=True, text=True,
                          timeout=120, env=env)
     assert out.returncode == 2 and "/dev/zero: not a file or a folder" in out.stderr
+
+
+def test_the_tables_calibrate_merges_into_are_every_table_a_training_toml_has():
+    """calibrate may not import `model` (docs/architecture.md), so it names training.toml's tables itself: a new
+    table there (issue 31's [teacher]) made it refuse every new model's training.toml until listed."""
+    from racerlab.calibrate.out import TRAINING_TABLES
+    from racerlab.model.config import SECTIONS
+
+    assert set(TRAINING_TABLES) == set(SECTIONS) | {"worker"}

@@ -17,7 +17,7 @@ from racerlab.calibrate.fit import FITTED
 from racerlab.errors import ConfigError
 
 PNG_MARK = b"racerlab calibrate"  # the PNG's Software text: a picture this command drew and may redraw
-TRAINING_TABLES = ("track", "run", "stop", "evaluation", "logs", "randomise", "race", "car", "worker")
+TRAINING_TABLES = ("track", "run", "stop", "evaluation", "logs", "randomise", "race", "car", "teacher", "worker")
 _HEADER = re.compile(r"^\s*\[\s*car\s*\]\s*(#.*)?$")
 _ANY_HEADER = re.compile(r"^\s*\[")
 _OUR_COMMENTS = ("# racerlab calibrate", "# held-out median front-point error")
