@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -389,3 +390,24 @@ def test_a_wrapped_line_keeps_each_number_with_its_unit():
     assert all(len(r) <= 80 for r in rows) and " ".join(" ".join(rows).split()) == text
     assert rows[-1].strip() != "%" and not any(r.rstrip().endswith((" 100", " 8.73", " 0.33")) for r in rows)
     assert fit("speed 2 m/s") == "speed 2 m/s" and "\u00a0" not in fit(text)
+
+
+def test_an_early_best_that_later_evaluations_held_names_the_reward_lines_own_lap(tmp_path):
+    """Issue 32: the quickstart's evaluations reached 78 steps (5.20 s) at iteration 56 of 932 and held it; the
+    story says so and names the racing_line reward's own lap, read from the model's reward file."""
+    from racerlab.analysis.story import training_story
+    from racerlab.cli.model import write_template
+    from racerlab.model import ModelFolder, init_model
+
+    model = tmp_path / "qs"
+    init_model(model, track="lab_oval")
+    laps = [None] * 4 + [103 / 15, 90 / 15, 80 / 15] + [79 / 15] * 3 + [78 / 15] + [78 / 15, 79 / 15, 78 / 15] * 13 + [78 / 15]
+    _logged_training(model, laps, [(5.2 + 0.01 * k, 60 - k) for k in range(20)])
+    assert training_story(model)[1] == (
+        "the best eval lap, 5.20 s, came at iteration 11 of 51 and the later evaluations held it (median 5.20 s "
+        "over iterations 12-51): training found early what its reward pays for")
+    write_template(ModelFolder(model), "racing_line")
+    lap = re.search(r"its lap ([0-9.]+) s", (model / "reward_function.py").read_text()).group(1)
+    assert training_story(model)[1].endswith(
+        f"held it (median 5.20 s over iterations 12-51): the reward pays most for following its racing line, whose "
+        f"own lap is {lap} s; a line with less margin (`racerlab init --line-margin`) leaves more to find")

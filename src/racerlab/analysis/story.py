@@ -1,7 +1,8 @@
 """What a training changed, in a few lines a racer reads after a race (`training_story`): an early iteration's
 in-training evaluation beside the raced checkpoint's and the race's laps, and when the best evaluation lap came
 early and later laps were slower, why: the action space's top speed (`_capped`), or a reward that does not pay
-for speed (`_why`). The quickstart prints it; a report or the console can show the same lines.
+for speed (`_why`); when later laps held it, what the reward's own line laps (`_held`). The quickstart prints it;
+a report or the console can show the same lines.
 """
 
 from __future__ import annotations
@@ -62,7 +63,29 @@ def training_story(model: Path, raced: str | None = None, race=None) -> list[str
                 lines.append(why)
             lines.append(f"see what a reward pays for on the laps already driven: `racerlab reward rescore {model} "
                          "--reward my_reward.py` (its table ranks the laps by lap time and by reward)")
+        else:
+            lines.append(_held(model, best, median, last))
     return lines
+
+
+def _held(model: Path, best: tuple[float, int], median: float, last: int) -> str:
+    """The best eval lap came early and the later evaluations drove it again: training found what its reward
+    pays for early. With the racing_line template the reward's own line says how fast that is."""
+    import re
+
+    from racerlab.logs import BEST_LAP_NAME
+
+    text = (f"the {BEST_LAP_NAME}, {best[0]:.2f} s, came at iteration {best[1]} of {last} and the later "
+            f"evaluations held it (median {median:.2f} s over iterations {best[1] + 1}-{last})")
+    try:
+        source = (model / "reward_function.py").read_text()
+    except OSError:
+        source = ""
+    line = re.search(r"RACING_LINE = \[  # .*?, its lap ([0-9.]+) s", source)
+    if line:
+        return (text + f": the reward pays most for following its racing line, whose own lap is {line.group(1)} s; "
+                "a line with less margin (`racerlab init --line-margin`) leaves more to find")
+    return text + ": training found early what its reward pays for"
 
 
 def _race_text(race, early: dict) -> str:

@@ -99,12 +99,13 @@ def checkpoint_line(folder, res) -> str:
     checkpoints = folder.checkpoints()
     last = max((c.iteration for c in checkpoints), default=0)
     it = next((c.iteration for c in checkpoints if c.name == res.checkpoint), None)
-    metric = {"laptime": "the fastest evaluation laps", "progress": "the highest evaluation progress",
-              "reward": "the highest evaluation reward"}.get(folder.config().evaluation.best_model_metric, "")
+    metric = {"laptime": "the fastest evaluation laps during training, the newest of those within a step",
+              "progress": "the highest evaluation progress during training",
+              "reward": "the highest evaluation reward during training"}.get(
+        folder.config().evaluation.best_model_metric, "")
     laps = f"laps 1-{len(res.laps)}" if len(res.laps) > 1 else "lap 1"
     where = f"iteration {it} of {last}" if it is not None else "a checkpoint"
-    return (f"{laps} above: driven by checkpoint {res.checkpoint} ({where}, the best checkpoint: {metric} "
-            f"during training)")
+    return f"{laps} above: driven by checkpoint {res.checkpoint} ({where}, the best checkpoint: {metric})"
 
 
 def next_steps(model: Path) -> str:

@@ -39,7 +39,8 @@ BEST_LAP_MEANING = ("the fastest lap completed in the in-training evaluation epi
 BEST_CHECKPOINT_RULES = {
     "progress": "the highest mean evaluation progress, the newest checkpoint on ties (AWS's rule)",
     "reward": "the highest mean evaluation reward, the newest checkpoint on ties",
-    "laptime": "the fastest mean evaluation lap (an unfinished lap counts as 999.999 s), the newest on ties",
+    "laptime": ("the fastest mean evaluation lap (an unfinished lap counts as 999.999 s), the newest checkpoint within "
+                "one step (1/15 s) in one of its laps of the fastest so far"),
 }
 
 

@@ -51,6 +51,9 @@ class TrainingState:
     train_steps: int | None = None  # learned-on steps, the S of N_Step-S (None: take the file name's)
     best_name: str | None = None
     best_metric: float | None = None
+    # "laptime": the fastest mean evaluation lap so far, which the best checkpoint (the newest within one step's tie
+    # of it: `train.evaluation.laptime_tie_ms`) is measured from (None: older racerlab, or another metric)
+    best_floor: float | None = None
     best_lap_time: float = math.nan
     best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
@@ -94,5 +97,5 @@ class TrainingState:
     def cloned_as(self, metadata: dict) -> TrainingState:
         """This state as the first checkpoint of a clone with `metadata`: the weights and counters stay, the best
         checkpoint, rollbacks and round-robin state start afresh."""
-        return replace(self, cloned=True, best_name=None, best_metric=None, rollbacks=0, collection={},
+        return replace(self, cloned=True, best_name=None, best_metric=None, best_floor=None, rollbacks=0, collection={},
                        metadata=metadata, saved_at=0.0)

@@ -30,7 +30,7 @@ from racerlab.model import (
     parse_model_metadata,
 )
 from racerlab.reward import RewardCaller, RewardWatchdog
-from racerlab.train.evaluation import eval_metric, is_better, run_greedy_episodes
+from racerlab.train.evaluation import eval_metric, laptime_tie_ms, pick_best, run_greedy_episodes
 from racerlab.train.health import Health
 from racerlab.train.progress import Progress
 from racerlab.train.records import TrainingLogs
@@ -232,7 +232,9 @@ class Trainer:
         s = self.state
         metric_name = self.cfg.evaluation.best_model_metric
         value = eval_metric(evals, metric_name)
-        if is_better(metric_name, value, s.best_metric):
+        keep, s.best_floor = pick_best(metric_name, value, s.best_metric, s.best_floor,
+                                       laptime_tie_ms(evals, self.eval_world.sim.dt))
+        if keep:
             s.best_name, s.best_metric = info.name, value
         laps = [e.lap_time for e in evals if e.status == "lap_complete"]
         if laps:
