@@ -144,3 +144,8 @@ def test_init_takes_the_racers_line_margin_and_refuses_one_past_the_off_track_ru
     assert main(["init", str(tmp_path / "b"), *args]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--line-margin -0.3" in err[0] and "-0.231" in err[0]
+    assert not (tmp_path / "b").exists()  # refused before a folder is made
+    assert main(["init", str(tmp_path / "c"), "--track", track, "--line-margin", "0.1"]) == 2  # the example reward
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--line-margin 0.1: only --reward racing_line follows a line" in err[0]
+    assert not (tmp_path / "c").exists()

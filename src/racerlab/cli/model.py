@@ -80,6 +80,7 @@ def register(sub) -> None:
 def run_init(args) -> int:
     from racerlab.model import init_model
 
+    check_line_margin(args.reward, args.line_margin)
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force, race=args.race,
@@ -112,16 +113,36 @@ def write_template(folder, reward: str, line_margin: float | None = None) -> Non
     folder.write_reward(reward_source(reward, line, metadata.actions.top_speed))
 
 
-def reward_line(track, car, margin: float | None = None):
-    """The line the racing_line reward follows: the limit's kind of path (`line.fastest_line`) `margin` m from
-    the borders (default `reward.templates.LINE_MARGIN_M`); a margin the car cannot keep is one line naming it."""
-    from racerlab.line import fastest_line, min_margin
-    from racerlab.reward.templates import LINE_MARGIN_M
+def check_line_margin(reward: str, margin: float | None) -> None:
+    """`--line-margin` checked before a folder is made: only racing_line takes one, and no less than the off-track
+    rule allows (the cars share their wheels' geometry, so a new model's default car stands for all)."""
+    if margin is None:
+        return
+    from racerlab.reward.templates import NEEDS_LINE
+    from racerlab.spec import car_params
 
-    margin = LINE_MARGIN_M if margin is None else margin
+    if reward not in NEEDS_LINE:
+        raise ConfigError(f"--line-margin {margin:g}: only --reward {' / '.join(NEEDS_LINE)} follows a line; drop "
+                          "--line-margin or add --reward racing_line")
+    _check_margin(margin, car_params())
+
+
+def _check_margin(margin: float, car) -> None:
+    from racerlab.line import min_margin
+
     if not margin >= min_margin(car):
         raise ConfigError(f"--line-margin {margin:g}: the off-track rule allows no less than {min_margin(car):.3f} m "
                           "for this car; choose a larger margin")
+
+
+def reward_line(track, car, margin: float | None = None):
+    """The line the racing_line reward follows: the limit's kind of path (`line.fastest_line`) `margin` m from
+    the borders (default `reward.templates.LINE_MARGIN_M`); a margin the car cannot keep is one line naming it."""
+    from racerlab.line import fastest_line
+    from racerlab.reward.templates import LINE_MARGIN_M
+
+    margin = LINE_MARGIN_M if margin is None else margin
+    _check_margin(margin, car)
     return fastest_line(track, margin, car)
 
 
