@@ -401,7 +401,8 @@ def test_an_early_best_that_later_evaluations_held_names_the_reward_lines_own_la
 
     model = tmp_path / "qs"
     init_model(model, track="lab_oval")
-    laps = [None] * 4 + [103 / 15, 90 / 15, 80 / 15] + [79 / 15] * 3 + [78 / 15] + [78 / 15, 79 / 15, 78 / 15] * 13 + [78 / 15]
+    steps = [None] * 4 + [103, 90, 80] + [79] * 3 + [78] + [78, 79, 78] * 13 + [78]
+    laps = [n and n / 15 for n in steps]
     _logged_training(model, laps, [(5.2 + 0.01 * k, 60 - k) for k in range(20)])
     assert training_story(model)[1] == (
         "the best eval lap, 5.20 s, came at iteration 11 of 51 and the later evaluations held it (median 5.20 s "

@@ -6,14 +6,18 @@ import pytest
 
 from racerlab.cli import main
 
+# each bad option and the words its one-line error says
+BAD_OPTIONS = {
+    "--iterations -1": "--iterations must be a number >= 0 (0 = no limit), got -1",
+    "--minutes nan": "--minutes must be a number >= 0 (0 = no limit), got nan",
+    "--minutes -2": "--minutes must be a number >= 0",
+    "--max-speed inf": "--max-speed inf: give a speed in m/s",
+}
 
-@pytest.mark.parametrize("argv, words", [
-    (["--iterations", "-1"], "--iterations must be a number >= 0 (0 = no limit), got -1"),
-    (["--minutes", "nan"], "--minutes must be a number >= 0 (0 = no limit), got nan"),
-    (["--minutes", "-2"], "--minutes must be a number >= 0"),
-    (["--max-speed", "inf"], "--max-speed inf: give a speed in m/s"),
-])
-def test_bad_options_are_one_line_before_anything_is_made(tmp_path, capsys, argv, words):
+
+@pytest.mark.parametrize("option", list(BAD_OPTIONS))
+def test_bad_options_are_one_line_before_anything_is_made(tmp_path, capsys, option):
+    argv, words = option.split(), BAD_OPTIONS[option]
     model = tmp_path / "qs"
     assert main(["quickstart", "--model", str(model), *argv]) == 2
     err = capsys.readouterr().err.strip()

@@ -63,8 +63,11 @@ def _borders_on_top(ax, track: Track) -> None:
         ax.plot(*border.T, color="black", lw=1.0, zorder=2.5)
 
 
-def _no_data(ax, text: str = "no data") -> None:
+def _no_data(ax, text: str = "no data", title: str | None = None) -> None:
+    """`text` in grey in the middle of an empty panel (and its `title`)."""
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="#777777")
+    if title is not None:
+        ax.set_title(title)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -105,19 +108,44 @@ def training_progress(it: pd.DataFrame, title: str = "Training progress"):
     ax.set_title("Mean episode time (s)")
     lo, hi = (float(x.min()), float(x.max())) if x.size else (0.0, 1.0)
     pad = max(0.5, 0.03 * (hi - lo))
+    return _by_iteration(fig, axs, title, (lo - pad, hi + pad))  # the same iterations on every panel
+
+
+def _by_iteration(fig, axs, title: str, xlim=None):
+    """Every panel of `axs` over iterations (whole numbers, `xlim` on each, also one without data), and the title."""
     for a in axs.flat:
         a.set_xlabel("iteration", fontsize=8)
         a.tick_params(labelsize=8)
         a.grid(alpha=0.3)
-        a.set_xlim(lo - pad, hi + pad)  # the same iterations on every panel, also one without data
+        if xlim is not None:
+            a.set_xlim(*xlim)
         _integer_x(a)
     fig.suptitle(title)
     return fig
 
 
+def _has(it, col: str) -> bool:
+    """Whether the iterations table has column `col` with at least one value."""
+    return col in it and bool(it[col].notna().any())
+
+
 def _maybe(ax, it, col, label, **kw):
-    if col in it and it[col].notna().any():
+    if _has(it, col):
         ax.plot(it.index, it[col], label=label, **kw)
+
+
+def _twin(ax, it, lines, *, ylabel: str = "", log: bool = False, legend: bool = True):
+    """A second y axis on `ax` with `lines` ((column, label, plot keywords), ...) of the iterations table."""
+    ax2 = ax.twinx()
+    for col, label, kw in lines:
+        ax2.plot(it.index, it[col], label=label, **kw)
+    if log:
+        ax2.set_yscale("log")
+    ax2.tick_params(labelsize=8)
+    if ylabel:
+        ax2.set_ylabel(ylabel, fontsize=8)
+    if legend:
+        ax2.legend(fontsize=8, loc="upper right")
 
 
 def _lap_time_panel(ax, it):
@@ -134,17 +162,13 @@ def _lap_time_panel(ax, it):
 
 
 def _entropy_panel(ax, it):
-    if "entropy" not in it or not it["entropy"].notna().any():
-        _no_data(ax, "no metrics.jsonl (entropy) in this log")
-        ax.set_title("Policy entropy")
+    if not _has(it, "entropy"):
+        _no_data(ax, "no metrics.jsonl (entropy) in this log", "Policy entropy")
         return
     ax.plot(it.index, it["entropy"], marker=".", color="C4", label="entropy")
     ax.set_title("Policy entropy (and approx. KL)")
-    if "approx_kl" in it and it["approx_kl"].notna().any():
-        ax2 = ax.twinx()
-        ax2.plot(it.index, it["approx_kl"], color="C5", ls="--", label="approx. KL")
-        ax2.tick_params(labelsize=8)
-        ax2.set_ylabel("approx. KL", fontsize=8)
+    if _has(it, "approx_kl"):
+        _twin(ax, it, [("approx_kl", "approx. KL", {"color": "C5", "ls": "--"})], ylabel="approx. KL", legend=False)
 
 
 def learner_health(it: pd.DataFrame, fast_laps: pd.Series | None = None, title: str = "The learner"):
@@ -162,54 +186,40 @@ def learner_health(it: pd.DataFrame, fast_laps: pd.Series | None = None, title: 
         _no_data(ax, "no complete lap yet")
     ax.set_title("Training laps within 1/15 s of the best evaluation lap (%)")
     _eval_steps_panel(axs[1, 1], it)
-    for a in axs.flat:
-        a.set_xlabel("iteration", fontsize=8)
-        a.tick_params(labelsize=8)
-        a.grid(alpha=0.3)
-        _integer_x(a)
-    fig.suptitle(title)
-    return fig
+    return _by_iteration(fig, axs, title)
 
 
 def _spread_panel(ax, it):
-    shown = [c for c in ("action_std_steer", "action_std_speed") if c in it and it[c].notna().any()]
+    shown = [c for c in ("action_std_steer", "action_std_speed") if _has(it, c)]
     for c in shown:
         ax.plot(it.index, it[c], marker=".", label=c.removeprefix("action_std_"))
     if shown:
         ax.set_title("Exploration: the policy's std ([-1, 1] action units), learning rate")
         ax.legend(fontsize=8, loc="upper left")
-        if "learning_rate" in it and it["learning_rate"].notna().any():
-            ax2 = ax.twinx()
-            ax2.plot(it.index, it["learning_rate"], color="k", ls="--", lw=1, label="learning rate")
-            ax2.set_yscale("log")
-            ax2.tick_params(labelsize=8)
-            ax2.legend(fontsize=8, loc="upper right")
-    elif "entropy" in it and it["entropy"].notna().any():
+        if _has(it, "learning_rate"):
+            _twin(ax, it, [("learning_rate", "learning rate", {"color": "k", "ls": "--", "lw": 1})], log=True)
+    elif _has(it, "entropy"):
         ax.plot(it.index, it["entropy"], marker=".", color="C4")
         ax.set_title("Exploration: policy entropy")
     else:
-        _no_data(ax, "no metrics.jsonl in this log")
-        ax.set_title("Exploration")
+        _no_data(ax, "no metrics.jsonl in this log", "Exploration")
 
 
 def _value_panel(ax, it):
-    if "explained_variance" not in it or not it["explained_variance"].notna().any():
+    if not _has(it, "explained_variance"):
         _no_data(ax, "no metrics.jsonl in this log")
     else:
         ax.plot(it.index, it["explained_variance"], marker=".", color="C0", label="explained variance")
         ax.set_ylim(-0.5, 1.05)
         ax.legend(fontsize=8, loc="upper left")
-        if "value_rmse" in it and it["value_rmse"].notna().any():
-            ax2 = ax.twinx()
-            ax2.plot(it.index, it["value_rmse"], color="C3", ls="--", label="value error (RMS, reward units)")
-            ax2.plot(it.index, it["advantage_std"], color="C1", ls=":", label="advantage std")
-            ax2.tick_params(labelsize=8)
-            ax2.legend(fontsize=8, loc="upper right")
+        if _has(it, "value_rmse"):
+            _twin(ax, it, [("value_rmse", "value error (RMS, reward units)", {"color": "C3", "ls": "--"}),
+                           ("advantage_std", "advantage std", {"color": "C1", "ls": ":"})])
     ax.set_title("The value net: returns it explains, its error")
 
 
 def _eval_steps_panel(ax, it):
-    if "eval_best_lap" not in it or not it["eval_best_lap"].notna().any():
+    if not _has(it, "eval_best_lap"):
         _no_data(ax, "no evaluation lap yet")
     else:
         steps = np.round(it["eval_best_lap"] * STEPS_PER_SECOND)

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+# what each of `racerlab export`'s destinations writes
+EXPORT_FILES = ("--car writes <model>-car.tar.gz (model_metadata.json + agent/model.pb); --onnx writes "
+                "<model>-onnx.tar.gz (model_metadata.json + model.onnx); --tflite writes <model>-tflite.tar.gz, the "
+                "community car's model folder (model.pb, model.tflite, model_metadata.json, checksum.txt); --droa "
+                "writes <model>-droa.tar.gz for DRoA's Import model; --drfc DIR writes the folder layout DRfC uploads "
+                "and trains from.")
+
 
 def register(sub) -> None:
     p = sub.add_parser("export", help="export a model for the physical car (TF, ONNX, TFLite), DRoA or DRfC",
-                       description="--car writes <model>-car.tar.gz (model_metadata.json + agent/model.pb); "
-                                   "--onnx writes <model>-onnx.tar.gz (model_metadata.json + model.onnx); --tflite "
-                                   "writes <model>-tflite.tar.gz, the community car's model folder (model.pb, "
-                                   "model.tflite, model_metadata.json, checksum.txt); --droa writes "
-                                   "<model>-droa.tar.gz for DRoA's Import model; --drfc DIR writes the folder layout "
-                                   "DRfC uploads and trains from.")
+                       description=EXPORT_FILES)
     p.add_argument("model", type=Path)
     dest = p.add_mutually_exclusive_group(required=True)
     dest.add_argument("--car", action="store_true", help="the physical car's .tar.gz")

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import KW_ONLY, InitVar, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -100,18 +100,22 @@ class PairedCollection:
         self.inner.close()
 
 
+@dataclass
 class DaggerDriver:
     """What drives the cars while a round's data is collected (the collector's `agent`): per step and car the
     teacher with probability `mix`, else the student's greedy action plus Gaussian `noise` (continuous actions);
     `record["target"]` is the teacher's action in the student's action space, for every step."""
 
-    def __init__(self, imitation: Imitation, teacher, teacher_space, student_space, *, noise: float, seed: int):
-        self.imitation = imitation
-        self.teacher = teacher
-        self.teacher_space = teacher_space
-        self.student_space = student_space
-        self.noise = noise
-        self.mix = 1.0
+    imitation: Imitation
+    teacher: object  # a features agent: `policy(features)`
+    teacher_space: object
+    student_space: object
+    _: KW_ONLY
+    noise: float
+    seed: InitVar[int]
+    mix: float = 1.0
+
+    def __post_init__(self, seed: int) -> None:
         self.rng = np.random.default_rng(seed)
 
     def label(self, features) -> np.ndarray:
