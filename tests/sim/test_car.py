@@ -308,6 +308,20 @@ def test_randomised_dynamics_draw_within_the_spread(monkeypatch):
     assert np.all(plain._car_arr[:, car_mod.P_YAW_GAIN] == car.yaw_gain)
 
 
+def test_randomised_saturation_stays_on_and_above_its_floor(monkeypatch):
+    """The console velocity car's saturation (2.84 m/s²) drawn with a spread of 1.2 at randomise 2.5 would reach
+    2.84 - 2 x 2.5 x 1.2 = -3.16: the draws stop at 1 m/s² (0 would switch the saturation off, the car turning
+    hardest); a car without saturation stays without."""
+    from racerlab.sim import car as car_mod
+
+    monkeypatch.setitem(car_mod.CAR_SPREAD, ("console", "velocity"), {"tyre_sat_mps2": 1.2})
+    car = replace(car_params("console"), randomise=2.5, tyre_sat_mps2=2.84)
+    sat = car_mod.randomised(car, np.random.default_rng(0), 4000)[:, car_mod.P_SAT]
+    assert sat.min() == 1.0 and sat.max() <= 2.84 + 2 * 2.5 * 1.2 + 1e-12 and (sat > 2.84).any()
+    off = car_mod.randomised(replace(car, tyre_sat_mps2=0.0), np.random.default_rng(0), 100)[:, car_mod.P_SAT]
+    assert np.all(off == 0.0)
+
+
 def test_randomised_dynamics_train_only(tmp_path):
     """[car] randomise draws the training episodes' cars; evaluations drive the fitted car; a negative factor is one
     line naming the key."""

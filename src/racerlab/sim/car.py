@@ -102,7 +102,7 @@ def step_durations(tstamps, timing: str) -> np.ndarray:
 RANDOMISED = {"delay_steps": (P_DELAY, 0.0), "steer_tau_s": (P_STEER_TAU, 0.0), "steer_kick": (P_KICK, 0.0),
               "yaw_gain": (P_YAW_GAIN, 0.05), "slide_mps": (P_SLIDE, 0.0), "yaw_tau_s": (P_YAW_TAU, 0.0),
               "speed_tau_s": (P_SPEED_TAU, 0.0), "accel_mps2": (P_ACCEL, 0.1), "brake_mps2": (P_BRAKE, 0.1),
-              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0), "tyre_sat_mps2": (P_SAT, 0.0)}
+              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0), "tyre_sat_mps2": (P_SAT, 1.0)}
 SPREAD_CLIP = 2.0  # draws stay within this many spreads of the fitted value
 
 
