@@ -25,7 +25,7 @@ from racerlab.line import racing_line
 from racerlab.model import init_model
 from racerlab.model.config import CarSettings
 from racerlab.reward import reward_source
-from racerlab.sim.car import SPREAD_CLIP
+from racerlab.sim.car import RANDOMISED, SPREAD_CLIP
 from racerlab.spec import CAR_SPREAD, CarParams, car_params
 from racerlab.train import train
 
@@ -35,10 +35,11 @@ REINVENT = AWS_TRACKS / "reInvent2019_track.npy"
 
 
 def edge_car(car: CarParams, sign: int) -> CarParams:
-    """`car` with every constant of its spread moved SPREAD_CLIP spreads in the direction `sign`."""
+    """`car` with every constant of its spread moved SPREAD_CLIP spreads in the direction `sign`, no lower than the
+    training draws go (`sim.car.RANDOMISED`); a constant that is off stays off, as in the draws."""
     spread = CAR_SPREAD[(car.simulator, car.control)]
-    moved = {k: max(getattr(car, k) + sign * SPREAD_CLIP * sd, 0.0) for k, sd in spread.items()
-             if not (getattr(car, k) == 0 and k in ("slide_mps", "accel_fade_mps"))}
+    moved = {k: max(getattr(car, k) + sign * SPREAD_CLIP * sd, RANDOMISED[k][1]) for k, sd in spread.items()
+             if not (getattr(car, k) == 0 and k in ("slide_mps", "accel_fade_mps", "tyre_sat_mps2"))}
     return replace(car, **moved)
 
 

@@ -79,6 +79,7 @@ class CarParams:
     wheel_cap_mps: float = WHEEL_CAP_MPS  # commands above it are clipped by the wheel joints' velocity limit
     regulated: bool = True  # False: effort control without a speed loop (droa, version 3-4): full traction always
     grip_mps2: float = 4.9  # lateral acceleration limit (mu 0.5 x g)
+    tyre_sat_mps2: float = 0.0  # the tyres saturate toward this lateral acceleration: κ / √(1 + (v²κ / it)²); 0 = off
     step_jitter: bool = False  # steps last a length drawn from the simulator's measured distribution (training: on)
     randomise: float = 0.0  # each episode draws the constants around these, this many times the fit's spread
     substeps: int = 4
@@ -89,7 +90,7 @@ class CarParams:
             if not getattr(self, name) > 0:
                 raise ValueError(f"CarParams.{name} must be > 0")
         for name in ("steer_tau_s", "speed_tau_s", "slide_mps", "yaw_tau_s", "accel_fade_mps", "steer_kick",
-                     "randomise"):
+                     "randomise", "tyre_sat_mps2"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"CarParams.{name} must be >= 0")
         if not 0 <= self.min_speed_mps <= self.max_speed_mps:
@@ -130,6 +131,24 @@ class CarParams:
             self.accel_mps2 + 0.0 * v
         return np.maximum(a, -self.brake_mps2)
 
+    def saturated(self, kappa, v):
+        """The curvature the car drives at ground speed `v` where the wheels alone (gain, slide) would bend the path
+        by `kappa` (1/m): the tyres saturate toward `tyre_sat_mps2` of lateral acceleration (`sim.car`)."""
+        kappa = np.asarray(kappa, dtype=np.float64)
+        if self.tyre_sat_mps2 <= 0:
+            return kappa + 0.0
+        a = np.asarray(v, dtype=np.float64) ** 2 * kappa / self.tyre_sat_mps2
+        return kappa / np.sqrt(1.0 + a * a)
+
+    def unsaturated(self, kappa, v):
+        """The inverse of `saturated`: the curvature the wheels must ask for so that the car drives `kappa` at `v`
+        (a bend whose lateral acceleration reaches `tyre_sat_mps2` cannot be held: asked for as if at 0.999 of it)."""
+        kappa = np.asarray(kappa, dtype=np.float64)
+        if self.tyre_sat_mps2 <= 0:
+            return kappa + 0.0
+        a = np.clip(np.asarray(v, dtype=np.float64) ** 2 * kappa / self.tyre_sat_mps2, -0.999, 0.999)
+        return kappa / np.sqrt(1.0 - a * a)
+
     def yaw_gain_at(self, v):
         """The effective yaw gain at ground speed `v` (scalar or array)."""
         if self.slide_mps <= 0:
@@ -146,19 +165,22 @@ CAR_TABLE: dict[tuple[str, str], dict] = {
     # droa car without a speed loop, the rest unverified
     ("droa", "effort"): {"control": "effort", "regulated": False},
     # console August 2025 (simapp 5.0, ROS 1, commands 0.5-1.0 m/s) and October 2025 (three runs at up to 3.5-4 m/s),
-    # 5 723 fitted stretches: about 3 m/s² from a standstill, fading to 0 at 3.75 m/s (1.8 m/s² at 2.5 m/s, where
-    # the real car's commands stop gaining it speed); gazebo_ros_control saturates velocity commands at the URDF's
-    # 100 rad/s: the same 3.5 m/s cap as ROS 2
-    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.225, "steer_tau_s": 0.055, "yaw_gain": 0.662,
-                              "slide_mps": 1.456, "yaw_tau_s": 0.065, "speed_tau_s": 0.117, "accel_mps2": 3.17,
-                              "brake_mps2": 5.04, "ground_factor": 1.041, "accel_fade_mps": 3.75},
+    # 5 723 fitted stretches: about 3 m/s² from a standstill, fading to 0 at 3.66 m/s (1.6 m/s² at 2.5 m/s, where
+    # the real car's commands stop gaining it speed); the tyres saturate toward 2.84 m/s² of lateral acceleration
+    # (which replaces the slide of the fits before: fitted together, the slide goes to none); gazebo_ros_control
+    # saturates velocity commands at the URDF's 100 rad/s: the same 3.5 m/s cap as ROS 2
+    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.470, "steer_tau_s": 0.0056, "yaw_gain": 0.616,
+                              "slide_mps": 0.0, "yaw_tau_s": 0.093, "speed_tau_s": 0.120, "accel_mps2": 3.09,
+                              "brake_mps2": 5.85, "ground_factor": 1.048, "accel_fade_mps": 3.66,
+                              "tyre_sat_mps2": 2.84},
     # DRfC July 2022 (model version 4) and the console's June 2022 export, 2 715 fitted stretches (steps of 1/15 s:
     # these logs' tstamps carry no motion); an effort command is saturated in torque, not speed (a P loop on the
-    # wheel speed): no cap below the 4 m/s clip; the fit finds no slide (1 / slide below the search's 1e-3)
-    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.126, "steer_tau_s": 0.066,
-                            "steer_kick": 0.187, "yaw_gain": 0.669, "slide_mps": 0.0, "yaw_tau_s": 0.498,
-                            "speed_tau_s": 0.181, "accel_mps2": 30.0, "brake_mps2": 30.0, "ground_factor": 0.977,
-                            "accel_fade_mps": 4.23, "wheel_cap_mps": 4.0},
+    # wheel speed): no cap below the 4 m/s clip; the fit finds no slide (1 / slide below the search's 1e-3), and the
+    # tyres saturating toward 6.77 m/s²
+    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.123, "steer_tau_s": 0.119,
+                            "steer_kick": 0.374, "yaw_gain": 0.715, "slide_mps": 0.0, "yaw_tau_s": 0.439,
+                            "speed_tau_s": 0.189, "accel_mps2": 30.0, "brake_mps2": 30.0, "ground_factor": 0.977,
+                            "accel_fade_mps": 4.23, "wheel_cap_mps": 4.0, "tyre_sat_mps2": 6.77},
 }
 # The spread (standard deviation) of each fitted car's constants, from the fits docs/car.md lists: randomised dynamics
 # (`CarParams.randomise`) draws each episode's car within it.
@@ -168,12 +190,13 @@ CAR_SPREAD: dict[tuple[str, str], dict[str, float]] = {
                            "speed_tau_s": 0.011, "accel_mps2": 1.1, "brake_mps2": 0.14, "ground_factor": 0.0005},
     ("droa", "effort"): {},  # no log
     # over the three October 2025 runs fitted one by one (the runs that cover the car's whole speed range)
-    ("console", "velocity"): {"delay_steps": 0.035, "steer_tau_s": 0.0074, "yaw_gain": 0.041, "slide_mps": 0.13,
-                              "yaw_tau_s": 0.011, "speed_tau_s": 0.022, "accel_mps2": 0.5, "brake_mps2": 0.41,
-                              "ground_factor": 0.0073, "accel_fade_mps": 0.76},
+    ("console", "velocity"): {"delay_steps": 0.043, "steer_tau_s": 0.014, "yaw_gain": 0.13, "yaw_tau_s": 0.0097,
+                              "speed_tau_s": 0.033, "accel_mps2": 0.97, "brake_mps2": 0.61, "ground_factor": 0.0135,
+                              "accel_fade_mps": 0.44, "tyre_sat_mps2": 1.2},
     # over fits on 2 resampled sets of the 2022 episodes
-    ("console", "effort"): {"delay_steps": 0.0012, "steer_tau_s": 0.015, "steer_kick": 0.088, "yaw_gain": 0.0027,
-                            "yaw_tau_s": 0.0092, "speed_tau_s": 0.0008, "ground_factor": 0.0013},
+    ("console", "effort"): {"delay_steps": 0.022, "steer_tau_s": 0.0077, "steer_kick": 0.038, "yaw_gain": 0.0053,
+                            "yaw_tau_s": 0.0061, "speed_tau_s": 0.0032, "ground_factor": 0.0013,
+                            "tyre_sat_mps2": 0.42},
 }
 # The measured step lengths (s) of each simulator at the quantiles STEP_QUANTILES: simtrace tstamp differences of the
 # shared logs (droa: the DRoA 2026 runs, 2 026 steps; console: DRfC 2022, console 2022 and 2025, 99 830 steps), the
@@ -494,6 +517,7 @@ CAR_PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # name -> (low, high, un
     "accel_mps2": (0.1, 200.0, "m/s²"), "brake_mps2": (0.1, 200.0, "m/s²"), "ground_factor": (0.5, 2.0, ""),
     "wheel_cap_mps": (0.1, 20.0, "m/s"), "grip_mps2": (0.1, 50.0, "m/s²"), "substeps": (1, MAX_SUBSTEPS, ""),
     "steer_kick": (0.0, 1.0, ""), "accel_fade_mps": (0.0, 20.0, "m/s"), "randomise": (0.0, 5.0, "spreads"),
+    "tyre_sat_mps2": (0.0, 50.0, "m/s²"),
 }
 
 

@@ -78,6 +78,24 @@ def test_yaw_gain_and_slide_scale_the_turn():
     assert yaw == pytest.approx(4.9 / 3.0 * DT)
 
 
+def test_tyres_saturate_toward_their_lateral_acceleration():
+    """Held wheels at 20° (gain 1: κ_w = tan 20° / (0.164 · √(1 + tan² 20° / 4)) = 2.1835 1/m), 1.5 m/s:
+    v²κ_w = 4.913 m/s². With tyre_sat_mps2 at that the curvature is κ_w / √2; at half of it κ_w / √5; the lateral
+    acceleration stays below the saturation, and CarParams.unsaturated inverts it."""
+    d, v = math.radians(20), 1.5
+    t = math.tan(d)
+    kw = t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t))
+    assert kw == pytest.approx(2.1835, abs=1e-4) and v * v * kw == pytest.approx(4.913, abs=1e-3)
+    for sat, factor in ((v * v * kw, 1 / math.sqrt(2)), (v * v * kw / 2, 1 / math.sqrt(5))):
+        car = bare(tyre_sat_mps2=sat)
+        yaw = step(car, v=v, steer=d, new=(d, v))[2]
+        assert yaw == pytest.approx(v * kw * factor * DT, rel=1e-9)
+        assert v * v * kw * factor < sat
+        assert float(car.saturated(kw, v)) == pytest.approx(kw * factor, rel=1e-12)
+        assert float(car.unsaturated(kw * factor, v)) == pytest.approx(kw, rel=1e-9)
+    assert float(bare().saturated(kw, v)) == kw  # 0: off
+
+
 def test_yaw_rate_lag():
     """With yaw_tau_s the yaw rate approaches the wheels' v·κ exponentially, so the first step turns less."""
     d = math.radians(20)
@@ -128,7 +146,10 @@ def test_each_built_in_car(simulator, control):
         v = car.ground_factor
         g = car.yaw_gain / (1 + (v / car.slide_mps) ** 2) if car.slide_mps else car.yaw_gain
         t = g * math.tan(math.radians(20))
-        kappa = min(t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t)), car.grip_mps2 / v**2)
+        kappa = t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t))
+        if car.tyre_sat_mps2:  # the tyres saturate: κ / √(1 + (v²κ / sat)²)
+            kappa /= math.sqrt(1 + (v * v * kappa / car.tyre_sat_mps2) ** 2)
+        kappa = min(kappa, car.grip_mps2 / v**2)
         per_step = (turn[-1, 2] - turn[-2, 2]) % 360
         assert per_step == pytest.approx(math.degrees(v * kappa * STEP_S), rel=1e-3)
 
@@ -285,6 +306,20 @@ def test_randomised_dynamics_draw_within_the_spread(monkeypatch):
                                                                               first[1:])
     plain = Simulator("lab_oval", 3, car_params("droa"), seed=1)
     assert np.all(plain._car_arr[:, car_mod.P_YAW_GAIN] == car.yaw_gain)
+
+
+def test_randomised_saturation_stays_on_and_above_its_floor(monkeypatch):
+    """The console velocity car's saturation (2.84 m/s²) drawn with a spread of 1.2 at randomise 2.5 would reach
+    2.84 - 2 x 2.5 x 1.2 = -3.16: the draws stop at 1 m/s² (0 would switch the saturation off, the car turning
+    hardest); a car without saturation stays without."""
+    from racerlab.sim import car as car_mod
+
+    monkeypatch.setitem(car_mod.CAR_SPREAD, ("console", "velocity"), {"tyre_sat_mps2": 1.2})
+    car = replace(car_params("console"), randomise=2.5, tyre_sat_mps2=2.84)
+    sat = car_mod.randomised(car, np.random.default_rng(0), 4000)[:, car_mod.P_SAT]
+    assert sat.min() == 1.0 and sat.max() <= 2.84 + 2 * 2.5 * 1.2 + 1e-12 and (sat > 2.84).any()
+    off = car_mod.randomised(replace(car, tyre_sat_mps2=0.0), np.random.default_rng(0), 100)[:, car_mod.P_SAT]
+    assert np.all(off == 0.0)
 
 
 def test_randomised_dynamics_train_only(tmp_path):

@@ -19,13 +19,15 @@ from racerlab.sim.car import pack, rollout_batch
 from racerlab.spec import CarParams, car_params
 
 HORIZONS = (1, 3, 8, 15)  # steps after which errors are reported
-# what is fitted, and where it is searched; `slide_mps` and `accel_fade_mps` are searched as their inverses (0 = none)
+# what is fitted, and where it is searched; `slide_mps`, `accel_fade_mps` and `tyre_sat_mps2` are searched as their
+# inverses (0 = none)
 BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.15, 1.2), "slide_inv": (0.0, 2.5),
           "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
           "ground_factor": (0.95, 1.12), "fade_inv": (0.0, 1.0),
-          "steer_kick": (0.0, 0.9)}
+          "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0)}  # saturation >= 1 m/s²
 FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
-          "ground_factor", "accel_fade_mps", "steer_kick")
+          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2")
+INVERSE = {"slide_inv": "slide_mps", "fade_inv": "accel_fade_mps", "sat_inv": "tyre_sat_mps2"}  # searched as 1 / x
 
 
 def predict(st: Stretches, car: CarParams) -> np.ndarray:
@@ -53,19 +55,27 @@ def medians(err: np.ndarray, horizons=HORIZONS) -> dict[int, float]:
     return {h: float(np.median(err[:, h - 1])) for h in horizons if h <= err.shape[1]}
 
 
-def _to_vector(car: CarParams) -> np.ndarray:
+def _searched(base: CarParams) -> dict[str, tuple[float, float]]:
+    """The bounds of what a fit from `base` searches: everything in `BOUNDS`, the tyres' saturation only for a car
+    that has it (the console cars; ROS 2's droa car has none, and on logs without it the extra freedom only lets
+    the lags and the kick wander)."""
+    return {k: b for k, b in BOUNDS.items() if k != "sat_inv" or base.tyre_sat_mps2 > 0}
+
+
+def _to_vector(car: CarParams, keys) -> np.ndarray:
     vals = {f: getattr(car, f) for f in FITTED}
-    vals["slide_inv"] = 1.0 / vals.pop("slide_mps") if car.slide_mps > 0 else 0.0
-    vals["fade_inv"] = 1.0 / vals.pop("accel_fade_mps") if car.accel_fade_mps > 0 else 0.0
-    return np.array([min(max(vals[k], lo), hi) for k, (lo, hi) in BOUNDS.items()])
+    for inv, name in INVERSE.items():
+        value = vals.pop(name)
+        vals[inv] = 1.0 / value if value > 0 else 0.0
+    return np.array([min(max(vals[k], lo), hi) for k, (lo, hi) in keys.items()])
 
 
-def _to_car(base: CarParams, vec) -> CarParams:
-    vals = {k: float(min(max(v, lo), hi)) for (k, (lo, hi)), v in zip(BOUNDS.items(), vec, strict=True)}
-    inv = vals.pop("slide_inv")
-    vals["slide_mps"] = 1.0 / inv if inv > 1e-3 else 0.0
-    inv = vals.pop("fade_inv")
-    vals["accel_fade_mps"] = 1.0 / inv if inv > 1e-3 else 0.0
+def _to_car(base: CarParams, vec, keys) -> CarParams:
+    vals = {k: float(min(max(v, lo), hi)) for (k, (lo, hi)), v in zip(keys.items(), vec, strict=True)}
+    for inv, name in INVERSE.items():
+        if inv in vals:
+            value = vals.pop(inv)
+            vals[name] = 1.0 / value if value > 1e-3 else 0.0
     return replace(base, **vals)
 
 
@@ -75,12 +85,14 @@ def _loss(st: Stretches, car: CarParams) -> float:
 
 
 def fit_car(st: Stretches, base: CarParams, *, max_evals: int = 1500) -> CarParams:
-    """The constants of `base` (from `FITTED`) that best replay the stretches `st`."""
+    """The constants of `base` (from `FITTED`; the tyres' saturation only when `base` has it) that best replay the
+    stretches `st`."""
     if not math.isfinite(_loss(st, base)):
         raise ValueError("the starting car gives non-finite predictions")
-    res = minimize(lambda v: _loss(st, _to_car(base, v)), _to_vector(base), method="Powell",
-                   bounds=list(BOUNDS.values()), options={"maxfev": max_evals, "xtol": 1e-3, "ftol": 1e-5})
-    return _to_car(base, res.x)
+    keys = _searched(base)
+    res = minimize(lambda v: _loss(st, _to_car(base, v, keys)), _to_vector(base, keys), method="Powell",
+                   bounds=list(keys.values()), options={"maxfev": max_evals, "xtol": 1e-3, "ftol": 1e-5})
+    return _to_car(base, res.x, keys)
 
 
 @dataclass

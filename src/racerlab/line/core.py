@@ -118,7 +118,8 @@ class RacingLine:
     @property
     def steering_deg(self) -> np.ndarray:
         """Steering angle each point needs at the line's speed (the car's wheelbase and yaw gain), ° (+ = left)."""
-        return steering_for_curvature(self.curvature, self.car.wheelbase_m, self.car.yaw_gain_at(self.speed))
+        kappa = self.car.unsaturated(self.curvature, self.speed)
+        return steering_for_curvature(kappa, self.car.wheelbase_m, self.car.yaw_gain_at(self.speed))
 
     def summary(self) -> dict:
         """The headline numbers, JSON-ready."""

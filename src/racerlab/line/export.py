@@ -35,7 +35,7 @@ def grip_speed(steering_deg, line: RacingLine) -> np.ndarray:
 
     def lateral(v):
         t = car.yaw_gain_at(v) * tan_d
-        return v * v * t / np.sqrt(1.0 + 0.25 * t * t) / car.wheelbase_m
+        return v * v * car.saturated(t / np.sqrt(1.0 + 0.25 * t * t) / car.wheelbase_m, v)
 
     top = car.top_speed()
     lo, hi = np.zeros_like(tan_d), np.full_like(tan_d, top)

@@ -4,7 +4,8 @@ The limits are exactly the ones `racerlab.sim.car.advance` applies, so that a dr
 the path can reach the predicted time:
 
 * lateral: the grip caps v²·|κ| at `grip_mps2`, and the steering can bend the path at most as much as full lock
-  does at that speed (`yaw_gain_at(v)` · tan 30° / wheelbase: the car slides more the faster it goes), so a point
+  does at that speed (`yaw_gain_at(v)` · tan 30° / wheelbase: the car slides more the faster it goes; through the
+  tyres' saturation, `CarParams.saturated`), so a point
   of curvature κ allows the fastest v at which both hold;
 * speed cap: the car settles at `top_speed()` (the command clip and the wheels' cap, times the ground factor);
 * longitudinal: speed follows the command with a first-order lag `speed_tau_s`, bounded by
@@ -38,11 +39,11 @@ class Profile(NamedTuple):
 
 
 def max_curvature(v, car: CarParams) -> np.ndarray:
-    """The tightest path curvature (1/m) the car can hold at ground speed `v`: full lock through the yaw gain,
-    and the grip."""
+    """The tightest path curvature (1/m) the car can hold at ground speed `v`: full lock through the yaw gain and
+    the tyres' saturation, and the grip."""
     v = np.asarray(v, dtype=np.float64)
     tan_d = car.yaw_gain_at(v) * math.tan(math.radians(car.max_steer_deg))
-    steer = tan_d / (car.wheelbase_m * np.sqrt(1.0 + 0.25 * tan_d * tan_d))
+    steer = car.saturated(tan_d / (car.wheelbase_m * np.sqrt(1.0 + 0.25 * tan_d * tan_d)), v)
     with np.errstate(divide="ignore"):
         grip = car.grip_mps2 / (v * v)
     return np.minimum(steer, grip)

@@ -15,7 +15,9 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
   term: the cars turned too little under fast-changing commands).
 * **yaw gain and slide**: the car turns like a kinematic bicycle whose tan δ is scaled by
   `yaw_gain / (1 + (v / slide_mps)²)` (no Ackermann, no differential, tyre slip: 0.55-0.63 at low speed;
-  on ROS 1 it falls to 0.25-0.3 above 1.5 m/s); the lateral acceleration is also capped at `grip_mps2`.
+  on ROS 1 it falls to 0.25-0.3 above 1.5 m/s); with `tyre_sat_mps2` the tyres saturate: the curvature κ the
+  wheels ask for becomes κ / √(1 + (v²κ / tyre_sat_mps2)²), so that the lateral acceleration approaches it (the ROS 1
+  console car turns less the harder it corners); the lateral acceleration is also capped at `grip_mps2`.
 * **speed**: the ground speed follows a target with a first-order lag `speed_tau_s`, bounded by the
   traction limits `accel_mps2` and `brake_mps2`; with `accel_fade_mps` (the ROS 1 velocity car) the acceleration
   falls with speed as 1 - (v / fade)² and turns into a slowdown above the fade speed, the car's top speed. The
@@ -55,7 +57,7 @@ from racerlab.spec import (
 QUEUE = int(MAX_DELAY_STEPS) + 2  # commands kept per car: this step's and the ones before it
 # positions in `pack`'s array
 (P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED, P_SPEED_TAU, P_ACCEL, P_BRAKE, P_STEER_TAU, P_GRIP, P_SUBSTEPS,
- P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK) = range(19)
+ P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK, P_SAT) = range(20)
 
 
 def pack(car: CarParams) -> np.ndarray:
@@ -64,7 +66,7 @@ def pack(car: CarParams) -> np.ndarray:
                      car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
                      float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
                      car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s, car.accel_fade_mps,
-                     car.steer_kick],
+                     car.steer_kick, car.tyre_sat_mps2],
                     dtype=np.float64)
 
 
@@ -100,20 +102,20 @@ def step_durations(tstamps, timing: str) -> np.ndarray:
 RANDOMISED = {"delay_steps": (P_DELAY, 0.0), "steer_tau_s": (P_STEER_TAU, 0.0), "steer_kick": (P_KICK, 0.0),
               "yaw_gain": (P_YAW_GAIN, 0.05), "slide_mps": (P_SLIDE, 0.0), "yaw_tau_s": (P_YAW_TAU, 0.0),
               "speed_tau_s": (P_SPEED_TAU, 0.0), "accel_mps2": (P_ACCEL, 0.1), "brake_mps2": (P_BRAKE, 0.1),
-              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0)}
+              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0), "tyre_sat_mps2": (P_SAT, 1.0)}
 SPREAD_CLIP = 2.0  # draws stay within this many spreads of the fitted value
 
 
 def randomised(car: CarParams, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, P) packed constants of n cars drawn around `car` (randomised dynamics, `[car] randomise`): each constant
     of `spec.CAR_SPREAD` (the fit's spread over resampled episodes) normal around its value with `car.randomise`
-    times that spread, cut at SPREAD_CLIP spreads; a constant that is off (slide, fade: 0) stays off."""
+    times that spread, cut at SPREAD_CLIP spreads; a constant that is off (slide, fade, saturation: 0) stays off."""
     out = np.tile(pack(car), (n, 1))
     spread = CAR_SPREAD.get((car.simulator, car.control), {})
     for name, sd in spread.items():
         col, low = RANDOMISED[name]
         value = getattr(car, name)
-        if value == 0 and name in ("slide_mps", "accel_fade_mps"):
+        if value == 0 and name in ("slide_mps", "accel_fade_mps", "tyre_sat_mps2"):
             continue
         z = np.clip(rng.standard_normal(n), -SPREAD_CLIP, SPREAD_CLIP)
         out[:, col] = np.maximum(value + car.randomise * sd * z, low)
@@ -127,6 +129,16 @@ def step_lengths(rng: np.random.Generator, n: int, simulator: str) -> np.ndarray
     return np.interp(rng.random(n), STEP_QUANTILES, STEP_LENGTHS[simulator])
 
 
+@njit(cache=True, inline="always")
+def _saturate(kappa, v, car):
+    """The curvature `kappa` the wheels ask for at `v`, with the tyres saturating toward `tyre_sat_mps2` of lateral
+    acceleration: κ / √(1 + (v²κ / sat)²) (ROS 1: the console cars turn less the harder they corner; 0 = off)."""
+    if car[P_SAT] <= 0:
+        return kappa
+    a = v * v * kappa / car[P_SAT]
+    return kappa / math.sqrt(1.0 + a * a)
+
+
 @njit(cache=True)
 def yaw_rate(v, steer, car):
     """The yaw rate (rad/s) the car settles at driving at `v` with the wheels at `steer` (rad)."""
@@ -135,7 +147,7 @@ def yaw_rate(v, steer, car):
         r = v / car[P_SLIDE]
         gain = gain / (1.0 + r * r)
     tan_d = gain * math.tan(steer)
-    kappa = tan_d / (car[P_WB] * math.sqrt(1.0 + 0.25 * tan_d * tan_d))
+    kappa = _saturate(tan_d / (car[P_WB] * math.sqrt(1.0 + 0.25 * tan_d * tan_d)), v, car)
     if v > 1e-6:
         k_max = car[P_GRIP] / (v * v)
         kappa = min(max(kappa, -k_max), k_max)
@@ -209,7 +221,7 @@ def _phase(x, y, yaw, v, steer, w, steer_cmd, speed_cmd, car, span, n):
             r = v_mid / slide
             gain = gain / (1.0 + r * r)
         tan_d = gain * math.tan(steer)
-        kappa = tan_d / (wb * math.sqrt(1.0 + 0.25 * tan_d * tan_d))
+        kappa = _saturate(tan_d / (wb * math.sqrt(1.0 + 0.25 * tan_d * tan_d)), v_mid, car)
         if v_mid > 1e-6:
             k_max = car[P_GRIP] / (v_mid * v_mid)
             kappa = min(max(kappa, -k_max), k_max)
