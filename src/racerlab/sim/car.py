@@ -139,9 +139,10 @@ def _saturate(kappa, v, car):
     return kappa / math.sqrt(1.0 + a * a)
 
 
-@njit(cache=True)
-def yaw_rate(v, steer, car):
-    """The yaw rate (rad/s) the car settles at driving at `v` with the wheels at `steer` (rad)."""
+@njit(cache=True, inline="always")
+def _path_curvature(v, steer, car):
+    """The curvature (1/m) the base point follows at `v` with the wheels at `steer` (rad): the bicycle's through
+    the yaw gain (falling with speed where the car slides), the tyres' saturation, and at most the grip."""
     gain = car[P_YAW_GAIN]
     if car[P_SLIDE] > 0:
         r = v / car[P_SLIDE]
@@ -151,7 +152,13 @@ def yaw_rate(v, steer, car):
     if v > 1e-6:
         k_max = car[P_GRIP] / (v * v)
         kappa = min(max(kappa, -k_max), k_max)
-    return v * kappa
+    return kappa
+
+
+@njit(cache=True)
+def yaw_rate(v, steer, car):
+    """The yaw rate (rad/s) the car settles at driving at `v` with the wheels at `steer` (rad)."""
+    return v * _path_curvature(v, steer, car)
 
 
 @njit(cache=True, inline="always")
@@ -211,20 +218,11 @@ def _phase(x, y, yaw, v, steer, w, steer_cmd, speed_cmd, car, span, n):
     a_speed = 1.0 - math.exp(-h / car[P_SPEED_TAU]) if car[P_SPEED_TAU] > 0 else 1.0
     a_steer = 1.0 - math.exp(-h / car[P_STEER_TAU]) if car[P_STEER_TAU] > 0 else 1.0
     a_yaw = 1.0 - math.exp(-h / car[P_YAW_TAU]) if car[P_YAW_TAU] > 0 else 1.0
-    slide = car[P_SLIDE]
     beta = 0.0
     for _ in range(n):
         v_mid, v = _speed_sub(v, vt, a_speed, h, car)
         steer = steer + (dc - steer) * a_steer
-        gain = car[P_YAW_GAIN]
-        if slide > 0:
-            r = v_mid / slide
-            gain = gain / (1.0 + r * r)
-        tan_d = gain * math.tan(steer)
-        kappa = _saturate(tan_d / (wb * math.sqrt(1.0 + 0.25 * tan_d * tan_d)), v_mid, car)
-        if v_mid > 1e-6:
-            k_max = car[P_GRIP] / (v_mid * v_mid)
-            kappa = min(max(kappa, -k_max), k_max)
+        kappa = _path_curvature(v_mid, steer, car)
         w = w + (v_mid * kappa - w) * a_yaw
         beta = math.asin(min(max(0.5 * kappa * wb, -1.0), 1.0))
         dyaw = w * h

@@ -80,11 +80,8 @@ class PurePursuit:
         ty = np.interp(target_s, self.cum_s, self.path[:, 1])
         alpha = np.arctan2(ty - rear[:, 1], tx - rear[:, 0]) - yaw
         dist = np.maximum(np.hypot(tx - rear[:, 0], ty - rear[:, 1]), 1e-6)
-        if cp.tyre_sat_mps2 > 0:  # the wheels must ask for more than the arc: the tyres saturate
-            kappa = cp.unsaturated(2.0 * np.sin(alpha) / dist, v)
-            steer = np.degrees(np.arctan(self.wheelbase * kappa / cp.yaw_gain_at(v)))
-        else:
-            steer = np.degrees(np.arctan(2.0 * self.wheelbase * np.sin(alpha) / dist / cp.yaw_gain_at(v)))
+        kappa = cp.unsaturated(2.0 * np.sin(alpha) / dist, v)  # the arc; more where the tyres saturate
+        steer = np.degrees(np.arctan(self.wheelbase * kappa / cp.yaw_gain_at(v)))
         if self.car is None:
             return steer, np.interp(self._wrap(s), self.cum_s, self.speed)
         return steer, self._speed_command(s + 0.5 * self.wheelbase, v)
