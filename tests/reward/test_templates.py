@@ -133,6 +133,9 @@ def test_init_writes_the_racing_line_of_the_models_track(tmp_path, capsys):
     # car as issue 34 refitted it, where the line 0.1 m inside takes 6.733 s and the limit is 6.000 s (6.133, 6.667
     # and 5.933 s with the car before)
     assert "margin -0.1 m" in text and "its lap 6.200 s (droa car)" in text
+    from racerlab.reward.templates import line_lap  # read back from the header (the quickstart's closing lines)
+
+    assert line_lap(text) == 6.2 and line_lap(reward_source("example")) is None
 
 
 def test_init_takes_the_racers_line_margin_and_refuses_one_past_the_off_track_rule(tmp_path, capsys):

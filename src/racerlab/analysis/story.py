@@ -71,9 +71,8 @@ def training_story(model: Path, raced: str | None = None, race=None) -> list[str
 def _held(model: Path, best: tuple[float, int], median: float, last: int) -> str:
     """The best eval lap came early and the later evaluations drove it again: training found what its reward
     pays for early. With the racing_line template the reward's own line says how fast that is."""
-    import re
-
     from racerlab.logs import BEST_LAP_NAME
+    from racerlab.reward.templates import line_lap
 
     text = (f"the {BEST_LAP_NAME}, {best[0]:.2f} s, came at iteration {best[1]} of {last} and the later "
             f"evaluations held it (median {median:.2f} s over iterations {best[1] + 1}-{last})")
@@ -81,9 +80,9 @@ def _held(model: Path, best: tuple[float, int], median: float, last: int) -> str
         source = (model / "reward_function.py").read_text()
     except OSError:
         source = ""
-    line = re.search(r"RACING_LINE = \[  # .*?, its lap ([0-9.]+) s", source)
-    if line:
-        return (text + f": the reward pays most for following its racing line, whose own lap is {line.group(1)} s; "
+    lap = line_lap(source)
+    if lap is not None:
+        return (text + f": the reward pays most for following its racing line, whose own lap is {lap:.3f} s; "
                 "a line with less margin (`racerlab init --line-margin`) leaves more to find")
     return text + ": training found early what its reward pays for"
 

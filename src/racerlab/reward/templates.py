@@ -11,6 +11,7 @@ action speed, so the file stays self-contained as AWS needs.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from racerlab.errors import ConfigError
@@ -52,3 +53,10 @@ def reward_source(name: str, line=None, max_speed: float | None = None) -> str:
             .replace("RACING_LINE = []", f"RACING_LINE = [  # {line.method} line, margin {line.margin_m:g} m, its lap "
                                          f"{line.lap_time:.3f} s ({line.car.simulator} car)\n"
                                          f"{rows},\n]", 1))
+
+
+def line_lap(source: str) -> float | None:
+    """The lap time (s) of the racing line a racing_line reward file's text holds, as `reward_source` wrote it in
+    the line's header; None for another reward (or a header edited away)."""
+    found = re.search(r"RACING_LINE = \[  # .*?, its lap ([0-9.]+) s", source)
+    return float(found.group(1)) if found else None
