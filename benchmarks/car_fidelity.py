@@ -9,6 +9,14 @@ by a regression learned on the set's own fit episodes, `calibrate.learned_floor`
 
     python benchmarks/car_fidelity.py              # before / after / constant velocity / floor per set
     python benchmarks/car_fidelity.py --fit        # refit the built-in cars on the fit episodes (spec.CAR_TABLE)
+    python benchmarks/car_fidelity.py --cv         # every episode held out once: 3 fits per car, the sets' medians
+
+`--cv` answers how much a set's figure owes to which episodes were held out (a set of few episodes, such as DRoA
+2026 training with 22 held-out stretches from 2 episodes, can draw an easy or a hard third): for each car (one per
+simulator and control, as `--fit` groups the sets) it fits the built-in car's constants three times, each time
+holding out another third of every set's episodes (`split(..., fold=r)`; fold 1 is the default split), and reports
+per set the median error over all its stretches, each predicted by the fit that did not see its episode, beside the
+default split's figure of the same procedure.
 
 Target (issue 34): after 1 s <= 0.10 m on the slow sets and <= 0.15 m on the fast console sets; after one step no
 worse than constant velocity on every set.
@@ -22,10 +30,13 @@ import tarfile
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from racerlab.calibrate import (
     HORIZONS,
     constant_velocity_errors,
     errors,
+    fit_car,
     fit_with_spread,
     learned_floor,
     load_stretches,
@@ -97,6 +108,8 @@ def _round(d: dict) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fit", action="store_true", help="refit the built-in cars (one per simulator and control)")
+    ap.add_argument("--cv", action="store_true", help="3-fold cross-validation of the fit (every episode held out "
+                    "once)")
     ap.add_argument("--every", type=int, default=None, help="a stretch starts at every N-th row (default: about "
                     "2 500 stretches per set)")
     ap.add_argument("--sets", nargs="*", default=list(SETS))
@@ -104,17 +117,17 @@ def main() -> None:
                     help="how the logs' tstamps give step lengths (default: each simulator's rule)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        loaded = {n: split(load_stretches(_paths(SETS[n][0], Path(tmp)), args.every, _timing(n, args.timing)))
-                  for n in args.sets}
-        naive = {} if args.fit else {n: split(load_stretches(_paths(SETS[n][0], Path(tmp)), args.every, "next"))[1]
-                                     for n in args.sets}
+        raw = {n: load_stretches(_paths(SETS[n][0], Path(tmp)), args.every, _timing(n, args.timing))
+               for n in args.sets}
+        naive = {} if args.fit or args.cv else {
+            n: split(load_stretches(_paths(SETS[n][0], Path(tmp)), args.every, "next"))[1] for n in args.sets}
+    if args.cv:
+        for (sim, control), names in _groups(args.sets).items():
+            _cross_validate(sim, control, {n: raw[n] for n in names})
+        return
+    loaded = {n: split(st) for n, st in raw.items()}
     if args.fit:
-        groups: dict[tuple[str, str], list[str]] = {}
-        for n in args.sets:
-            groups.setdefault((SETS[n][1], control_of(SETS[n][2])), []).append(n)
-        for (sim, control), names in groups.items():
-            if names == ["droa2026-eval-only-tar"] or "droa2026-eval-only-tar" in names and len(names) > 1:
-                names = [n for n in names if n != "droa2026-eval-only-tar"]  # the same runs as droa2026-evaluation
+        for (sim, control), names in _groups(args.sets).items():
             fit = concat([loaded[n][0] for n in names])
             held = concat([loaded[n][1] for n in names])
             f = fit_with_spread(fit, held, sim, "5" if control == "velocity" else "4", resamples=2)
@@ -127,6 +140,40 @@ def main() -> None:
         return
     for n in args.sets:
         _report(n, *loaded[n], naive.get(n))
+
+
+def _groups(names: list[str]) -> dict[tuple[str, str], list[str]]:
+    """The sets by the car that drives them (simulator, control), the DRoA tar left out beside the folder it
+    repeats."""
+    groups: dict[tuple[str, str], list[str]] = {}
+    for n in names:
+        groups.setdefault((SETS[n][1], control_of(SETS[n][2])), []).append(n)
+    for names_ in groups.values():
+        if "droa2026-eval-only-tar" in names_ and len(names_) > 1:
+            names_.remove("droa2026-eval-only-tar")  # the same runs as droa2026-evaluation
+    return groups
+
+
+def _cross_validate(sim: str, control: str, sets: dict) -> None:
+    """Three fits of the `sim`/`control` car, each on two thirds of every set's episodes; one JSON line per set: the
+    median error after each horizon over all its stretches, each from the fit that held its episode out."""
+    base = car_params(sim, "5" if control == "velocity" else "4", step_jitter=False)
+    held_err: dict[str, list] = {n: [] for n in sets}
+    default: dict[str, dict] = {}
+    for fold in range(3):
+        parts = {n: split(st, fold=fold) for n, st in sets.items()}
+        car = fit_car(concat([p[0] for p in parts.values()]), base)
+        for n, (_, held) in parts.items():
+            err = errors(held, car)
+            held_err[n].append(err)
+            if fold == 1:
+                default[n] = _round(medians(err))
+    for n, errs in held_err.items():
+        print(json.dumps({"set": n, "car": base.name, "stretches": sum(len(e) for e in errs),
+                          "held_out_per_fold": [len(e) for e in errs],
+                          "cross_validated_m": _round(medians(np.concatenate(errs))),
+                          "per_fold_1s_m": [round(float(np.median(e[:, -1])), 4) if len(e) else None for e in errs],
+                          "default_split_m": default[n]}), flush=True)
 
 
 def _report(n: str, fit_st, held, naive_held) -> None:

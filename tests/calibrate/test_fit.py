@@ -88,3 +88,17 @@ def test_the_step_timing_rule_matters_and_the_right_one_fits_best():
     assert err["previous"][1] < 0.002
     assert err["next"][1] > 10 * err["previous"][1] and err["fixed"][1] > 10 * err["previous"][1]
     assert err["previous"][15] < 0.5 * min(err["next"][15], err["fixed"][15])
+
+
+def test_the_folds_of_split_hold_out_every_episode_once():
+    st = stretches(synthetic_log(TRUE, episodes=7, steps=40), every=5)
+    assert set(st.episode) == set(range(7))
+    held = [set(split(st, fold=r)[1].episode) for r in range(3)]
+    # the default split holds out episodes 1 and 4 (every third from the 2nd); folds 0 and 2 the others
+    assert held == [{0, 3, 6}, {1, 4}, {2, 5}]
+    assert set(split(st)[1].episode) == {1, 4}
+    for r in range(3):
+        fit, out = split(st, fold=r)
+        assert len(fit) + len(out) == len(st) and not set(fit.episode) & set(out.episode)
+    with pytest.raises(ValueError, match="fold 3"):
+        split(st, fold=3)

@@ -115,9 +115,12 @@ def concat(parts: list[Stretches]) -> Stretches:
     return Stretches(*(np.concatenate([getattr(s, f) for s in parts]) for f in Stretches.__dataclass_fields__))
 
 
-def split(st: Stretches, held_out_every: int = 3) -> tuple[Stretches, Stretches]:
-    """(fit, held out): every `held_out_every`-th episode (the 2nd, 5th, ...) is held out."""
-    held = (st.episode % held_out_every) == 1
+def split(st: Stretches, held_out_every: int = 3, fold: int = 1) -> tuple[Stretches, Stretches]:
+    """(fit, held out): every `held_out_every`-th episode is held out, from episode `fold` on (the default: the 2nd,
+    5th, ...; folds 0 .. held_out_every - 1 hold out each episode once, for cross-validation)."""
+    if not 0 <= fold < held_out_every:
+        raise ValueError(f"split: fold {fold} is not in 0..{held_out_every - 1}")
+    held = (st.episode % held_out_every) == fold
     if held.all() or not held.any():
-        held = np.arange(len(st)) % held_out_every == 1  # one episode: hold out stretches instead
+        held = np.arange(len(st)) % held_out_every == fold  # one episode: hold out stretches instead
     return st.take(~held), st.take(held)
