@@ -96,6 +96,22 @@ def test_tyres_saturate_toward_their_lateral_acceleration():
     assert float(bare().saturated(kw, v)) == kw  # 0: off
 
 
+def test_the_driven_front_wheels_turn_the_car_while_the_speed_changes():
+    """Wheels held at 20° (κ_w = 2.1835 1/m), front_drive 0.5, traction 3 m/s², one sub-step of 1/15 s: speeding up
+    from 1 to 1.2 m/s (mid-step 1.1) adds 0.5 · 3 · sin 20° / 1.1² = 0.4240 1/m, braking from 2 to 1.8 (mid-step 1.9)
+    takes 0.5 · 3 · sin 20° / 1.9² = 0.1421 1/m off, from a standstill (mid-step 0.1 m/s, counted as 1) it adds
+    0.5130; a held speed, or front_drive 0, turns as the bicycle alone."""
+    d, kw = math.radians(20), 2.1835
+    car = bare(front_drive=0.5, accel_mps2=3.0, brake_mps2=3.0, substeps=1)
+    for v0, cmd, v_mid, extra in ((1.0, 2.0, 1.1, 0.4240), (2.0, 1.0, 1.9, -0.1421), (0.0, 2.0, 0.1, 0.5130),
+                                  (1.5, 1.5, 1.5, 0.0)):
+        yaw = step(car, v=v0, steer=d, new=(d, cmd))[2]
+        assert yaw == pytest.approx(v_mid * (kw + extra) * DT, rel=2e-4)
+        off = step(replace(car, front_drive=0.0), v=v0, steer=d, new=(d, cmd))[2]
+        assert off == pytest.approx(v_mid * kw * DT, rel=2e-4)
+    assert step(car, v=1.0, steer=-d, new=(-d, 2.0))[2] == pytest.approx(-1.1 * (kw + 0.4240) * DT, rel=2e-4)
+
+
 def test_yaw_rate_lag():
     """With yaw_tau_s the yaw rate approaches the wheels' v·κ exponentially, so the first step turns less."""
     d = math.radians(20)
