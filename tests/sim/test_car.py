@@ -338,6 +338,19 @@ def test_randomised_saturation_stays_on_and_above_its_floor(monkeypatch):
     assert np.all(off == 0.0)
 
 
+def test_randomised_front_drive_stays_off_and_above_zero(monkeypatch):
+    """front_drive 0.716 drawn with a spread of 0.5 at randomise 1 would reach 0.716 - 2 x 0.5 < 0: the draws stop at
+    0; a car without the front drive (0) stays without, and its step is the one without it."""
+    from racerlab.sim import car as car_mod
+
+    monkeypatch.setitem(car_mod.CAR_SPREAD, ("console", "velocity"), {"front_drive": 0.5})
+    car = replace(car_params("console"), randomise=1.0, front_drive=0.716)
+    drive = car_mod.randomised(car, np.random.default_rng(0), 4000)[:, car_mod.P_DRIVE]
+    assert drive.min() == 0.0 and drive.max() <= 0.716 + 2 * 0.5 + 1e-12 and (drive > 0.716).any()
+    off = car_mod.randomised(replace(car, front_drive=0.0), np.random.default_rng(0), 100)[:, car_mod.P_DRIVE]
+    assert np.all(off == 0.0)
+
+
 def test_randomised_dynamics_train_only(tmp_path):
     """[car] randomise draws the training episodes' cars; evaluations drive the fitted car; a negative factor is one
     line naming the key."""

@@ -18,6 +18,10 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
   on ROS 1 it falls to 0.25-0.3 above 1.5 m/s); with `tyre_sat_mps2` the tyres saturate: the curvature κ the
   wheels ask for becomes κ / √(1 + (v²κ / tyre_sat_mps2)²), so that the lateral acceleration approaches it (the ROS 1
   console car turns less the harder it corners); the lateral acceleration is also capped at `grip_mps2`.
+* **front drive**: with `front_drive` (the ROS 1 velocity car, whose velocity controllers drive the steered front
+  wheels too) a change of the ground speed at a m/s² bends the path by front_drive · a · sin δ / max(v², 1 m²/s²)
+  more: the front wheels' share of the drive pushes along their angle, so the car turns more while it speeds up and
+  less while it brakes; at a held speed it adds nothing.
 * **speed**: the ground speed follows a target with a first-order lag `speed_tau_s`, bounded by the
   traction limits `accel_mps2` and `brake_mps2`; with `accel_fade_mps` (the ROS 1 velocity car) the acceleration
   falls with speed as 1 - (v / fade)² and turns into a slowdown above the fade speed, the car's top speed. The
