@@ -80,6 +80,7 @@ class CarParams:
     regulated: bool = True  # False: effort control without a speed loop (droa, version 3-4): full traction always
     grip_mps2: float = 4.9  # lateral acceleration limit (mu 0.5 x g)
     tyre_sat_mps2: float = 0.0  # the tyres saturate toward this lateral acceleration: κ / √(1 + (v²κ / it)²); 0 = off
+    front_drive: float = 0.0  # share of the speed change the steered front wheels push along their angle; 0 = off
     step_jitter: bool = False  # steps last a length drawn from the simulator's measured distribution (training: on)
     randomise: float = 0.0  # each episode draws the constants around these, this many times the fit's spread
     substeps: int = 4
@@ -90,7 +91,7 @@ class CarParams:
             if not getattr(self, name) > 0:
                 raise ValueError(f"CarParams.{name} must be > 0")
         for name in ("steer_tau_s", "speed_tau_s", "slide_mps", "yaw_tau_s", "accel_fade_mps", "steer_kick",
-                     "randomise", "tyre_sat_mps2"):
+                     "randomise", "tyre_sat_mps2", "front_drive"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"CarParams.{name} must be >= 0")
         if not 0 <= self.min_speed_mps <= self.max_speed_mps:
@@ -165,14 +166,15 @@ CAR_TABLE: dict[tuple[str, str], dict] = {
     # droa car without a speed loop, the rest unverified
     ("droa", "effort"): {"control": "effort", "regulated": False},
     # console August 2025 (simapp 5.0, ROS 1, commands 0.5-1.0 m/s) and October 2025 (three runs at up to 3.5-4 m/s),
-    # 5 723 fitted stretches: about 3 m/s² from a standstill, fading to 0 at 3.66 m/s (1.6 m/s² at 2.5 m/s, where
-    # the real car's commands stop gaining it speed); the tyres saturate toward 2.84 m/s² of lateral acceleration
-    # (which replaces the slide of the fits before: fitted together, the slide goes to none); gazebo_ros_control
-    # saturates velocity commands at the URDF's 100 rad/s: the same 3.5 m/s cap as ROS 2
-    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.470, "steer_tau_s": 0.0056, "yaw_gain": 0.616,
-                              "slide_mps": 0.0, "yaw_tau_s": 0.093, "speed_tau_s": 0.120, "accel_mps2": 3.09,
-                              "brake_mps2": 5.85, "ground_factor": 1.048, "accel_fade_mps": 3.66,
-                              "tyre_sat_mps2": 2.84},
+    # 5 723 fitted stretches: about 3 m/s² from a standstill, fading as 1 - (v / 4.47)² (2.05 m/s² at 2.5 m/s); the
+    # tyres saturate toward 2.85 m/s² of lateral acceleration (which replaces the slide of the fits before: fitted
+    # together, the slide goes to none); the driven front wheels turn the car more while it speeds up and less while it
+    # brakes (front_drive, issue 34's third round); gazebo_ros_control saturates velocity commands at the URDF's
+    # 100 rad/s: the same 3.5 m/s cap as ROS 2
+    ("console", "velocity"): {"simulator": "console", "delay_steps": 0.467, "steer_tau_s": 0.0057, "yaw_gain": 0.613,
+                              "slide_mps": 0.0, "yaw_tau_s": 0.092, "speed_tau_s": 0.123, "accel_mps2": 2.98,
+                              "brake_mps2": 6.01, "ground_factor": 1.043, "accel_fade_mps": 4.47,
+                              "tyre_sat_mps2": 2.85, "front_drive": 0.716},
     # DRfC July 2022 (model version 4) and the console's June 2022 export, 2 715 fitted stretches (steps of 1/15 s:
     # these logs' tstamps carry no motion); an effort command is saturated in torque, not speed (a P loop on the
     # wheel speed): no cap below the 4 m/s clip; the fit finds no slide (1 / slide below the search's 1e-3), and the
@@ -190,9 +192,9 @@ CAR_SPREAD: dict[tuple[str, str], dict[str, float]] = {
                            "speed_tau_s": 0.011, "accel_mps2": 1.1, "brake_mps2": 0.14, "ground_factor": 0.0005},
     ("droa", "effort"): {},  # no log
     # over the three October 2025 runs fitted one by one (the runs that cover the car's whole speed range)
-    ("console", "velocity"): {"delay_steps": 0.043, "steer_tau_s": 0.014, "yaw_gain": 0.13, "yaw_tau_s": 0.0097,
-                              "speed_tau_s": 0.033, "accel_mps2": 0.97, "brake_mps2": 0.61, "ground_factor": 0.0135,
-                              "accel_fade_mps": 0.44, "tyre_sat_mps2": 1.2},
+    ("console", "velocity"): {"delay_steps": 0.043, "steer_tau_s": 0.0037, "yaw_gain": 0.12, "yaw_tau_s": 0.009,
+                              "speed_tau_s": 0.016, "accel_mps2": 0.17, "brake_mps2": 1.54, "ground_factor": 0.0078,
+                              "accel_fade_mps": 0.091, "tyre_sat_mps2": 0.72, "front_drive": 0.10},
     # over fits on 2 resampled sets of the 2022 episodes
     ("console", "effort"): {"delay_steps": 0.022, "steer_tau_s": 0.0077, "steer_kick": 0.038, "yaw_gain": 0.0053,
                             "yaw_tau_s": 0.0061, "speed_tau_s": 0.0032, "ground_factor": 0.0013,
@@ -517,7 +519,7 @@ CAR_PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # name -> (low, high, un
     "accel_mps2": (0.1, 200.0, "m/s²"), "brake_mps2": (0.1, 200.0, "m/s²"), "ground_factor": (0.5, 2.0, ""),
     "wheel_cap_mps": (0.1, 20.0, "m/s"), "grip_mps2": (0.1, 50.0, "m/s²"), "substeps": (1, MAX_SUBSTEPS, ""),
     "steer_kick": (0.0, 1.0, ""), "accel_fade_mps": (0.0, 20.0, "m/s"), "randomise": (0.0, 5.0, "spreads"),
-    "tyre_sat_mps2": (0.0, 50.0, "m/s²"),
+    "tyre_sat_mps2": (0.0, 50.0, "m/s²"), "front_drive": (0.0, 5.0, ""),
 }
 
 

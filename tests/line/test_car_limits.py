@@ -42,8 +42,8 @@ def test_limits_per_simulator_stay_under_the_record(aws_track):
             for sim, v in (("droa", "5"), ("console", "5"), ("console", "4"))}
     # the record was driven in May 2020, by a model of version 3-4 (effort control: velocity control came with
     # version 5): the console effort car's limit (the fastest lap the off-track rule allows) stays under it. The
-    # console velocity car's limit need not: fitted to the 2025 logs, its acceleration fades toward 3.66 m/s and its
-    # tyres saturate toward 2.84 m/s² of lateral acceleration (issue 34), and its limit is 7.467 s
+    # console velocity car's limit need not: fitted to the 2025 logs, its acceleration fades as 1 - (v / 4.47 m/s)² and
+    # its tyres saturate toward 2.85 m/s² of lateral acceleration (issue 34), and its limit is 7.333 s
     assert theoretical_limit(t, car=car_params("console", "4")).lap_time <= RECORD_REINVENT2019_S
     assert len(set(laps.values())) == 3  # each simulator's car has its own limit
     assert racing_line(t, car="console").lap_time == laps[("console", "5")]  # a simulator's name is its v5 car

@@ -96,6 +96,22 @@ def test_tyres_saturate_toward_their_lateral_acceleration():
     assert float(bare().saturated(kw, v)) == kw  # 0: off
 
 
+def test_the_driven_front_wheels_turn_the_car_while_the_speed_changes():
+    """Wheels held at 20° (κ_w = 2.1835 1/m), front_drive 0.5, traction 3 m/s², one sub-step of 1/15 s: speeding up
+    from 1 to 1.2 m/s (mid-step 1.1) adds 0.5 · 3 · sin 20° / 1.1² = 0.4240 1/m, braking from 2 to 1.8 (mid-step 1.9)
+    takes 0.5 · 3 · sin 20° / 1.9² = 0.1421 1/m off, from a standstill (mid-step 0.1 m/s, counted as 1) it adds
+    0.5130; a held speed, or front_drive 0, turns as the bicycle alone."""
+    d, kw = math.radians(20), 2.1835
+    car = bare(front_drive=0.5, accel_mps2=3.0, brake_mps2=3.0, substeps=1)
+    for v0, cmd, v_mid, extra in ((1.0, 2.0, 1.1, 0.4240), (2.0, 1.0, 1.9, -0.1421), (0.0, 2.0, 0.1, 0.5130),
+                                  (1.5, 1.5, 1.5, 0.0)):
+        yaw = step(car, v=v0, steer=d, new=(d, cmd))[2]
+        assert yaw == pytest.approx(v_mid * (kw + extra) * DT, rel=2e-4)
+        off = step(replace(car, front_drive=0.0), v=v0, steer=d, new=(d, cmd))[2]
+        assert off == pytest.approx(v_mid * kw * DT, rel=2e-4)
+    assert step(car, v=1.0, steer=-d, new=(-d, 2.0))[2] == pytest.approx(-1.1 * (kw + 0.4240) * DT, rel=2e-4)
+
+
 def test_yaw_rate_lag():
     """With yaw_tau_s the yaw rate approaches the wheels' v·κ exponentially, so the first step turns less."""
     d = math.radians(20)
@@ -319,6 +335,19 @@ def test_randomised_saturation_stays_on_and_above_its_floor(monkeypatch):
     sat = car_mod.randomised(car, np.random.default_rng(0), 4000)[:, car_mod.P_SAT]
     assert sat.min() == 1.0 and sat.max() <= 2.84 + 2 * 2.5 * 1.2 + 1e-12 and (sat > 2.84).any()
     off = car_mod.randomised(replace(car, tyre_sat_mps2=0.0), np.random.default_rng(0), 100)[:, car_mod.P_SAT]
+    assert np.all(off == 0.0)
+
+
+def test_randomised_front_drive_stays_off_and_above_zero(monkeypatch):
+    """front_drive 0.716 drawn with a spread of 0.5 at randomise 1 would reach 0.716 - 2 x 0.5 < 0: the draws stop at
+    0; a car without the front drive (0) stays without, and its step is the one without it."""
+    from racerlab.sim import car as car_mod
+
+    monkeypatch.setitem(car_mod.CAR_SPREAD, ("console", "velocity"), {"front_drive": 0.5})
+    car = replace(car_params("console"), randomise=1.0, front_drive=0.716)
+    drive = car_mod.randomised(car, np.random.default_rng(0), 4000)[:, car_mod.P_DRIVE]
+    assert drive.min() == 0.0 and drive.max() <= 0.716 + 2 * 0.5 + 1e-12 and (drive > 0.716).any()
+    off = car_mod.randomised(replace(car, front_drive=0.0), np.random.default_rng(0), 100)[:, car_mod.P_DRIVE]
     assert np.all(off == 0.0)
 
 

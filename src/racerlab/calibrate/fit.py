@@ -24,9 +24,10 @@ HORIZONS = (1, 3, 8, 15)  # steps after which errors are reported
 BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.15, 1.2), "slide_inv": (0.0, 2.5),
           "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
           "ground_factor": (0.95, 1.12), "fade_inv": (0.0, 1.0),
-          "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0)}  # saturation >= 1 m/s²
+          "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0),  # saturation >= 1 m/s²
+          "front_drive": (0.0, 2.0)}
 FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
-          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2")
+          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2", "front_drive")
 INVERSE = {"slide_inv": "slide_mps", "fade_inv": "accel_fade_mps", "sat_inv": "tyre_sat_mps2"}  # searched as 1 / x
 
 
@@ -58,8 +59,9 @@ def medians(err: np.ndarray, horizons=HORIZONS) -> dict[int, float]:
 def _searched(base: CarParams) -> dict[str, tuple[float, float]]:
     """The bounds of what a fit from `base` searches: everything in `BOUNDS`, the tyres' saturation only for a car
     that has it (the console cars; ROS 2's droa car has none, and on logs without it the extra freedom only lets
-    the lags and the kick wander)."""
-    return {k: b for k, b in BOUNDS.items() if k != "sat_inv" or base.tyre_sat_mps2 > 0}
+    the lags and the kick wander), the front wheels' drive only for a car that has it (the console velocity car)."""
+    off = {"sat_inv": base.tyre_sat_mps2 <= 0, "front_drive": base.front_drive <= 0}
+    return {k: b for k, b in BOUNDS.items() if not off.get(k, False)}
 
 
 def _to_vector(car: CarParams, keys) -> np.ndarray:
@@ -85,8 +87,8 @@ def _loss(st: Stretches, car: CarParams) -> float:
 
 
 def fit_car(st: Stretches, base: CarParams, *, max_evals: int = 1500) -> CarParams:
-    """The constants of `base` (from `FITTED`; the tyres' saturation only when `base` has it) that best replay the
-    stretches `st`."""
+    """The constants of `base` (from `FITTED`; the saturation and the front drive only when `base` has them) that best
+    replay the stretches `st`."""
     if not math.isfinite(_loss(st, base)):
         raise ValueError("the starting car gives non-finite predictions")
     keys = _searched(base)

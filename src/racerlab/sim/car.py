@@ -18,6 +18,10 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
   on ROS 1 it falls to 0.25-0.3 above 1.5 m/s); with `tyre_sat_mps2` the tyres saturate: the curvature κ the
   wheels ask for becomes κ / √(1 + (v²κ / tyre_sat_mps2)²), so that the lateral acceleration approaches it (the ROS 1
   console car turns less the harder it corners); the lateral acceleration is also capped at `grip_mps2`.
+* **front drive**: with `front_drive` (the ROS 1 velocity car, whose velocity controllers drive the steered front
+  wheels too) a change of the ground speed at a m/s² bends the path by front_drive · a · sin δ / max(v², 1 m²/s²)
+  more: the front wheels' share of the drive pushes along their angle, so the car turns more while it speeds up and
+  less while it brakes; at a held speed it adds nothing.
 * **speed**: the ground speed follows a target with a first-order lag `speed_tau_s`, bounded by the
   traction limits `accel_mps2` and `brake_mps2`; with `accel_fade_mps` (the ROS 1 velocity car) the acceleration
   falls with speed as 1 - (v / fade)² and turns into a slowdown above the fade speed, the car's top speed. The
@@ -57,7 +61,7 @@ from racerlab.spec import (
 QUEUE = int(MAX_DELAY_STEPS) + 2  # commands kept per car: this step's and the ones before it
 # positions in `pack`'s array
 (P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED, P_SPEED_TAU, P_ACCEL, P_BRAKE, P_STEER_TAU, P_GRIP, P_SUBSTEPS,
- P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK, P_SAT) = range(20)
+ P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK, P_SAT, P_DRIVE) = range(21)
 
 
 def pack(car: CarParams) -> np.ndarray:
@@ -66,7 +70,7 @@ def pack(car: CarParams) -> np.ndarray:
                      car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
                      float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
                      car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s, car.accel_fade_mps,
-                     car.steer_kick, car.tyre_sat_mps2],
+                     car.steer_kick, car.tyre_sat_mps2, car.front_drive],
                     dtype=np.float64)
 
 
@@ -102,20 +106,22 @@ def step_durations(tstamps, timing: str) -> np.ndarray:
 RANDOMISED = {"delay_steps": (P_DELAY, 0.0), "steer_tau_s": (P_STEER_TAU, 0.0), "steer_kick": (P_KICK, 0.0),
               "yaw_gain": (P_YAW_GAIN, 0.05), "slide_mps": (P_SLIDE, 0.0), "yaw_tau_s": (P_YAW_TAU, 0.0),
               "speed_tau_s": (P_SPEED_TAU, 0.0), "accel_mps2": (P_ACCEL, 0.1), "brake_mps2": (P_BRAKE, 0.1),
-              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0), "tyre_sat_mps2": (P_SAT, 1.0)}
+              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0), "tyre_sat_mps2": (P_SAT, 1.0),
+              "front_drive": (P_DRIVE, 0.0)}
 SPREAD_CLIP = 2.0  # draws stay within this many spreads of the fitted value
 
 
 def randomised(car: CarParams, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, P) packed constants of n cars drawn around `car` (randomised dynamics, `[car] randomise`): each constant
     of `spec.CAR_SPREAD` (the fit's spread over resampled episodes) normal around its value with `car.randomise`
-    times that spread, cut at SPREAD_CLIP spreads; a constant that is off (slide, fade, saturation: 0) stays off."""
+    times that spread, cut at SPREAD_CLIP spreads; a constant that is off (slide, fade, saturation, front drive: 0)
+    stays off."""
     out = np.tile(pack(car), (n, 1))
     spread = CAR_SPREAD.get((car.simulator, car.control), {})
     for name, sd in spread.items():
         col, low = RANDOMISED[name]
         value = getattr(car, name)
-        if value == 0 and name in ("slide_mps", "accel_fade_mps", "tyre_sat_mps2"):
+        if value == 0 and name in ("slide_mps", "accel_fade_mps", "tyre_sat_mps2", "front_drive"):
             continue
         z = np.clip(rng.standard_normal(n), -SPREAD_CLIP, SPREAD_CLIP)
         out[:, col] = np.maximum(value + car.randomise * sd * z, low)
@@ -153,6 +159,17 @@ def _path_curvature(v, steer, car):
         k_max = car[P_GRIP] / (v * v)
         kappa = min(max(kappa, -k_max), k_max)
     return kappa
+
+
+@njit(cache=True, inline="always")
+def _drive_curvature(accel, v, steer, car):
+    """The curvature (1/m) the steered front wheels add at `v` while the ground speed changes by `accel` m/s²: their
+    share `front_drive` of the drive pushes along their angle, a sideways acceleration front_drive · accel · sin δ
+    (ROS 1 drives the front wheels too: the car turns more while it speeds up, less while it brakes; 0 = off).
+    Below 1 m/s it counts as at 1 m/s."""
+    if car[P_DRIVE] <= 0:
+        return 0.0
+    return car[P_DRIVE] * accel * math.sin(steer) / max(v * v, 1.0)
 
 
 @njit(cache=True)
@@ -220,9 +237,10 @@ def _phase(x, y, yaw, v, steer, w, steer_cmd, speed_cmd, car, span, n):
     a_yaw = 1.0 - math.exp(-h / car[P_YAW_TAU]) if car[P_YAW_TAU] > 0 else 1.0
     beta = 0.0
     for _ in range(n):
+        v_old = v
         v_mid, v = _speed_sub(v, vt, a_speed, h, car)
         steer = steer + (dc - steer) * a_steer
-        kappa = _path_curvature(v_mid, steer, car)
+        kappa = _path_curvature(v_mid, steer, car) + _drive_curvature((v - v_old) / h, v_mid, steer, car)
         w = w + (v_mid * kappa - w) * a_yaw
         beta = math.asin(min(max(0.5 * kappa * wb, -1.0), 1.0))
         dyaw = w * h
