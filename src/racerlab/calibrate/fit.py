@@ -24,16 +24,17 @@ HORIZONS = (1, 3, 8, 15)  # steps after which errors are reported
 BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.15, 1.2), "slide_inv": (0.0, 2.5),
           "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
           "ground_factor": (0.95, 1.12), "fade_inv": (0.0, 1.0),
-          "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0)}  # saturation >= 1 m/s²
+          "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0),  # saturation >= 1 m/s²
+          "steer_offset_deg": (-3.0, 3.0)}
 FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
-          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2")
+          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2", "steer_offset_deg")
 INVERSE = {"slide_inv": "slide_mps", "fade_inv": "accel_fade_mps", "sat_inv": "tyre_sat_mps2"}  # searched as 1 / x
 
 
 def predict(st: Stretches, car: CarParams) -> np.ndarray:
     """(N, horizon, 3) front x, y, heading the car predicts for each stretch."""
     return rollout_batch(st.start, st.commands, st.commands.shape[1] - st.dts.shape[1], st.dts, pack(car), True,
-                         st.prev_dt)
+                         st.mean_dt)
 
 
 def errors(st: Stretches, car: CarParams) -> np.ndarray:
@@ -59,7 +60,8 @@ def _searched(base: CarParams) -> dict[str, tuple[float, float]]:
     """The bounds of what a fit from `base` searches: everything in `BOUNDS`, the tyres' saturation only for a car
     that has it (the console cars; ROS 2's droa car has none, and on logs without it the extra freedom only lets
     the lags and the kick wander)."""
-    return {k: b for k, b in BOUNDS.items() if k != "sat_inv" or base.tyre_sat_mps2 > 0}
+    off = {"sat_inv": base.tyre_sat_mps2 <= 0, "steer_offset_deg": base.steer_offset_deg == 0}
+    return {k: b for k, b in BOUNDS.items() if not off.get(k, False)}
 
 
 def _to_vector(car: CarParams, keys) -> np.ndarray:
