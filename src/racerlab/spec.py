@@ -81,6 +81,7 @@ class CarParams:
     grip_mps2: float = 4.9  # lateral acceleration limit (mu 0.5 x g)
     tyre_sat_mps2: float = 0.0  # the tyres saturate toward this lateral acceleration: κ / √(1 + (v²κ / it)²); 0 = off
     front_drive: float = 0.0  # share of the speed change the steered front wheels push along their angle; 0 = off
+    steer_offset_deg: float = 0.0  # the wheels point this much left (+) of the command (the 2022 logs); 0 = none
     step_jitter: bool = False  # steps last a length drawn from the simulator's measured distribution (training: on)
     randomise: float = 0.0  # each episode draws the constants around these, this many times the fit's spread
     substeps: int = 4
@@ -106,6 +107,8 @@ class CarParams:
             raise ValueError("CarParams.substeps must be >= 1")
         if not self.steer_kick <= 1:
             raise ValueError("CarParams.steer_kick must be in [0, 1]")
+        if not abs(self.steer_offset_deg) < self.max_steer_deg:
+            raise ValueError("CarParams.steer_offset_deg must be within ±max_steer_deg")
 
     def wheel_offsets(self) -> np.ndarray:
         """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
@@ -176,13 +179,15 @@ CAR_TABLE: dict[tuple[str, str], dict] = {
                               "brake_mps2": 6.01, "ground_factor": 1.043, "accel_fade_mps": 4.47,
                               "tyre_sat_mps2": 2.85, "front_drive": 0.716},
     # DRfC July 2022 (model version 4) and the console's June 2022 export, 2 715 fitted stretches (steps of 1/15 s:
-    # these logs' tstamps carry no motion); an effort command is saturated in torque, not speed (a P loop on the
-    # wheel speed): no cap below the 4 m/s clip; the fit finds no slide (1 / slide below the search's 1e-3), and the
-    # tyres saturating toward 6.77 m/s²
-    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.123, "steer_tau_s": 0.119,
-                            "steer_kick": 0.374, "yaw_gain": 0.715, "slide_mps": 0.0, "yaw_tau_s": 0.439,
-                            "speed_tau_s": 0.189, "accel_mps2": 30.0, "brake_mps2": 30.0, "ground_factor": 0.977,
-                            "accel_fade_mps": 4.23, "wheel_cap_mps": 4.0, "tyre_sat_mps2": 6.77},
+    # these logs' tstamps carry no motion, so the start's speed and yaw rate are measured over two steps); an effort
+    # command is saturated in torque, not speed (a P loop on the wheel speed): no cap below the 4 m/s clip; the fit
+    # finds no slide (1 / slide below the search's 1e-3) and no hinge kick, the tyres saturating toward 6.35 m/s², and
+    # the wheels pointing 1.33° left of the command (both logs were driven on the counter-clockwise reinvent_base)
+    ("console", "effort"): {"simulator": "console", "control": "effort", "delay_steps": 0.076, "steer_tau_s": 0.108,
+                            "steer_kick": 0.0, "yaw_gain": 0.664, "slide_mps": 0.0, "yaw_tau_s": 0.350,
+                            "speed_tau_s": 0.217, "accel_mps2": 30.0, "brake_mps2": 30.0, "ground_factor": 0.979,
+                            "accel_fade_mps": 4.23, "wheel_cap_mps": 4.0, "tyre_sat_mps2": 6.35,
+                            "steer_offset_deg": 1.33},
 }
 # The spread (standard deviation) of each fitted car's constants, from the fits docs/car.md lists: randomised dynamics
 # (`CarParams.randomise`) draws each episode's car within it.
@@ -195,10 +200,9 @@ CAR_SPREAD: dict[tuple[str, str], dict[str, float]] = {
     ("console", "velocity"): {"delay_steps": 0.043, "steer_tau_s": 0.0037, "yaw_gain": 0.12, "yaw_tau_s": 0.009,
                               "speed_tau_s": 0.016, "accel_mps2": 0.17, "brake_mps2": 1.54, "ground_factor": 0.0078,
                               "accel_fade_mps": 0.091, "tyre_sat_mps2": 0.72, "front_drive": 0.10},
-    # over fits on 2 resampled sets of the 2022 episodes
-    ("console", "effort"): {"delay_steps": 0.022, "steer_tau_s": 0.0077, "steer_kick": 0.038, "yaw_gain": 0.0053,
-                            "yaw_tau_s": 0.0061, "speed_tau_s": 0.0032, "ground_factor": 0.0013,
-                            "tyre_sat_mps2": 0.42},
+    # over fits on 2 resampled sets of the 2022 episodes (the wheels' offset, ± 0.034°, is not drawn)
+    ("console", "effort"): {"delay_steps": 0.0054, "steer_tau_s": 0.0015, "yaw_gain": 0.0073, "yaw_tau_s": 0.0032,
+                            "speed_tau_s": 0.0014, "ground_factor": 0.001, "tyre_sat_mps2": 0.36},
 }
 # The measured step lengths (s) of each simulator at the quantiles STEP_QUANTILES: simtrace tstamp differences of the
 # shared logs (droa: the DRoA 2026 runs, 2 026 steps; console: DRfC 2022, console 2022 and 2025, 99 830 steps), the
@@ -519,7 +523,7 @@ CAR_PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # name -> (low, high, un
     "accel_mps2": (0.1, 200.0, "m/s²"), "brake_mps2": (0.1, 200.0, "m/s²"), "ground_factor": (0.5, 2.0, ""),
     "wheel_cap_mps": (0.1, 20.0, "m/s"), "grip_mps2": (0.1, 50.0, "m/s²"), "substeps": (1, MAX_SUBSTEPS, ""),
     "steer_kick": (0.0, 1.0, ""), "accel_fade_mps": (0.0, 20.0, "m/s"), "randomise": (0.0, 5.0, "spreads"),
-    "tyre_sat_mps2": (0.0, 50.0, "m/s²"), "front_drive": (0.0, 5.0, ""),
+    "tyre_sat_mps2": (0.0, 50.0, "m/s²"), "front_drive": (0.0, 5.0, ""), "steer_offset_deg": (-5.0, 5.0, "degrees"),
 }
 
 

@@ -1,11 +1,14 @@
 """Calibration: a fit on a log driven by a known car recovers its constants; stretches skip what is not driving."""
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
 
 from racerlab.calibrate import constant_velocity_errors, errors, fit_car, medians, split, stretches
 from racerlab.calibrate.data import HISTORY
+from racerlab.calibrate.fit import _searched
 from racerlab.errors import ConfigError
 from racerlab.sim.car import rollout
 from racerlab.spec import STEP_S, car_params
@@ -118,3 +121,61 @@ def test_the_folds_of_split_hold_out_every_episode_once():
         assert len(fit) + len(out) == len(st) and not set(fit.episode) & set(out.episode)
     with pytest.raises(ValueError, match="fold 3"):
         split(st, fold=3)
+
+
+def _short_log(steps=None) -> pd.DataFrame:
+    """Eleven rows: 0.1 m a step, then the last two steps before row 9 of 0.09 and 0.11 m turning 2° and 3°; the
+    step from row 8 to row 9 stamped 0.08 s (read by the "previous" rule: tstamp_8 - tstamp_7)."""
+    x = [0.1 * j for j in range(8)] + [0.79, 0.90, 1.00]
+    yaw = [0.0] * 8 + [2.0, 5.0, 7.0]
+    t = np.cumsum([0.0] + [STEP_S] * 7 + [0.08, STEP_S, STEP_S])
+    return pd.DataFrame({"episode": 0, "x": x, "y": 0.0, "yaw": yaw, "steering_angle": 0.0, "speed": 1.5, "tstamp": t,
+                         "steps": steps or list(range(1, 12)), "episode_status": ["prepare"] + ["in_progress"] * 10})
+
+
+def test_logs_of_unknown_step_lengths_measure_the_start_over_two_steps():
+    """Read by the "fixed" rule (the 2022 effort logs: every step 1/15 s, the real ones unknown) the start's speed and
+    yaw rate are the differences over the last two steps: (0.09 + 0.11) m and (2 + 3)° over 2/15 s = 1.5 m/s and
+    37.5 °/s; by the "previous" rule (lengths known) over the last step: 0.11 m and 3° over 0.08 s. Where the step
+    before the last is not usable (a gap in the step count), the last step alone: 0.11 m x 15 = 1.65 m/s. The
+    constant-velocity guess keeps the last step."""
+    fixed = stretches(_short_log(), horizon=1, timing="fixed")
+    assert len(fixed) == 1
+    assert fixed.start[0, 3] == pytest.approx(1.5) and fixed.mean_dt[0] == pytest.approx(2 * STEP_S)
+    assert np.degrees(fixed.start[0, 5]) == pytest.approx(37.5)
+    assert fixed.prev[0, 0] == pytest.approx(0.79) and fixed.prev_dt[0] == pytest.approx(STEP_S)
+    known = stretches(_short_log(), horizon=1, timing="previous")
+    assert known.start[0, 3] == pytest.approx(0.11 / 0.08) and known.mean_dt[0] == pytest.approx(0.08)
+    assert np.degrees(known.start[0, 5]) == pytest.approx(3.0 / 0.08)
+    gap = stretches(_short_log(steps=list(range(1, 9)) + [10, 11, 12]), horizon=1, timing="fixed")
+    assert gap.start[0, 3] == pytest.approx(1.65) and gap.mean_dt[0] == pytest.approx(STEP_S)
+
+
+def test_rollout_measures_the_start_by_the_logs_rule():
+    """rollout with tstamps gives the start's `mean_speed` the window `racerlab calibrate` measures it over: the last
+    step (velocity logs) or the last two (the effort logs' "fixed" rule). A car that keeps accelerating at 3 m/s²
+    (fade, lags and delay off) whose mean speed over the window was 1.0 m/s is now at 1.0 + 3 x window / 2: after
+    one step it has gone (1.0 + 3 x 0.1) x 1/15 + 1.5 / 225 m on a window of 2/15 s, (1.0 + 3 / 30) / 15 + 1.5 / 225
+    on one of 1/15 s."""
+    t = [0.0, STEP_S, 2 * STEP_S, 3 * STEP_S]  # two history rows, the start, one row after
+    hist, acts = [[0.0, 4.0], [0.0, 4.0]], [[0.0, 4.0]]
+    start = {"x": 0.0, "y": 0.0, "heading": 0.0, "mean_speed": 1.0, "steering_angle": 0.0}
+    for version, window in (("4", 2 * STEP_S), ("5", STEP_S)):
+        car = car_params("console", version, delay_steps=0.0, steer_tau_s=0.0, steer_kick=0.0, yaw_tau_s=0.0,
+                         speed_tau_s=0.0, accel_mps2=3.0, brake_mps2=30.0, accel_fade_mps=0.0, ground_factor=1.0,
+                         wheel_cap_mps=4.0, regulated=True, substeps=1, tyre_sat_mps2=0.0, steer_offset_deg=0.0)
+        x = rollout(start, acts, history=hist, car=car, tstamps=t)[0, 0]  # the front point, from 0
+        v_now = 1.0 + 3.0 * window / 2
+        assert x == pytest.approx((v_now + 1.5 * STEP_S) * STEP_S, rel=1e-9)
+
+
+def test_the_wheel_offset_is_fitted_only_for_a_car_that_has_one():
+    """A log driven by a car whose wheels point 1.2° left of the command: that car replays it (what is left is the
+    start's estimated speed and wheel angle), the same car without the offset drifts right of it, 4 x farther; the
+    fit searches the offset from a car that has one (the console effort car) and leaves it off for the others."""
+    true = replace(TRUE, steer_offset_deg=1.2)
+    st = stretches(synthetic_log(true, episodes=2), every=4)
+    err = medians(errors(st, true))[15]
+    assert err < 0.02 and medians(errors(st, replace(true, steer_offset_deg=0.0)))[15] > 4 * err
+    assert "steer_offset_deg" in _searched(true) and "steer_offset_deg" not in _searched(TRUE)
+    assert car_params("console", "4").steer_offset_deg != 0 and car_params("droa").steer_offset_deg == 0

@@ -112,6 +112,36 @@ def test_the_driven_front_wheels_turn_the_car_while_the_speed_changes():
     assert step(car, v=1.0, steer=-d, new=(-d, 2.0))[2] == pytest.approx(-1.1 * (kw + 0.4240) * DT, rel=2e-4)
 
 
+def test_the_wheels_point_the_offset_left_of_the_command():
+    """steer_offset_deg 1°: commanded straight at 1 m/s the car bends left at κ = tan 1° / (0.164 · √(1 + tan² 1° / 4))
+    = 0.10643 1/m, 0.0070955 rad a step; commanded 1° right it goes straight; 0 is the car without it."""
+    car = bare(steer_offset_deg=1.0)
+    yaw = step(car, v=1.0, new=(0.0, 1.0))[2]
+    assert yaw == pytest.approx(0.0070955, rel=1e-4)
+    right = math.radians(-1.0)
+    assert step(car, v=1.0, steer=right, old=(right, 1.0), new=(right, 1.0))[2] == pytest.approx(0.0, abs=1e-15)
+    assert step(bare(steer_offset_deg=0.0), v=1.0, new=(0.0, 1.0))[2] == 0.0
+    with pytest.raises(ValueError, match="steer_offset_deg"):
+        bare(steer_offset_deg=30.0)
+
+
+def test_pure_pursuit_and_the_line_command_the_wheels_angle_less_the_offset():
+    """A car whose wheels point 1.5° left of the command is asked for 1.5° less than one without, for the same
+    pose (pure pursuit) and the same line point (the racing line's steering)."""
+    from racerlab.line import racing_line
+    from racerlab.sim.pursuit import PurePursuit
+
+    cars = [car_params("console", "4", steer_offset_deg=0.0), car_params("console", "4", steer_offset_deg=1.5)]
+    steer = []
+    for car in cars:
+        w = World("lab_oval", 1, car=car)
+        steer.append(PurePursuit.on_centre_line(w.sim.track, car=car)(w.sim)[0])
+    assert steer[1] == pytest.approx(steer[0] - 1.5, abs=1e-12)
+    lines = [racing_line(World("lab_oval", 1).sim.track, car=car) for car in cars]
+    assert lines[1].steering_deg - lines[0].steering_deg == pytest.approx(-1.5 + 0 * lines[0].steering_deg,
+                                                                          abs=0.05)
+
+
 def test_yaw_rate_lag():
     """With yaw_tau_s the yaw rate approaches the wheels' v·κ exponentially, so the first step turns less."""
     d = math.radians(20)
@@ -161,7 +191,7 @@ def test_each_built_in_car(simulator, control):
     if car.regulated:
         v = car.ground_factor
         g = car.yaw_gain / (1 + (v / car.slide_mps) ** 2) if car.slide_mps else car.yaw_gain
-        t = g * math.tan(math.radians(20))
+        t = g * math.tan(math.radians(20 + car.steer_offset_deg))  # the wheels point the offset left of 20°
         kappa = t / (WHEELBASE_M * math.sqrt(1 + 0.25 * t * t))
         if car.tyre_sat_mps2:  # the tyres saturate: κ / √(1 + (v²κ / sat)²)
             kappa /= math.sqrt(1 + (v * v * kappa / car.tyre_sat_mps2) ** 2)

@@ -1,7 +1,8 @@
 """Stretches of a real log to replay: a logged state, the actions before it and after it, and where the car went.
 
 A stretch starts at row t of an episode and covers `horizon` steps: its start is row t's front point and heading,
-the mean ground speed over the last step (rows t-1, t; the car model works out the speed at row t from it) and
+the mean ground speed and yaw rate over the last step (rows t-1, t; the car model works out the speed at row t from
+it), or over the last two where the log's steps' lengths are unknown (`racerlab.sim.car.START_STEPS`), and
 the wheel angle left unknown (the car model estimates it from the `history` actions of rows t-h..t-1); its
 actions are those of rows t..t+horizon-1, its
 step lengths the tstamps read by the log's timing rule (`racerlab.sim.car.LOG_TIMING`) and its targets the logged
@@ -20,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from racerlab.errors import ConfigError
-from racerlab.sim.car import step_durations
+from racerlab.sim.car import START_STEPS, step_durations
 
 HISTORY = 8  # actions before the start a stretch carries (the delay needs MAX_DELAY_STEPS + 1, the hinge more)
 HORIZON = 15  # steps a stretch replays: one second
@@ -39,6 +40,7 @@ class Stretches:
     target: np.ndarray  # (N, horizon, 3) logged front x, y, heading (degrees)
     prev: np.ndarray  # (N, 2) the front point one row before the start (the constant-velocity guess)
     prev_dt: np.ndarray  # (N,)
+    mean_dt: np.ndarray  # (N,) the time the start's speed and yaw rate are measured over (`START_STEPS`)
     episode: np.ndarray  # (N,) the episode's index in the log (for splits)
 
     def __len__(self) -> int:
@@ -78,14 +80,28 @@ def _episode_stretches(e: pd.DataFrame, horizon: int, every: int, timing: str):
     s = np.asarray(out)
     hist = s[:, None] + np.arange(-HISTORY, horizon)[None, :]
     fut = s[:, None] + np.arange(1, horizon + 1)[None, :]
-    v0 = jump[s - 1] / dt[s - 1]
-    w0 = np.radians((yaw[s] - yaw[s - 1] + 180.0) % 360.0 - 180.0) / dt[s - 1]
+    back = _measured_from(s, ok, START_STEPS[timing])
+    span = _between(dt, back, s)
+    v0 = _between(jump, back, s) / span
+    w0 = np.radians((yaw[s] - yaw[back] + 180.0) % 360.0 - 180.0) / span
     start = np.stack([x[s], y[s], np.radians(yaw[s]), v0, np.full(len(s), np.nan), w0], axis=1)
     commands = np.stack([steer[hist], speed[hist]], axis=2)
     dts = dt[s[:, None] + np.arange(horizon)[None, :]]
     target = np.stack([x[fut], y[fut], yaw[fut]], axis=2)
     prev = np.stack([x[s - 1], y[s - 1]], axis=1)
-    return start, commands, dts, target, prev, dt[s - 1]
+    return start, commands, dts, target, prev, dt[s - 1], span
+
+
+def _measured_from(s: np.ndarray, ok: np.ndarray, steps: int) -> np.ndarray:
+    """The rows the start's speed and yaw rate are measured from: `steps` rows before each start row of `s` where those
+    steps are usable (`ok[r]`: usable steps before row r), else the row before."""
+    return np.where(ok[s] - ok[s - steps] == steps, s - steps, s - 1)
+
+
+def _between(per_step: np.ndarray, back: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The sum of `per_step[r]` (a step's length or distance, row r -> r + 1) over the rows back..s-1 of each start."""
+    c = np.concatenate([[0.0], np.cumsum(np.nan_to_num(per_step))])
+    return np.where(back == s - 1, per_step[s - 1], c[s] - c[back])  # one step: exactly its own value
 
 
 def stretches(df: pd.DataFrame, horizon: int = HORIZON, every: int = 1, source: str = "the log",

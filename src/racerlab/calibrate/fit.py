@@ -25,16 +25,16 @@ BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.1
           "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
           "ground_factor": (0.95, 1.12), "fade_inv": (0.0, 1.0),
           "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0),  # saturation >= 1 m/s²
-          "front_drive": (0.0, 2.0)}
+          "front_drive": (0.0, 2.0), "steer_offset_deg": (-3.0, 3.0)}
 FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
-          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2", "front_drive")
+          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2", "front_drive", "steer_offset_deg")
 INVERSE = {"slide_inv": "slide_mps", "fade_inv": "accel_fade_mps", "sat_inv": "tyre_sat_mps2"}  # searched as 1 / x
 
 
 def predict(st: Stretches, car: CarParams) -> np.ndarray:
     """(N, horizon, 3) front x, y, heading the car predicts for each stretch."""
     return rollout_batch(st.start, st.commands, st.commands.shape[1] - st.dts.shape[1], st.dts, pack(car), True,
-                         st.prev_dt)
+                         st.mean_dt)
 
 
 def errors(st: Stretches, car: CarParams) -> np.ndarray:
@@ -59,8 +59,10 @@ def medians(err: np.ndarray, horizons=HORIZONS) -> dict[int, float]:
 def _searched(base: CarParams) -> dict[str, tuple[float, float]]:
     """The bounds of what a fit from `base` searches: everything in `BOUNDS`, the tyres' saturation only for a car
     that has it (the console cars; ROS 2's droa car has none, and on logs without it the extra freedom only lets
-    the lags and the kick wander), the front wheels' drive only for a car that has it (the console velocity car)."""
-    off = {"sat_inv": base.tyre_sat_mps2 <= 0, "front_drive": base.front_drive <= 0}
+    the lags and the kick wander), the front wheels' drive and the wheels' offset only for a car that has them (the
+    console velocity car, the console effort car)."""
+    off = {"sat_inv": base.tyre_sat_mps2 <= 0, "front_drive": base.front_drive <= 0,
+           "steer_offset_deg": base.steer_offset_deg == 0}
     return {k: b for k, b in BOUNDS.items() if not off.get(k, False)}
 
 

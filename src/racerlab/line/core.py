@@ -119,7 +119,8 @@ class RacingLine:
     def steering_deg(self) -> np.ndarray:
         """Steering angle each point needs at the line's speed (the car's wheelbase and yaw gain), ° (+ = left)."""
         kappa = self.car.unsaturated(self.curvature, self.speed)
-        return steering_for_curvature(kappa, self.car.wheelbase_m, self.car.yaw_gain_at(self.speed))
+        wheels = steering_for_curvature(kappa, self.car.wheelbase_m, self.car.yaw_gain_at(self.speed))
+        return wheels - self.car.steer_offset_deg  # the command: the wheels point `steer_offset_deg` left of it
 
     def summary(self) -> dict:
         """The headline numbers, JSON-ready."""

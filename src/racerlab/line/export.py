@@ -31,7 +31,8 @@ def grip_speed(steering_deg, line: RacingLine) -> np.ndarray:
     The simulator's bicycle with the car's yaw gain g(v): κ = cos β · g(v) · tan δ / L; v²·κ grows with v, so a
     bisection finds where it reaches the grip."""
     car = line.car
-    tan_d = np.tan(np.radians(np.abs(np.asarray(steering_deg, dtype=np.float64))))
+    wheels = np.abs(np.asarray(steering_deg, dtype=np.float64)) + abs(car.steer_offset_deg)  # the side it turns more
+    tan_d = np.tan(np.radians(wheels))
 
     def lateral(v):
         t = car.yaw_gain_at(v) * tan_d

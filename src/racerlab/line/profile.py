@@ -42,7 +42,8 @@ def max_curvature(v, car: CarParams) -> np.ndarray:
     """The tightest path curvature (1/m) the car can hold at ground speed `v`: full lock through the yaw gain and
     the tyres' saturation, and the grip."""
     v = np.asarray(v, dtype=np.float64)
-    tan_d = car.yaw_gain_at(v) * math.tan(math.radians(car.max_steer_deg))
+    lock = car.max_steer_deg + abs(car.steer_offset_deg)  # the side the wheels' offset turns more: still a bound
+    tan_d = car.yaw_gain_at(v) * math.tan(math.radians(lock))
     steer = car.saturated(tan_d / (car.wheelbase_m * np.sqrt(1.0 + 0.25 * tan_d * tan_d)), v)
     with np.errstate(divide="ignore"):
         grip = car.grip_mps2 / (v * v)

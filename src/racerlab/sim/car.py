@@ -22,6 +22,8 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
   wheels too) a change of the ground speed at a m/s² bends the path by front_drive · a · sin δ / max(v², 1 m²/s²)
   more: the front wheels' share of the drive pushes along their angle, so the car turns more while it speeds up and
   less while it brakes; at a held speed it adds nothing.
+* **wheel offset**: the wheels point `steer_offset_deg` left of the hinges' (commanded) angle: the 2022 effort-car
+  logs (ROS 1, effort hinges) turn left of the model's car whatever the command (0 = none).
 * **speed**: the ground speed follows a target with a first-order lag `speed_tau_s`, bounded by the
   traction limits `accel_mps2` and `brake_mps2`; with `accel_fade_mps` (the ROS 1 velocity car) the acceleration
   falls with speed as 1 - (v / fade)² and turns into a slowdown above the fade speed, the car's top speed. The
@@ -61,7 +63,8 @@ from racerlab.spec import (
 QUEUE = int(MAX_DELAY_STEPS) + 2  # commands kept per car: this step's and the ones before it
 # positions in `pack`'s array
 (P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED, P_SPEED_TAU, P_ACCEL, P_BRAKE, P_STEER_TAU, P_GRIP, P_SUBSTEPS,
- P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK, P_SAT, P_DRIVE) = range(21)
+ P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK, P_SAT, P_DRIVE,
+ P_OFFSET) = range(22)
 
 
 def pack(car: CarParams) -> np.ndarray:
@@ -70,7 +73,7 @@ def pack(car: CarParams) -> np.ndarray:
                      car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
                      float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
                      car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s, car.accel_fade_mps,
-                     car.steer_kick, car.tyre_sat_mps2, car.front_drive],
+                     car.steer_kick, car.tyre_sat_mps2, car.front_drive, math.radians(car.steer_offset_deg)],
                     dtype=np.float64)
 
 
@@ -81,6 +84,13 @@ def pack(car: CarParams) -> np.ndarray:
 TIMINGS = ("previous", "fixed", "next")
 LOG_TIMING = {("droa", "velocity"): "previous", ("droa", "effort"): "previous",
               ("console", "velocity"): "previous", ("console", "effort"): "fixed"}
+
+
+# Steps the start's mean speed and yaw rate are measured over, by timing rule. Where the steps' lengths are known
+# ("previous", "next") the last step alone; where they are not ("fixed": every step read as 1/15 s while the real
+# ones jitter about ±0.008 s) the least-squares line through the last three poses, i.e. their difference over two
+# steps: one step's unknown length puts about ±12 % of noise into a rate over it, two steps' ±8.5 %.
+START_STEPS = {"previous": 1, "fixed": 2, "next": 1}
 
 
 def log_timing(car: CarParams) -> str:
@@ -147,13 +157,14 @@ def _saturate(kappa, v, car):
 
 @njit(cache=True, inline="always")
 def _path_curvature(v, steer, car):
-    """The curvature (1/m) the base point follows at `v` with the wheels at `steer` (rad): the bicycle's through
-    the yaw gain (falling with speed where the car slides), the tyres' saturation, and at most the grip."""
+    """The curvature (1/m) the base point follows at `v` with the hinges at `steer` (rad; the wheels point
+    `steer_offset_deg` left of it): the bicycle's through the yaw gain (falling with speed where the car slides),
+    the tyres' saturation, and at most the grip."""
     gain = car[P_YAW_GAIN]
     if car[P_SLIDE] > 0:
         r = v / car[P_SLIDE]
         gain = gain / (1.0 + r * r)
-    tan_d = gain * math.tan(steer)
+    tan_d = gain * math.tan(steer + car[P_OFFSET])
     kappa = _saturate(tan_d / (car[P_WB] * math.sqrt(1.0 + 0.25 * tan_d * tan_d)), v, car)
     if v > 1e-6:
         k_max = car[P_GRIP] / (v * v)
@@ -163,13 +174,13 @@ def _path_curvature(v, steer, car):
 
 @njit(cache=True, inline="always")
 def _drive_curvature(accel, v, steer, car):
-    """The curvature (1/m) the steered front wheels add at `v` while the ground speed changes by `accel` m/s²: their
-    share `front_drive` of the drive pushes along their angle, a sideways acceleration front_drive · accel · sin δ
-    (ROS 1 drives the front wheels too: the car turns more while it speeds up, less while it brakes; 0 = off).
-    Below 1 m/s it counts as at 1 m/s."""
+    """The curvature (1/m) the steered front wheels (at `steer` plus their offset) add at `v` while the ground speed
+    changes by `accel` m/s²: their share `front_drive` of the drive pushes along their angle, a sideways
+    acceleration front_drive · accel · sin δ (ROS 1 drives the front wheels too: the car turns more while it speeds
+    up, less while it brakes; 0 = off). Below 1 m/s it counts as at 1 m/s."""
     if car[P_DRIVE] <= 0:
         return 0.0
-    return car[P_DRIVE] * accel * math.sin(steer) / max(v * v, 1.0)
+    return car[P_DRIVE] * accel * math.sin(steer + car[P_OFFSET]) / max(v * v, 1.0)
 
 
 @njit(cache=True)
@@ -373,7 +384,9 @@ def rollout(start, actions, *, history=None, version="5", simulator="droa", car:
     speed). The car is `simulator`'s for a model of `version` (`spec.car_params`), or `car`. The steps' lengths:
     `dt` (k values, or one for all; default 1/15 s), or `tstamps`, the logged tstamps of the history's rows, the
     start row and the k rows after (m + 1 + k values), read by the car's simulator's rule (`LOG_TIMING`; the start's
-    `mean_dt` then comes from them too).
+    `mean_dt` then comes from them too: the last `START_STEPS[rule]` steps' length, so under the "fixed" rule of the
+    2022 effort-car logs `mean_speed` and `yaw_rate` are the position and heading differences over the last two steps,
+    as `racerlab calibrate` measures them).
     """
     car = car or car_params(simulator, version)
     check_rollout_inputs(start, actions, history, dt, car)
@@ -409,6 +422,8 @@ def _step_times(k: int, m: int, dt, tstamps, car: CarParams, mean_dt) -> tuple[n
     if len(t) != m + 1 + k:
         raise ValueError(f"rollout's tstamps need m + 1 + k = {m + 1 + k} values (the history's rows, the start row "
                          f"and the {k} rows after), got {len(t)}")
-    d = step_durations(t, log_timing(car))  # d[j]: row j -> j + 1; the start row is row m
+    rule = log_timing(car)
+    d = step_durations(t, rule)  # d[j]: row j -> j + 1; the start row is row m
     d = np.where(np.isfinite(d), d, STEP_S)
-    return np.ascontiguousarray(d[m:m + k]), float(d[m - 1]) if m > 0 else float(mean_dt)
+    n = min(START_STEPS[rule], m)  # the steps the start's mean speed is measured over
+    return np.ascontiguousarray(d[m:m + k]), float(d[m - n:m].sum()) if n > 0 else float(mean_dt)

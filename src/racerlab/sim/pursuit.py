@@ -81,7 +81,7 @@ class PurePursuit:
         alpha = np.arctan2(ty - rear[:, 1], tx - rear[:, 0]) - yaw
         dist = np.maximum(np.hypot(tx - rear[:, 0], ty - rear[:, 1]), 1e-6)
         kappa = cp.unsaturated(2.0 * np.sin(alpha) / dist, v)  # the arc; more where the tyres saturate
-        steer = np.degrees(np.arctan(self.wheelbase * kappa / cp.yaw_gain_at(v)))
+        steer = np.degrees(np.arctan(self.wheelbase * kappa / cp.yaw_gain_at(v))) - cp.steer_offset_deg
         if self.car is None:
             return steer, np.interp(self._wrap(s), self.cum_s, self.speed)
         return steer, self._speed_command(s + 0.5 * self.wheelbase, v)
