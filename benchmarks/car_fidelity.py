@@ -60,6 +60,9 @@ SETS = {
     "droa2026-evaluation": (["simtraces/droa2026-v6-Spain_track-evaluation"], "droa", "5"),
     "droa2026-eval-only-tar": (["real_logs/sample-droa-eval-only.tar.gz"], "droa", "5"),
 }
+# sets reported as one besides their parts: the DRoA 2026 download (sample-droa-solution-logs: a training run and an
+# evaluation of its model), its parts' held-out stretches together (their fit stretches for the floor)
+WHOLE = {"droa2026": ("droa2026-training", "droa2026-evaluation")}
 # racerlab's car before issue 24
 BEFORE = CarParams(delay_steps=0.0, steer_tau_s=0.03, yaw_gain=1.0, slide_mps=0.0, yaw_tau_s=0.0, speed_tau_s=0.1,
                    accel_mps2=3.0, brake_mps2=4.9, ground_factor=1.0, wheel_cap_mps=4.0, accel_fade_mps=0.0,
@@ -140,6 +143,10 @@ def main() -> None:
         return
     for n in args.sets:
         _report(n, *loaded[n], naive.get(n))
+    for whole, parts in WHOLE.items():
+        if all(p in loaded for p in parts):
+            _report(whole, concat([loaded[p][0] for p in parts]), concat([loaded[p][1] for p in parts]),
+                    concat([naive[p] for p in parts]) if naive else None)
 
 
 def _groups(names: list[str]) -> dict[tuple[str, str], list[str]]:
@@ -168,6 +175,10 @@ def _cross_validate(sim: str, control: str, sets: dict) -> None:
             held_err[n].append(err)
             if fold == 1:
                 default[n] = _round(medians(err))
+    for whole, parts in WHOLE.items():
+        if all(p in held_err for p in parts):
+            held_err[whole] = [np.concatenate(fold) for fold in zip(*(held_err[p] for p in parts), strict=True)]
+            default[whole] = _round(medians(held_err[whole][1]))
     for n, errs in held_err.items():
         print(json.dumps({"set": n, "car": base.name, "stretches": sum(len(e) for e in errs),
                           "held_out_per_fold": [len(e) for e in errs],
@@ -177,7 +188,7 @@ def _cross_validate(sim: str, control: str, sets: dict) -> None:
 
 
 def _report(n: str, fit_st, held, naive_held) -> None:
-    _, sim, version = SETS[n]
+    _, sim, version = SETS[WHOLE[n][0] if n in WHOLE else n]
     after = car_params(sim, version, step_jitter=False)
     row = {"set": n, "simulator": sim, "version": version, "car": after.name, "fit_stretches": len(fit_st),
            "held_out_stretches": len(held), "horizons_steps": list(HORIZONS),
