@@ -89,8 +89,8 @@ def _loss(st: Stretches, car: CarParams) -> float:
 
 
 def fit_car(st: Stretches, base: CarParams, *, max_evals: int = 1500) -> CarParams:
-    """The constants of `base` (from `FITTED`; the saturation and the front drive only when `base` has them) that best
-    replay the stretches `st`."""
+    """The constants of `base` (from `FITTED`; the saturation, the front drive and the wheels' offset only when `base`
+    has them, `_searched`) that best replay the stretches `st`."""
     if not math.isfinite(_loss(st, base)):
         raise ValueError("the starting car gives non-finite predictions")
     keys = _searched(base)
