@@ -5,7 +5,9 @@ front-point error on the held-out stretches after 1, 3, 8 and 15 steps (15 = 1 s
 issue 24 (zero delay, τ 0.03 s, full kinematic steering), before issue 34 (the cars of 4b81135, the logs read with
 the naive step timing tstamp_{j+1} - tstamp_j), the built-in car of the set's simulator and model version read by
 its simulator's timing rule (after), the constant-velocity guess and a learned floor (the built-in car corrected
-by a regression learned on the set's own fit episodes, `calibrate.learned_floor`). One JSON line per set.
+by a regression learned on the set's own fit episodes, `calibrate.learned_floor`). One JSON line per set, with
+`after_1s_interval_m`: how far the figure after 1 s would move with other episodes (the central 90 % of the median
+over resampled held-out episodes, `calibrate.median_interval`; null below 5 episodes).
 
     python benchmarks/car_fidelity.py              # before / after / constant velocity / floor per set
     python benchmarks/car_fidelity.py --fit        # refit the built-in cars on the fit episodes (spec.CAR_TABLE)
@@ -16,7 +18,8 @@ by a regression learned on the set's own fit episodes, `calibrate.learned_floor`
 simulator and control, as `--fit` groups the sets) it fits the built-in car's constants three times, each time
 holding out another third of every set's episodes (`split(..., fold=r)`; fold 1 is the default split), and reports
 per set the median error over all its stretches, each predicted by the fit that did not see its episode, beside the
-default split's figure of the same procedure.
+default split's figure of the same procedure, and the interval of the cross-validated figure over resampled
+episodes.
 
 Target (issue 34): after 1 s <= 0.10 m on the slow sets and <= 0.15 m on the fast console sets; after one step no
 worse than constant velocity on every set.
@@ -28,6 +31,7 @@ import argparse
 import json
 import tarfile
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +44,7 @@ from racerlab.calibrate import (
     fit_with_spread,
     learned_floor,
     load_stretches,
+    median_interval,
     medians,
 )
 from racerlab.calibrate.data import concat, split
@@ -63,6 +68,7 @@ SETS = {
 # sets reported as one besides their parts: the DRoA 2026 download (sample-droa-solution-logs: a training run and an
 # evaluation of its model), its parts' held-out stretches together (their fit stretches for the floor)
 WHOLE = {"droa2026": ("droa2026-training", "droa2026-evaluation")}
+EPISODE_BLOCK = 1_000_000  # episode numbers of the i-th part of a WHOLE set start at i * EPISODE_BLOCK
 # racerlab's car before issue 24
 BEFORE = CarParams(delay_steps=0.0, steer_tau_s=0.03, yaw_gain=1.0, slide_mps=0.0, yaw_tau_s=0.0, speed_tau_s=0.1,
                    accel_mps2=3.0, brake_mps2=4.9, ground_factor=1.0, wheel_cap_mps=4.0, accel_fade_mps=0.0,
@@ -145,8 +151,15 @@ def main() -> None:
         _report(n, *loaded[n], naive.get(n))
     for whole, parts in WHOLE.items():
         if all(p in loaded for p in parts):
-            _report(whole, concat([loaded[p][0] for p in parts]), concat([loaded[p][1] for p in parts]),
+            _report(whole, concat([_apart(loaded[p][0], i) for i, p in enumerate(parts)]),
+                    concat([_apart(loaded[p][1], i) for i, p in enumerate(parts)]),
                     concat([naive[p] for p in parts]) if naive else None)
+
+
+def _apart(st, i: int):
+    """`st` with its episode numbers moved out of the way of the other parts of a set reported as one (their
+    logs number episodes from 0 each), so that the interval resamples them as the different episodes they are."""
+    return replace(st, episode=st.episode + i * EPISODE_BLOCK)
 
 
 def _groups(names: list[str]) -> dict[tuple[str, str], list[str]]:
@@ -166,6 +179,7 @@ def _cross_validate(sim: str, control: str, sets: dict) -> None:
     median error after each horizon over all its stretches, each from the fit that held its episode out."""
     base = car_params(sim, "5" if control == "velocity" else "4", step_jitter=False)
     held_err: dict[str, list] = {n: [] for n in sets}
+    held_eps: dict[str, list] = {n: [] for n in sets}
     default: dict[str, dict] = {}
     for fold in range(3):
         parts = {n: split(st, fold=fold) for n, st in sets.items()}
@@ -173,18 +187,31 @@ def _cross_validate(sim: str, control: str, sets: dict) -> None:
         for n, (_, held) in parts.items():
             err = errors(held, car)
             held_err[n].append(err)
+            held_eps[n].append(held.episode)
             if fold == 1:
                 default[n] = _round(medians(err))
     for whole, parts in WHOLE.items():
         if all(p in held_err for p in parts):
             held_err[whole] = [np.concatenate(fold) for fold in zip(*(held_err[p] for p in parts), strict=True)]
+            held_eps[whole] = [np.concatenate([e + i * EPISODE_BLOCK for i, e in enumerate(fold)])
+                               for fold in zip(*(held_eps[p] for p in parts), strict=True)]
             default[whole] = _round(medians(held_err[whole][1]))
     for n, errs in held_err.items():
         print(json.dumps({"set": n, "car": base.name, "stretches": sum(len(e) for e in errs),
                           "held_out_per_fold": [len(e) for e in errs],
                           "cross_validated_m": _round(medians(np.concatenate(errs))),
+                          "episodes": len(np.unique(np.concatenate(held_eps[n]))),
+                          "cross_validated_1s_interval_m": _interval(np.concatenate(errs)[:, -1],
+                                                                     np.concatenate(held_eps[n])),
                           "per_fold_1s_m": [round(float(np.median(e[:, -1])), 4) if len(e) else None for e in errs],
                           "default_split_m": default[n]}), flush=True)
+
+
+def _interval(err, episodes) -> list[float] | None:
+    """The 90 % interval of the median error over resampled episodes (`calibrate.median_interval`), rounded; None
+    for a set of too few episodes."""
+    lo, hi = median_interval(err, episodes)
+    return [round(lo, 4), round(hi, 4)] if np.isfinite(lo) else None
 
 
 def _report(n: str, fit_st, held, naive_held) -> None:
@@ -195,7 +222,9 @@ def _report(n: str, fit_st, held, naive_held) -> None:
            "before_24_m": _round(medians(errors(held, BEFORE)))}
     if naive_held is not None:
         row["before_34_m"] = _round(medians(errors(naive_held, before_34(sim, version))))
-    row.update({"after_m": _round(medians(errors(held, after))),
+    err = errors(held, after)
+    row.update({"held_out_episodes": len(np.unique(held.episode)), "after_m": _round(medians(err)),
+                "after_1s_interval_m": _interval(err[:, -1], held.episode),
                 "constant_velocity_m": _round(medians(constant_velocity_errors(held))),
                 "learned_floor_m": _round(learned_floor(fit_st, held, after))})
     print(json.dumps(row), flush=True)

@@ -1,12 +1,15 @@
 """`racerlab calibrate` on a real DRoA log: a report beside the constant-velocity guess, a [car] table that
 training.toml takes, a picture."""
 
+import math
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from racerlab.cli import main
+from racerlab.cli.calibrate import interval_line
 from racerlab.model import load_training_config
 
 DROA_EVAL = Path(__file__).resolve().parents[2].parent / "shared" / "reference" / "simtraces" / \
@@ -19,6 +22,7 @@ def test_calibrate_writes_a_car_table_training_takes(tmp_path, capsys):
     assert main(["calibrate", str(DROA_EVAL), "--simulator", "droa", "--out", str(out), "--resamples", "0"]) == 0
     text = capsys.readouterr().out
     assert "constant velocity" in text and "fitted car" in text
+    assert "only 1 episode held out: too few" in text  # three episodes, every third held out
     rows = {line.split()[0]: line.split()[1:] for line in text.splitlines() if line.startswith("  ")}
     fitted = [float(v) for v in rows["fitted"][1:]]
     guess = [float(v) for v in rows["constant"][1:]]
@@ -37,3 +41,11 @@ def test_calibrate_names_a_missing_log(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "nope"), "--out", str(tmp_path / "car.toml")]) == 2
     err = capsys.readouterr().err
     assert "nope" in err and "no such file" in err
+
+
+def test_the_report_says_how_far_the_held_out_figure_would_move():
+    fit = SimpleNamespace(held_out={1: 0.01, 15: 0.09}, held_out_interval=(0.081, 0.104), held_out_episodes=12)
+    assert interval_line(fit) == ("the fitted car's median after 15 steps lies within 0.081-0.104 m in 90 % of "
+                                  "resamples of the 12 held-out episodes")
+    few = SimpleNamespace(held_out={15: 0.2}, held_out_interval=(math.nan, math.nan), held_out_episodes=2)
+    assert interval_line(few).startswith("only 2 episodes held out: too few")

@@ -8,7 +8,7 @@ import pytest
 
 from racerlab.calibrate import constant_velocity_errors, errors, fit_car, medians, split, stretches
 from racerlab.calibrate.data import HISTORY
-from racerlab.calibrate.fit import _searched
+from racerlab.calibrate.fit import _searched, median_interval
 from racerlab.errors import ConfigError
 from racerlab.sim.car import rollout
 from racerlab.spec import STEP_S, car_params
@@ -179,3 +179,21 @@ def test_the_wheel_offset_is_fitted_only_for_a_car_that_has_one():
     assert err < 0.02 and medians(errors(st, replace(true, steer_offset_deg=0.0)))[15] > 4 * err
     assert "steer_offset_deg" in _searched(true) and "steer_offset_deg" not in _searched(TRUE)
     assert car_params("console", "4").steer_offset_deg != 0 and car_params("droa").steer_offset_deg == 0
+
+
+def test_median_interval_resamples_episodes_not_stretches():
+    # seven episodes of one stretch each, errors 1..7: the median of 7 draws is <= 1 with probability 0.010 and
+    # <= 2 with 0.108 (at least 4 of 7 draws at or below it), so the 5 % quantile is 2; by symmetry the 95 % is 6
+    assert median_interval(np.arange(1.0, 8.0), np.arange(7)) == (2.0, 6.0)
+    # the same error everywhere: nothing to move
+    assert median_interval(np.full(40, 0.08), np.repeat(np.arange(8), 5)) == (0.08, 0.08)
+    # one long episode (100 stretches at 10) among four short ones (1 each): the pooled median is 10 whenever a
+    # resample draws the long episode at all (1 - 0.8^5 = 67 %), else 1; taken stretch by stretch it would be 10
+    err = np.r_[np.full(100, 10.0), np.ones(4)]
+    eps = np.r_[np.zeros(100, int), np.arange(1, 5)]
+    assert median_interval(err, eps) == (1.0, 10.0)
+
+
+def test_median_interval_needs_five_episodes():
+    lo, hi = median_interval(np.linspace(0.05, 0.2, 40), np.repeat(np.arange(4), 10))
+    assert np.isnan(lo) and np.isnan(hi)

@@ -15,10 +15,11 @@ from racerlab.calibrate.fit import (
                                     fit_car,
                                     fit_with_spread,
                                     learned_floor,
+                                    median_interval,
                                     medians,
 )
 from racerlab.calibrate.run import calibrate, car_toml, load_stretches
 
 __all__ = ["FITTED", "HORIZON", "HORIZONS", "Fit", "Stretches", "calibrate", "car_toml", "constant_velocity_errors",
-           "errors", "fit_car", "learned_floor", "load_stretches",
+           "errors", "fit_car", "learned_floor", "load_stretches", "median_interval",
            "fit_with_spread", "medians", "split", "stretches"]

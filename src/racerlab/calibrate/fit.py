@@ -56,6 +56,28 @@ def medians(err: np.ndarray, horizons=HORIZONS) -> dict[int, float]:
     return {h: float(np.median(err[:, h - 1])) for h in horizons if h <= err.shape[1]}
 
 
+MIN_EPISODES = 5  # fewer episodes than this give no interval: resampling two or three says nothing of the others
+
+
+def median_interval(err: np.ndarray, episodes: np.ndarray, *, level: float = 0.9, draws: int = 2000,
+                    seed: int = 0) -> tuple[float, float]:
+    """How far the median of the per-stretch errors `err` (N,) can move with the episodes it was measured on: the
+    central `level` interval of the median over `draws` resamples of the episodes (with replacement, each resample
+    taking every stretch of the episodes it picks). Stretches of one episode move together, so a set of few
+    episodes gives a wide interval however many stretches it has. With fewer than `MIN_EPISODES` episodes: (NaN,
+    NaN), for resampling a handful only repeats them."""
+    err = np.asarray(err, dtype=float)
+    eps, inverse = np.unique(episodes, return_inverse=True)
+    if len(eps) < MIN_EPISODES:
+        return math.nan, math.nan
+    members = [err[inverse == i] for i in range(len(eps))]
+    rng = np.random.default_rng(seed)
+    meds = np.array([np.median(np.concatenate([members[i] for i in rng.integers(0, len(eps), len(eps))]))
+                     for _ in range(draws)])
+    lo, hi = np.quantile(meds, [(1 - level) / 2, (1 + level) / 2])
+    return float(lo), float(hi)
+
+
 def _searched(base: CarParams) -> dict[str, tuple[float, float]]:
     """The bounds of what a fit from `base` searches: everything in `BOUNDS`, the tyres' saturation only for a car
     that has it (the console cars; ROS 2's droa car has none, and on logs without it the extra freedom only lets
@@ -111,6 +133,10 @@ class Fit:
     fit_stretches: int
     held_out_stretches: int
     held: Stretches | None = field(default=None, repr=False)  # the held-out stretches (the picture replays them)
+    # the 90 % interval of the held-out median after the longest horizon over resampled held-out episodes
+    # (`median_interval`), and how many episodes were held out
+    held_out_interval: tuple[float, float] = (math.nan, math.nan)
+    held_out_episodes: int = 0
 
 
 def fit_with_spread(fit_st: Stretches, held_st: Stretches, simulator: str, version="5", *, resamples: int = 3,
@@ -127,8 +153,10 @@ def fit_with_spread(fit_st: Stretches, held_st: Stretches, simulator: str, versi
         idx = np.concatenate([np.flatnonzero(fit_st.episode == e) for e in pick])
         samples.append(fit_car(fit_st.take(idx), car, max_evals=max_evals // 3))
     spread = {f: float(np.std([getattr(c, f) for c in samples])) if samples else math.nan for f in FITTED}
-    return Fit(car, spread, medians(errors(held_st, car)), medians(constant_velocity_errors(held_st)),
-               learned_floor(fit_st, held_st, car), len(fit_st), len(held_st), held_st)
+    err = errors(held_st, car)
+    return Fit(car, spread, medians(err), medians(constant_velocity_errors(held_st)),
+               learned_floor(fit_st, held_st, car), len(fit_st), len(held_st), held_st,
+               median_interval(err[:, -1], held_st.episode), len(np.unique(held_st.episode)))
 
 
 def learned_floor(fit_st: Stretches, held_st: Stretches, car: CarParams, horizons=HORIZONS) -> dict[int, float]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -28,6 +29,19 @@ def register(sub) -> None:
     p.set_defaults(func=run_calibrate)
 
 
+def interval_line(fit) -> str:
+    """How far the held-out figure after 1 s would move with other episodes (`Fit.held_out_interval`)."""
+    from racerlab.calibrate.fit import MIN_EPISODES
+
+    lo, hi = fit.held_out_interval
+    n = fit.held_out_episodes
+    if math.isfinite(lo):
+        return (f"the fitted car's median after {list(fit.held_out)[-1]} steps lies within {lo:.3f}-{hi:.3f} m in 90 % "
+                f"of resamples of the {n} held-out episodes")
+    return (f"only {n} episode{'' if n == 1 else 's'} held out: too few to say how far the figures would move with "
+            f"other episodes (logs of {3 * MIN_EPISODES} or more episodes say it)")
+
+
 def run_calibrate(args) -> int:
     from racerlab.calibrate import calibrate, car_toml
     from racerlab.calibrate.out import check_out, table_text
@@ -49,6 +63,7 @@ def run_calibrate(args) -> int:
     print("  constant velocity" + "".join(f"{v:8.3f}" for v in fit.constant_velocity.values()))
     print("  learned floor    " + "".join(f"{v:8.3f}" for v in fit.floor.values())
           + "  (the fitted car corrected by a regression learned on the fit episodes)")
+    print(interval_line(fit))
     text = car_toml(fit, names)
     print(text, end="")
     for warning in on_bounds(fit):
