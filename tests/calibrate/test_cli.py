@@ -8,6 +8,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from racerlab.calibrate.run import _interval_note
 from racerlab.cli import main
 from racerlab.cli.calibrate import interval_line
 from racerlab.model import load_training_config
@@ -29,6 +30,7 @@ def test_calibrate_writes_a_car_table_training_takes(tmp_path, capsys):
     assert len(fitted) == 4 and all(f < g for f, g in zip(fitted, guess, strict=True))  # beats the guess at 1-15
     floor = [float(v) for v in rows["learned"][1:5]]  # the fitted car corrected by a regression: the floor row
     assert floor[3] < guess[3] and floor[3] < 1.5 * fitted[3]
+    assert "(constant velocity: " in out.read_text() and "; 1 held-out episode\n" in out.read_text()
     table = tomllib.loads(out.read_text())["car"]
     assert table["simulator"] == "droa" and 0.3 < table["yaw_gain"] < 1.0
     (tmp_path / "training.toml").write_text(out.read_text())
@@ -49,3 +51,5 @@ def test_the_report_says_how_far_the_held_out_figure_would_move():
                                   "resamples of the 12 held-out episodes")
     few = SimpleNamespace(held_out={15: 0.2}, held_out_interval=(math.nan, math.nan), held_out_episodes=2)
     assert interval_line(few).startswith("only 2 episodes held out: too few")
+    assert _interval_note(fit) == "; after 15 steps 0.081-0.104 over 12 resampled episodes"
+    assert _interval_note(few) == "; 2 held-out episodes"

@@ -115,12 +115,21 @@ def on_bounds(fit: Fit) -> list[str]:
     return out
 
 
+def _interval_note(fit: Fit) -> str:
+    """The held-out figure's 90 % interval over resampled episodes, for the table's comment ("" with too few)."""
+    lo, hi = fit.held_out_interval
+    if not math.isfinite(lo):
+        return f"; {fit.held_out_episodes} held-out episode{'' if fit.held_out_episodes == 1 else 's'}"
+    return f"; after {list(fit.held_out)[-1]} steps {lo:.3f}-{hi:.3f} over {fit.held_out_episodes} resampled episodes"
+
+
 def car_toml(fit: Fit, source: str = "") -> str:
     """The `[car]` table of a fit, to paste into training.toml."""
     lines = ["# racerlab calibrate" + (f": {source}" if source else ""),
              f"# held-out median front-point error (m) after {', '.join(f'{h}' for h in fit.held_out)} steps: "
              + ", ".join(f"{v:.3f}" for v in fit.held_out.values())
-             + " (constant velocity: " + ", ".join(f"{v:.3f}" for v in fit.constant_velocity.values()) + ")",
+             + " (constant velocity: " + ", ".join(f"{v:.3f}" for v in fit.constant_velocity.values()) + ")"
+             + _interval_note(fit),
              "[car]", f'simulator = "{fit.car.simulator}"']
     for name in FITTED:
         spread = fit.spread.get(name, math.nan)
