@@ -116,7 +116,8 @@ def on_bounds(fit: Fit) -> list[str]:
 
 
 def _interval_note(fit: Fit) -> str:
-    """The held-out figure's 90 % interval over resampled episodes, for the table's comment ("" with too few)."""
+    """The held-out figure's 90 % interval over resampled episodes, for the table's comment; with too few episodes
+    to resample (`fit.median_interval`), how many were held out."""
     lo, hi = fit.held_out_interval
     if not math.isfinite(lo):
         return f"; {fit.held_out_episodes} held-out episode{'' if fit.held_out_episodes == 1 else 's'}"
