@@ -84,7 +84,7 @@ def trained_teacher(tmp_path_factory):
 
 
 def test_rounds_fit_the_student_and_leave_a_plain_camera_model(tmp_path, trained_teacher):
-    from racerlab.evaluate.api import load_model, make_policy
+    from racerlab.evaluate.api import make_policy
 
     model = _camera_student(tmp_path / "cam")
     teacher_checkpoints = [c.name for c in trained_teacher.checkpoints()]
@@ -101,7 +101,7 @@ def test_rounds_fit_the_student_and_leave_a_plain_camera_model(tmp_path, trained
     assert [c.name for c in trained_teacher.checkpoints()] == teacher_checkpoints
     # a plain camera model: evaluation loads its checkpoint, and training on without a teacher is PPO from there
     world = World(TRACK, 2, model.metadata(), None, "camera", seed=0)
-    assert make_policy(load_model(model.path), world)(world.observe()).shape == (2, 2)
+    assert make_policy(model.open(), world)(world.observe()).shape == (2, 2)
     again = train(model.path, iterations=1, progress=False, num_cars=2)
     assert again.iterations == 3 and "losses/entropy" in again.history[-1]
 

@@ -1,9 +1,10 @@
 """`racerlab clone SRC DST`: a new model that starts from SRC's weights, with its lineage recorded.
 
 DST gets SRC's four files (or replacements given here) and SRC's chosen checkpoint as its own
-starting checkpoint; checkpoint numbering continues from the parent's, as AWS does. The
-weights carry over only when the action count, sensors, network and algorithm match: anything
-else is refused before any file is written.
+starting checkpoint; checkpoint numbering continues from the parent's, as AWS does. The checkpoint
+is opened through `ModelFolder.open`, which refuses one that cannot be read, holds non-finite weights
+or does not match SRC's model_metadata.json. The weights carry over only when the action count,
+sensors, network and algorithm match: anything else is refused before any file is written.
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ def clone_model(src, dst, checkpoint: str = "best", reward=None, model_metadata=
     source.require()
     if target.path.exists() and any(target.path.iterdir()):
         raise RacerlabError(f"{target.path}: already exists and is not empty; clone into a new folder")
-    info = source.resolve_checkpoint(checkpoint)
-    state = source.load_state(info)
+    opened = source.open(checkpoint)  # the door: an unreadable, non-finite or mismatched checkpoint is refused
+    info, state = opened.checkpoint, opened.state
     parent_meta = parse_model_metadata(state.metadata, str(source.checkpoint_path(info)))
     new_meta = load_model_metadata(model_metadata) if model_metadata else source.metadata()
     check_compatible(parent_meta, new_meta, str(model_metadata or source.metadata_path))
