@@ -395,12 +395,10 @@ def load_teacher(path: Path, features_space, named: str = "teacher"):
     """The teacher's agent (its best checkpoint, on the CPU: a small vector network) and its metadata."""
     from racerlab.agent import make_agent
 
-    folder = check_teacher(path, named)
-    meta = folder.metadata()
-    state = folder.load_state(folder.resolve_checkpoint("best"))
-    agent = make_agent(features_space, meta, folder.hyperparameters(), device="cpu")
-    agent.load_state_dict(state.agent)
-    return agent, meta
+    opened = check_teacher(path, named).open("best")  # the door: unreadable, non-finite, mismatched: one line
+    agent = make_agent(features_space, opened.metadata, opened.hyperparameters, device="cpu")
+    agent.load_state_dict(opened.state.agent)
+    return agent, opened.metadata
 
 
 @dataclass

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from racerlab.errors import ConfigError, RacerlabError
-from racerlab.model import TrainingState, check_compatible, nonfinite_tensors, parse_model_metadata
+from racerlab.errors import ConfigError, ModelRefused, RacerlabError
+from racerlab.model import TrainingState
 from racerlab.train.evaluation import eval_metric, laptime_tie_ms, pick_best, run_greedy_episodes
 from racerlab.train.health import Health, RateSetting
 from racerlab.train.parts import RunParts, trainer_parts
@@ -203,8 +203,6 @@ class Trainer:
             self.health.last_good = self.learner.state_dict()
             return False
         info, ck = self._newest_readable(cps)
-        check_compatible(parse_model_metadata(ck.metadata, f"{info.name} (checkpoint)"), self.metadata,
-                         str(self.folder.metadata_path))
         self._check_observation(ck, info)
         self.agent.load_state_dict(ck.agent)
         self._apply_edits(ck, info)
@@ -256,18 +254,15 @@ class Trainer:
         self.progress.note(text)
 
     def _newest_readable(self, cps):
-        """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
+        """The newest checkpoint the door lets through (`ModelFolder.open`); a newer one that cannot be read or holds
+        non-finite weights is reported and skipped for an older one, one trained with other metadata stops the run."""
         for info in reversed(cps):
             try:
-                ck = self.folder.load_state(info)
-            except RacerlabError as exc:
-                self.note(f"skipping {info.name}: {exc}")
-                continue
-            bad = nonfinite_tensors(ck.agent)
-            if not bad:
-                return info, ck
-            self.note(f"skipping {self.folder.checkpoint_path(info)}: non-finite weights ({bad[0]}"
-                       f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}); resuming from an older checkpoint")
+                return info, self.folder.open(info).state
+            except ModelRefused as exc:
+                if exc.reason not in (ModelRefused.UNREADABLE, ModelRefused.NONFINITE):
+                    raise
+                self.note(f"skipping {exc.path}: {exc.problem}; resuming from an older checkpoint")
         raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint with finite weights; remove the "
                             "folder's checkpoints/ to start over")
 
