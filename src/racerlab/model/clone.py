@@ -1,15 +1,16 @@
 """`racerlab clone SRC DST`: a new model that starts from SRC's weights, with its lineage recorded.
 
-DST gets SRC's four files (or replacements given here) and SRC's chosen checkpoint as its own
-starting checkpoint; checkpoint numbering continues from the parent's, as AWS does. The checkpoint
-is opened through `ModelFolder.open`, which refuses one that cannot be read, holds non-finite weights
-or does not match SRC's model_metadata.json. The weights carry over only when the action count,
+DST gets SRC's four files (or replacements given here), a taught model's own features teacher (its folder inside
+SRC), and SRC's chosen checkpoint as its own starting checkpoint; checkpoint numbering continues from the parent's,
+as AWS does. The checkpoint is opened through `ModelFolder.open`, which refuses one that cannot be read, holds
+non-finite weights or does not match SRC's model_metadata.json. The weights carry over only when the action count,
 sensors, network and algorithm match: anything else is refused before any file is written.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -43,6 +44,10 @@ def clone_model(src, dst, checkpoint: str = "best", reward=None, model_metadata=
 
         load_reward_function(reward)
     target.copy_model_files(source)
+    teacher = own_teacher(source)
+    if teacher is not None:  # a taught model's own teacher comes along, trained: the clone does not train another
+        shutil.copytree(source.path / teacher, target.path / teacher,
+                        ignore=shutil.ignore_patterns("training.lock", ".*.tmp-*"))
     if reward:
         target.write_reward(Path(reward).read_text())
     if model_metadata:
@@ -60,6 +65,19 @@ def clone_model(src, dst, checkpoint: str = "best", reward=None, model_metadata=
                                          ("hyperparameters.json", hyperparameters), ("track", track)) if v],
         "parent_lineage": _read(source.lineage_path)})
     return target
+
+
+def own_teacher(folder: ModelFolder) -> Path | None:
+    """The features teacher a taught model keeps inside its folder (training.toml's `[teacher] model`), as a path
+    relative to the folder; None when it has none there."""
+    name = folder.config().teacher.model
+    if not name:
+        return None
+    root = folder.path.resolve()
+    path = (folder.path / Path(name).expanduser()).resolve()
+    if path == root or not path.is_relative_to(root) or not (path / "model_metadata.json").is_file():
+        return None
+    return path.relative_to(root)
 
 
 def _read(path: Path):
