@@ -19,3 +19,8 @@ class ConfigError(RacerlabError, ValueError):
 
 class RewardFunctionError(RacerlabError):
     """The user's reward function raised or returned something that is not a finite number."""
+
+
+class RacerlabWarning(UserWarning):
+    """Something left out of a user's input and carried on without (skipped files, dropped rows); the command line
+    prints it as one line."""
