@@ -57,9 +57,11 @@ def test_kernels_go_to_the_users_cache_one_folder_per_fingerprint(tmp_path):
     from racerlab import kernelcache
 
     code = "import os, racerlab, numba; print(os.environ['NUMBA_CACHE_DIR']); print(numba.config.CACHE_DIR)"
-    out = _run(tmp_path, code)
+    out = _run(tmp_path, code + "; print(os.environ.get('NUMBA_CACHE_LOCATOR_CLASSES'))")
     key = kernelcache.sources_key()
-    assert len(key) == 16 and out.stdout.split() == [str(tmp_path / "cache" / "racerlab" / "numba" / key)] * 2
+    # the fingerprint's folder, and nothing in the environment that names racerlab to other programs numba runs
+    assert len(key) == 16 and out.stdout.split() == [str(tmp_path / "cache" / "racerlab" / "numba" / key)] * 2 + [
+        "None"]
     out = _run(tmp_path, code + "\n" + KERNEL, NUMBA_CACHE_DIR=str(tmp_path / "mine"))
     assert out.stdout.split()[:2] == [str(tmp_path / "mine")] * 2  # the user's choice is kept ...
     assert _entries(tmp_path / "mine" / f"racerlab-{key}")  # ... and holds the fingerprint's folder
@@ -82,12 +84,13 @@ def test_a_change_to_any_compiled_source_gets_a_fresh_cache(tmp_path):
     assert kernelcache.sources_key(str(package)) != key
 
 
-def test_an_unusable_cache_folder_goes_to_a_folder_of_ones_own_never_beside_the_sources(tmp_path):
+@pytest.mark.parametrize("first", ["", "import numba, numba.core.caching\n"], ids=["racerlab-first", "numba-first"])
+def test_an_unusable_cache_folder_goes_to_a_folder_of_ones_own_never_beside_the_sources(tmp_path, first):
     """Issue 45, item 3: with the cache folder unusable (here a file) numba fell back to its cache beside the sources,
-    which ran stale compiled code."""
+    which ran stale compiled code. Also when numba was imported before racerlab."""
     copy = _copy(tmp_path)
     (tmp_path / "cache").write_text("not a folder")
-    out = _run(tmp_path, KERNEL + "import os; print(os.environ['NUMBA_CACHE_DIR'])", package=copy)
+    out = _run(tmp_path, first + KERNEL + "import os; print(os.environ['NUMBA_CACHE_DIR'])", package=copy)
     assert out.returncode == 0, out.stderr
     answer, where = out.stdout.split("\n")[:2]
     assert answer == ANSWER and _in_tree(copy) == []

@@ -33,10 +33,14 @@ def test_torch_is_one_whose_weights_only_load_runs_no_code():
     assert "≥ 2.2" not in install
 
 
-def test_numba_is_one_that_takes_racerlabs_cache_locator():
-    """racerlab.kernelcache names its locator in NUMBA_CACHE_LOCATOR_CLASSES, which numba reads from 0.62 on."""
+def test_numba_is_one_whose_cache_locators_racerlab_extends():
+    """racerlab.kernelcache subclasses numba's UserProvidedCacheLocator and puts it first in CacheImpl's locators,
+    public names from numba 0.62 on (before: _UserProvidedCacheLocator)."""
     import numba
-    from numba.core import config
+    from numba.core import caching
 
-    assert _lower_bound("numba")[:2] >= (0, 62)
-    assert _version(numba.__version__) >= (0, 62) and hasattr(config, "CACHE_LOCATOR_CLASSES")
+    import racerlab  # noqa: F401 - puts the locator in
+
+    assert _lower_bound("numba")[:2] >= (0, 62) and _version(numba.__version__) >= (0, 62)
+    first = caching.CacheImpl._locator_classes[0]
+    assert issubclass(first, caching.UserProvidedCacheLocator) and first.__name__ == "KernelCacheLocator"

@@ -6,20 +6,23 @@
   which checks each kernel against its own file only and so runs stale code when a file it calls changes (a lap
   stayed 16.467 s after the car's speed was halved). A `NUMBA_CACHE_DIR` the user sets holds the fingerprint
   folders instead.
-- racerlab's kernels are cached by `KernelCacheLocator` (numba loads it by name through
-  `NUMBA_CACHE_LOCATOR_CLASSES`, numba >= 0.62), which never hands them to another of numba's places: a read-only
-  install works, and with no writable folder at all the kernels compile in every run, said in one line.
+- racerlab's kernels are cached by `KernelCacheLocator`, put first among numba's cache locators when numba loads its
+  caching module (an import hook, so that nothing in the environment names racerlab to other programs), which never
+  hands them to another of numba's places: a read-only install works, and with no writable folder at all the kernels
+  compile in every run, said in one line. A `NUMBA_CACHE_LOCATOR_CLASSES` the user sets is numba's to follow.
 - A damaged entry (a cut or overwritten index or data file) is removed and compiled again, said in one line.
 - Folders of other fingerprints unused for `KEEP_DAYS` are removed: only entries named like a fingerprint, that
   are real folders this user owns, in a cache folder that is itself no link.
 
-Nothing here imports numba: `configure()` runs at `import racerlab` and only sets the environment numba reads when
-it loads; `KernelCacheLocator` is built when numba first asks for it.
+Nothing here imports numba: `configure()` runs at `import racerlab`, sets the environment numba reads when it loads
+and the hook; the locator is built when numba's caching module has loaded.
 """
 
 from __future__ import annotations
 
 import hashlib
+import importlib.abc
+import importlib.util
 import os
 import re
 import shutil
@@ -29,8 +32,6 @@ import tempfile
 import time
 
 KEEP_DAYS = 14  # cache folders of other sources unused this long are removed
-LOCATOR = "racerlab.kernelcache.KernelCacheLocator"
-NUMBA_LOCATORS = "UserProvidedCacheLocator,InTreeCacheLocator,UserWideCacheLocator,IPythonCacheLocator,ZipCacheLocator"
 _CHOSEN = "RACERLAB_KERNEL_CACHE"  # the folder this process chose, seen by its children (not a user's setting)
 _KEY = re.compile(r"^[0-9a-f]{16}$")
 _PACKAGE = os.path.dirname(os.path.abspath(__file__))
@@ -66,10 +67,9 @@ def user_cache_base() -> str:
 
 
 def configure(environ=os.environ) -> str | None:
-    """Choose the folder of this process's kernels and tell numba (before it loads): `NUMBA_CACHE_DIR` (when the user
-    set none) and `NUMBA_CACHE_LOCATOR_CLASSES` (racerlab's locator first, numba's own after it for other code;
-    unless the user set it). Prunes the user cache's old fingerprint folders. Returns the folder (None: none
-    writable)."""
+    """Choose the folder of this process's kernels, tell numba (`NUMBA_CACHE_DIR`, when the user set none, read when
+    numba loads) and hook racerlab's locator into numba's (`_hook`). Prunes the user cache's old fingerprint folders.
+    Returns the folder (None: none writable)."""
     global folder
     key = sources_key()
     user_dir = environ.get("NUMBA_CACHE_DIR")
@@ -92,9 +92,9 @@ def configure(environ=os.environ) -> str | None:
             os.utime(folder)  # in use: not pruned by another version's start
         except OSError:
             pass
-    environ.setdefault("NUMBA_CACHE_LOCATOR_CLASSES", f"{LOCATOR},{NUMBA_LOCATORS}")
     if "numba.core.config" in sys.modules:  # numba loaded before racerlab: it reads its environment again
         sys.modules["numba.core.config"].reload_config()
+    _hook()
     return folder
 
 
@@ -171,10 +171,54 @@ def _is_ours(py_file: str) -> bool:
     return os.path.abspath(py_file).startswith(_PACKAGE + os.sep)
 
 
-def _build_locator():
-    """numba's locator for racerlab's files, and the guards of its entries (built once numba asks for it)."""
-    from numba.core import caching
+def _hook() -> None:
+    """`_install` into numba's caching module: now, when it is loaded, else when it loads (`_CachingFinder`)."""
+    caching = sys.modules.get("numba.core.caching")
+    if caching is not None:
+        _install(caching)
+    elif not any(isinstance(f, _CachingFinder) for f in sys.meta_path):
+        sys.meta_path.insert(0, _CachingFinder())
 
+
+class _CachingFinder(importlib.abc.MetaPathFinder):
+    """Finds numba's caching module as the other finders do, with a loader that runs `_install` after it."""
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname != "numba.core.caching":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _InstallingLoader(spec.loader)
+        return spec
+
+
+class _InstallingLoader(importlib.abc.Loader):
+    def __init__(self, inner) -> None:
+        self.inner = inner
+
+    def create_module(self, spec):
+        return self.inner.create_module(spec)
+
+    def exec_module(self, module) -> None:
+        self.inner.exec_module(module)
+        _install(module)
+
+    def __getattr__(self, name):  # get_source and the rest, for tracebacks and inspect
+        return getattr(self.inner, name)
+
+
+def _install(caching) -> None:
+    """racerlab's locator first among numba's, and the guards of its entries (once)."""
+    if getattr(caching, "_racerlab_locator", None) is not None:
+        return
+    locator = _locator_class(caching)
+    caching.CacheImpl._locator_classes = [locator, *caching.CacheImpl._locator_classes]
+    caching._racerlab_locator = locator
+    _guard(caching, locator)
+
+
+def _locator_class(caching):
     class KernelCacheLocator(caching.UserProvidedCacheLocator):
         """racerlab's kernels in `folder` (one subfolder per source folder, as numba's own user-given place does);
         never None for one of them, so numba never puts them beside the sources."""
@@ -191,7 +235,6 @@ def _build_locator():
                 return None  # another package's kernel: numba's own places, after this one
             return cls(py_func, py_file)
 
-    _guard(caching, KernelCacheLocator)
     return KernelCacheLocator
 
 
@@ -240,10 +283,3 @@ def _clear(cache) -> int:
             except OSError:
                 pass
     return gone
-
-
-def __getattr__(name: str):
-    if name == "KernelCacheLocator":  # numba's import of LOCATOR: numba is loaded by now
-        value = globals()["KernelCacheLocator"] = _build_locator()
-        return value
-    raise AttributeError(f"module 'racerlab.kernelcache' has no attribute {name!r}")
