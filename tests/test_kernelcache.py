@@ -191,3 +191,18 @@ def test_import_racerlab_leaves_a_linked_cache_folders_target_alone(tmp_path):
     out = _run(tmp_path, "import racerlab")
     assert out.returncode == 0, out.stderr
     assert {"0123456789abcdef", "photos"} <= {p.name for p in target.iterdir()}
+
+
+def test_a_child_of_the_same_sources_keeps_its_parents_folder_and_one_of_other_sources_does_not(tmp_path):
+    """A Ray worker or a command's child inherits NUMBA_CACHE_DIR: with the same compiled sources it keeps the
+    parent's kernels (whatever its own home); a racerlab of other sources (a base tree beside a branch) gets its own
+    fingerprint's folder, not the parent's kernels."""
+    code = "import os, racerlab; print(os.environ['NUMBA_CACHE_DIR'])"
+    chosen = _run(tmp_path, code).stdout.strip()
+    inherited = {"NUMBA_CACHE_DIR": chosen, "RACERLAB_KERNEL_CACHE": chosen, "XDG_CACHE_HOME": str(tmp_path / "c2")}
+    assert _run(tmp_path, code, **inherited).stdout.strip() == chosen
+    other = _copy(tmp_path)
+    with open(other / "sim" / "car.py", "a") as fh:
+        fh.write("# another version of the car\n")
+    got = _run(tmp_path, code, package=other, **inherited).stdout.strip()
+    assert got != chosen and Path(got).is_relative_to(tmp_path / "c2")

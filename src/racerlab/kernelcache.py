@@ -72,10 +72,14 @@ def configure(environ=os.environ) -> str | None:
     Returns the folder (None: none writable)."""
     global folder
     key = sources_key()
-    user_dir = environ.get("NUMBA_CACHE_DIR")
-    if user_dir and user_dir == environ.get(_CHOSEN):
-        user_dir = None  # inherited from the racerlab that started this process, not the user's choice
-    folder = _owned(os.path.join(user_dir, f"racerlab-{key}")) if user_dir else None
+    user_dir, chosen = environ.get("NUMBA_CACHE_DIR"), environ.get(_CHOSEN)
+    folder = None
+    if user_dir and user_dir == chosen:  # inherited from the racerlab that started this process, not the user's
+        user_dir = None
+        if os.path.basename(chosen) == key:  # the same sources (a worker, a child): the same kernels
+            folder = _owned(chosen)
+    elif user_dir:
+        folder = _owned(os.path.join(user_dir, f"racerlab-{key}"))
     if folder is None:
         parent = os.path.join(user_cache_base(), "racerlab", "numba")
         tmp = _private_tmp()
