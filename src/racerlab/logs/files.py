@@ -87,10 +87,13 @@ def read_bytes(path, name: str | None = None, limit: int | None = None) -> bytes
     limit = MAX_LOG_BYTES if limit is None else limit
     name = name or str(path)
     with open_regular(path, name) as f:
-        if os.fstat(f.fileno()).st_size > limit:
+        size = os.fstat(f.fileno()).st_size
+        if size > limit:
             raise _too_big(name, limit, "is")
-        data = f.read(limit + 1)
-    if len(data) > limit:  # it grew while being read
+        data = f.read(size + 1 if size else limit + 1)  # one buffer of the file's size, not of the limit
+        if size and len(data) > size:  # it grew while being read
+            data += f.read(limit + 1 - len(data))
+    if len(data) > limit:
         raise _too_big(name, limit, "is")
     return data
 
