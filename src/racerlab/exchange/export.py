@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import tarfile
 import tempfile
 import time
@@ -30,6 +31,7 @@ from racerlab.exchange.coach import CAR_SENSORS, POLICY_NETWORK, POLICY_OUTPUT, 
 from racerlab.exchange.coach import tower_from_torch as _tower
 from racerlab.exchange.graphdef import build_graph, graph_bytes
 from racerlab.exchange.local import OpenModel, open_for_export
+from racerlab.logs.atomic import check_output
 
 if TYPE_CHECKING:
     from racerlab.agent import InferencePolicy
@@ -78,12 +80,58 @@ def _check_car_sensors(meta) -> None:
                           "train a model with `racerlab init DIR --sensor camera` (or stereo, lidar)")
 
 
+# The name in the gzip header of every archive `racerlab export` writes (the header's FNAME, which tar and the car's
+# upload ignore): the mark of a file an export may replace without --force.
+EXPORT_MARK = "racerlab-export"
+
+
+def export_path(model_dir, out, kind: str, force: bool = False) -> Path:
+    """Where an export of `model_dir` writes its `<model>-<kind>.tar.gz`, checked before anything is loaded or
+    written: that name here when `out` is None, that name inside `out` when it is a folder (as `cp` puts a file into
+    a folder), else `out` itself. Refused in one line: an empty name, a folder that is not there, a device or other
+    special file, a file of the model folder, and an existing file an export did not write unless `force`."""
+    default = f"{Path(model_dir).resolve().name}-{kind}.tar.gz"
+    if out is not None and str(out) == "":
+        raise ConfigError(f"-o '': no file name; give e.g. -o {default}, or leave -o out to write {default} here")
+    folder = out is not None and str(out).endswith(("/", os.sep))
+    out = Path(default if out is None else out)
+    if out.is_dir():
+        out = out / default
+    elif folder:
+        raise ConfigError(f"-o {out}{os.sep}: the folder {out} does not exist; create it or give a file name")
+    path = check_output(out, "-o", f"a new file name such as {default}")
+    if not path.exists() or _written_by_export(path):
+        return path if out.is_symlink() else out  # the name as given, unless it is a link: then its target
+    model = Path(model_dir).resolve()
+    if path.is_relative_to(model):
+        raise ConfigError(f"-o {out}: that is {path.relative_to(model)} of the model {model_dir}; an export never "
+                          f"replaces a model's file: give a name outside it, e.g. -o {default}")
+    if not force:
+        raise ConfigError(f"-o {out}: the file exists and racerlab export did not write it; give another name, or add "
+                          "--force to replace it")
+    return path if out.is_symlink() else out
+
+
+def _written_by_export(path: Path) -> bool:
+    """Whether `path` is a gzip file whose header names EXPORT_MARK (RFC 1952: flags at byte 3, then the extra
+    field when FEXTRA, then the zero-terminated name when FNAME)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(512)
+    except OSError:
+        return False
+    if len(head) < 10 or head[:3] != b"\x1f\x8b\x08" or not head[3] & 0x08:
+        return False
+    at = 10 + (2 + int.from_bytes(head[10:12], "little") if head[3] & 0x04 else 0)
+    return head[at:head.find(b"\0", at)] == EXPORT_MARK.encode()
+
+
 def _tar(entries: dict[str, bytes], out: Path) -> Path:
-    """A .tar.gz of `entries` (archive name -> bytes), written atomically."""
+    """A .tar.gz of `entries` (archive name -> bytes), marked as an export's (`EXPORT_MARK`), written atomically."""
     from racerlab.logs import atomic_write_bytes
 
     buf = io.BytesIO()
-    with tarfile.open(fileobj=buf, mode="w:gz", compresslevel=1) as tar:
+    with tarfile.open(EXPORT_MARK, fileobj=buf, mode="w:gz", compresslevel=1) as tar:
         for name, data in entries.items():
             info = tarfile.TarInfo(name)
             info.size, info.mtime, info.mode = len(data), int(time.time()), 0o644
@@ -91,31 +139,32 @@ def _tar(entries: dict[str, bytes], out: Path) -> Path:
     return atomic_write_bytes(out, buf.getvalue())
 
 
-def export_car(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+def export_car(model_dir, out=None, checkpoint: str | int = "best", force: bool = False) -> Path:
     """`<model>-car.tar.gz` for the physical car: model_metadata.json and agent/model.pb at the root."""
+    out = export_path(model_dir, out, "car", force)
     model, policy = open_for_export(model_dir, checkpoint)
     _check_car_sensors(model.metadata)
     pb = graph_bytes(frozen_graph(policy))
-    out = Path(out) if out else Path(f"{model.name}-car.tar.gz")
     return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "agent/model.pb": pb}, out)
 
 
-def export_onnx(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+def export_onnx(model_dir, out=None, checkpoint: str | int = "best", force: bool = False) -> Path:
     """`<model>-onnx.tar.gz`: model_metadata.json and model.onnx at the root; the ONNX graph keeps the car
     graph's input and output names, with a free batch dimension (`onnxgraph`)."""
+    out = export_path(model_dir, out, "onnx", force)
     from racerlab.exchange.onnxgraph import build_onnx, onnx_bytes
 
     model, policy = open_for_export(model_dir, checkpoint)
     _check_car_sensors(model.metadata)
     data = onnx_bytes(build_onnx(*policy_tower(policy)))
-    out = Path(out) if out else Path(f"{model.name}-onnx.tar.gz")
     return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "model.onnx": data}, out)
 
 
-def export_tflite(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+def export_tflite(model_dir, out=None, checkpoint: str | int = "best", force: bool = False) -> Path:
     """`<model>-tflite.tar.gz`: the community car's installed-model folder (`/opt/aws/deepracer/artifacts/<name>/`):
     model_metadata.json, model.pb, model.tflite (what its optimizer would make of model.pb, float32) and
     checksum.txt (md5 of model.pb, the car's mark of a finished install)."""
+    out = export_path(model_dir, out, "tflite", force)
     import hashlib
 
     from racerlab.exchange.tflite import tflite_from_frozen_graph
@@ -125,7 +174,6 @@ def export_tflite(model_dir, out=None, checkpoint: str | int = "best") -> Path:
     _, _, output, _ = policy_tower(policy)
     pb = graph_bytes(frozen_graph(policy))
     lite = tflite_from_frozen_graph(pb, car_inputs(policy), output)
-    out = Path(out) if out else Path(f"{model.name}-tflite.tar.gz")
     return _tar({"model_metadata.json": model.folder.metadata_path.read_bytes(), "model.pb": pb,
                  "model.tflite": lite, "checksum.txt": f"{hashlib.md5(pb).hexdigest()}\n".encode()}, out)
 
@@ -189,10 +237,10 @@ def training_params(model: OpenModel) -> str:
     return "".join(f'{k}: "{v}"\n' for k, v in values.items())
 
 
-def export_droa(model_dir, out=None, checkpoint: str | int = "best") -> Path:
+def export_droa(model_dir, out=None, checkpoint: str | int = "best", force: bool = False) -> Path:
     """`<model>-droa.tar.gz`: the tree DRoA's "Import model" takes, at the archive's root."""
+    out = export_path(model_dir, out, "droa", force)
     model, policy = open_for_export(model_dir, checkpoint)
-    out = Path(out) if out else Path(f"{model.name}-droa.tar.gz")
     with tempfile.TemporaryDirectory(prefix="racerlab-droa-") as tmp:
         files = write_virtual_tree(model, policy, Path(tmp))
         return _tar({p.relative_to(tmp).as_posix(): p.read_bytes() for p in sorted(files)}, out)
@@ -200,9 +248,11 @@ def export_droa(model_dir, out=None, checkpoint: str | int = "best") -> Path:
 
 def export_drfc(model_dir, out_dir, checkpoint: str | int = "best") -> Path:
     """The tree DRfC's `dr-upload-model` puts under its S3 prefix (and DR_LOCAL_S3_PRETRAINED_PREFIX reads)."""
-    model, policy = open_for_export(model_dir, checkpoint)
     out = Path(out_dir)
-    if out.exists() and any(out.iterdir()):
-        raise RacerlabError(f"{out}: already exists and is not empty; export into a new folder")
+    if str(out_dir) == "" or out.exists() and (not out.is_dir() or any(out.iterdir())):
+        what = "no folder name" if str(out_dir) == "" else "not a folder" if not out.is_dir() else \
+            "already exists and is not empty"
+        raise RacerlabError(f"--drfc {str(out_dir)!r}: {what}; export into a new folder")
+    model, policy = open_for_export(model_dir, checkpoint)
     write_virtual_tree(model, policy, out)
     return out
