@@ -4,8 +4,7 @@ path below is watched at the door (it must knock with the model's folder) and ha
 weight, which each must refuse with the door's one line, writing nothing.
 
 The two readers inside `racerlab.train` (resume and the camera model's teacher) are in
-`test_train_readers_open_through_the_door`: they are converted on the trainer's branch (issue 41, i41-trainer),
-so that test is marked xfail(strict) until then; remove the mark when both land.
+`test_train_readers_open_through_the_door`.
 """
 
 from __future__ import annotations
@@ -152,8 +151,6 @@ def test_the_command_line_refuses_a_nan_checkpoint_with_one_line_for_every_comma
 # ---- the readers inside racerlab.train (converted on the trainer's branch) ---------------------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="resume and the teacher open through ModelFolder.open once issue 41's trainer "
-                                       "branch (i41-trainer) is merged: remove this mark then")
 def test_train_readers_open_through_the_door(tmp_path, door):
     from racerlab.model import init_model
     from racerlab.sim.core import Simulator
