@@ -37,6 +37,7 @@ from racerlab.spec import MAX_SPEED, RaceConfig
 
 HUD_MIN_TOP_SPEED = 0.5  # m/s: a slow model's speed bar still spans this much
 RACE_SEED = 0  # every race draws the same random stream (boxes, bots, randomisation): results repeat
+WEIGHTS_ONLY_KEY = "weights_only"  # see make_policy
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -136,15 +137,20 @@ def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
 
 
 def make_policy(model: LoadedModel, world, device: str = "cpu"):
-    """Greedy actions of the checkpoint's agent (argmax for discrete, the mean for continuous, as AWS)."""
+    """Greedy actions of the checkpoint's agent (argmax for discrete, the mean for continuous, as AWS). An agent
+    state marked `WEIGHTS_ONLY_KEY` holds the networks' weights (and its format) alone, as a race server stores a
+    submission: the optimizer and counters, which greedy actions never read, come from the freshly built agent."""
     from racerlab.agent import make_agent
 
     _check_features_width(model, world)
     agent = make_agent(world.observation.space, model.metadata, model.folder.hyperparameters(), device=device,
                        seed=RACE_SEED)  # greedy: the seed draws nothing, but every agent is built the same way
     obs_name = getattr(world.observation, "name", None) or model.observation or "default"
+    state = model.state.agent
+    if WEIGHTS_ONLY_KEY in state:  # a league's stored model: its networks alone, the rest from the fresh agent
+        state = {**agent.state_dict(), **{k: v for k, v in state.items() if k != WEIGHTS_ONLY_KEY}}
     try:
-        agent.load_state_dict(model.state.agent)
+        agent.load_state_dict(state)
     except (RuntimeError, ValueError, KeyError, TypeError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RacerlabError(f"{model.folder.checkpoints_dir / model.checkpoint}: its weights do not fit the network "
@@ -230,13 +236,13 @@ def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = RACE_SEE
 
 
 def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=None, device: str = "cpu",
-             where: str = "racerlab evaluate", car=None):
+             where: str = "racerlab evaluate", car=None, seed: int = RACE_SEED):
     """Two loaded models (or one model twice) in one head-to-model world, a car each, under `rules`: the
     worlds (one per car, sharing the simulator) and each car's `EvalRun`."""
     from racerlab.sim import StartRules, World
 
     first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
-                  max_episode_steps=rules.max_episode_steps, seed=RACE_SEED,
+                  max_episode_steps=rules.max_episode_steps, seed=seed,
                   race=RaceConfig(type="head_to_model", where=where), car=car_config(models[0], car),
                   look=models[0].look)
     worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim,
@@ -277,15 +283,26 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = load_model(model_dir, checkpoint)
     track_obj = resolve_track(model.folder, track)
+    return evaluate_loaded(model, track_obj, rules, ranking_laps=ranking_laps, video=video, write=write, device=device,
+                           progress=progress, on_lap=on_lap, reward=reward, race=race, randomise=randomise, car=car)
+
+
+def evaluate_loaded(model: LoadedModel, track, rules: RaceRules, *, ranking_laps: int = DEFAULT_RANKING_LAPS,
+                    video: bool = False, write: bool = True, device: str = "cpu", progress: bool = False, on_lap=None,
+                    reward=None, race=None, randomise=None, car=None, seed: int = RACE_SEED,
+                    out_dir: Path | None = None) -> EvaluationResult:
+    """`evaluate` of a model already loaded (`load_model`, or a race server's stored model) on a `Track`: the
+    same race, result and files. `seed` seeds the world (boxes and bots drawn at random, randomisation);
+    `out_dir` (created) receives the evaluation's files instead of a new `<model>/evaluation-<stamp>/`."""
     if race_config(model, race).head_to_model:  # the model races a copy of itself; car 0's run is its result
         if randomise is not None or reward is not None:
             raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
                                 "without randomise or reward; drop those options or evaluate another race type")
-        worlds, runs = run_pair([model, model], track_obj, rules, video=video, device=device, car=car,
+        worlds, runs = run_pair([model, model], track, rules, video=video, device=device, car=car, seed=seed,
                                 on_lap=(lambda k, lap: on_lap(lap) if k == 0 else None) if on_lap else None)
         world, run = worlds[0], runs[0]
     else:
-        world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise, car=car)
+        world = make_world(model, track, rules, seed=seed, reward=reward, race=race, randomise=randomise, car=car)
         policy = make_policy(model, world, device)
         image_of = None
         if video:
@@ -293,13 +310,13 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
 
             image_of = camera_image
         run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
-    result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
+    result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                               wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race),
                               randomise=world.randomise.changed() if world.randomise else None,
                               car=world.sim.car_params.name)
     if write:
-        _write(result, world, video, progress)
+        _write(result, world, video, progress, out_dir)
     return result
 
 
@@ -308,8 +325,11 @@ def race_table(race: RaceConfig) -> dict:
     return race.table()
 
 
-def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None:
-    out = logs.new_evaluation_dir(result.model_dir)
+def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Path | None = None) -> None:
+    if out is None:
+        out = logs.new_evaluation_dir(result.model_dir)
+    else:
+        out.mkdir(parents=True, exist_ok=True)
     result.out_dir = out
     run = result.run
     result.files["simtrace"] = logs.write_simtrace(logs.eval_simtrace_path(out), run.trace)
