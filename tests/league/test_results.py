@@ -121,6 +121,19 @@ def test_a_penalty_costs_its_seconds_in_the_lap_time(league, admin, wide, tmp_pa
     assert lap3["elapsed"] - lap1["elapsed"] == pytest.approx(2.0 * lap1["off_track"], abs=1e-6)
 
 
+def test_a_race_with_video_serves_its_mp4(league, admin, straight, tmp_path, work):
+    import imageio.v2 as imageio
+
+    league.create_race(admin, "film", {"track": str(straight), "laps": 1})
+    sub = league.submit(admin, "film", features_model(tmp_path / "m", straight).path)
+    work(league, 1)
+    done = league.submission(admin, sub.id)
+    assert "video" in done.files
+    reader = imageio.get_reader(league.submission_file(admin, sub.id, "video"))
+    rows = len(pd.read_csv(league.submission_file(admin, sub.id, "simtrace")))
+    assert reader.get_meta_data()["fps"] == 7.5 and reader.count_frames() == (rows + 1) // 2
+
+
 def _layouts(league, sub):
     return json.loads(league.submission_file(league.local_admin(), sub.id, "layouts").read_text())["layouts"]
 

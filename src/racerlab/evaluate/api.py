@@ -292,12 +292,12 @@ def evaluate_loaded(model: LoadedModel, track, rules: RaceRules, *, ranking_laps
                     video: bool = False, write: bool = True, device: str = "cpu", progress: bool = False, on_lap=None,
                     reward=None, race=None, randomise=None, car=None, seed: int = RACE_SEED,
                     out_dir: Path | None = None, video_width: int = VIDEO_WIDTH_PX,
-                    video_title: str | None = None) -> EvaluationResult:
+                    video_title: str | None = None, video_every: int = 1) -> EvaluationResult:
     """`evaluate` of a model already loaded (`load_model`, or a race server's stored model) on a `Track`: the
     same race, result and files. `seed` seeds the world (boxes and bots drawn at random, randomisation);
     `out_dir` (created) receives the evaluation's files instead of a new `<model>/evaluation-<stamp>/`;
     `video_width` is the track picture's width in the video (pixels), `video_title` its title (default: the
-    model's folder name and the track)."""
+    model's folder name and the track), `video_every` k draws every k-th step (`video.render_video`)."""
     if race_config(model, race).head_to_model:  # the model races a copy of itself; car 0's run is its result
         if randomise is not None or reward is not None:
             raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
@@ -320,7 +320,7 @@ def evaluate_loaded(model: LoadedModel, track, rules: RaceRules, *, ranking_laps
                               randomise=world.randomise.changed() if world.randomise else None,
                               car=world.sim.car_params.name)
     if write:
-        _write(result, world, video, progress, out_dir, video_width, video_title)
+        _write(result, world, video, progress, out_dir, (video_width, video_title, video_every))
     return result
 
 
@@ -330,7 +330,10 @@ def race_table(race: RaceConfig) -> dict:
 
 
 def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Path | None = None,
-           video_width: int = VIDEO_WIDTH_PX, video_title: str | None = None) -> None:
+           look: tuple = (VIDEO_WIDTH_PX, None, 1)) -> None:
+    """The evaluation's files in `out` (default: a new evaluation folder of the model); `look` is the video's
+    (track width in pixels, title or None, every k-th step)."""
+    video_width, video_title, video_every = look
     if out is None:
         out = logs.new_evaluation_dir(result.model_dir)
     else:
@@ -354,7 +357,7 @@ def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Pa
         title = video_title if video_title is not None else f"{result.model} on {result.track}"
         result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=title,
                                              max_speed=_top_speed(world.metadata), progress=progress,
-                                             width_px=video_width)
+                                             width_px=video_width, frame_every=video_every)
         result.wall_seconds += time.perf_counter() - t0
         _write_summary(result)
 
