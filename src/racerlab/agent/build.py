@@ -22,6 +22,8 @@ from racerlab.agent.sac import SAC
 from racerlab.errors import ModelRefused
 from racerlab.model import Hyperparameters, ModelMetadata
 
+WEIGHTS_ONLY_KEY = "weights_only"  # marks an agent state that holds the networks' weights alone (inference_policy)
+
 
 @dataclass(frozen=True, eq=False)
 class InferencePolicy:
@@ -45,6 +47,9 @@ def inference_policy(obs, metadata: ModelMetadata, weights: dict, *, where,
     it in the `ModelRefused` line when the weights do not fit the network `metadata` gives for these inputs."""
     agent = make_agent(obs, metadata, hyperparameters, device=device, seed=0)  # greedy: the seed draws nothing
     shapes = observation_shapes(obs, metadata)
+    if WEIGHTS_ONLY_KEY in weights:  # a race server's stored model: its networks alone; the optimiser and counters,
+        # which greedy actions never read, come from the freshly built agent
+        weights = {**agent.state_dict(), **{k: v for k, v in weights.items() if k != WEIGHTS_ONLY_KEY}}
     try:
         agent.load_state_dict(weights)
     except (RuntimeError, ValueError, KeyError, TypeError) as exc:

@@ -38,6 +38,7 @@ from racerlab.spec import MAX_SPEED, RaceConfig
 
 HUD_MIN_TOP_SPEED = 0.5  # m/s: a slow model's speed bar still spans this much
 RACE_SEED = 0  # every race draws the same random stream (boxes, bots, randomisation): results repeat
+VIDEO_WIDTH_PX = 960  # the track picture's width in an evaluation's video
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -187,13 +188,13 @@ def make_world(model: OpenModel, track, rules: RaceRules, seed: int = RACE_SEED,
 
 
 def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=None, device: str = "cpu",
-             where: str = "racerlab evaluate", car=None):
+             where: str = "racerlab evaluate", car=None, seed: int = RACE_SEED):
     """Two loaded models (or one model twice) in one head-to-model world, a car each, under `rules`: the
     worlds (one per car, sharing the simulator) and each car's `EvalRun`."""
     from racerlab.sim import StartRules, World
 
     first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
-                  max_episode_steps=rules.max_episode_steps, seed=RACE_SEED,
+                  max_episode_steps=rules.max_episode_steps, seed=seed,
                   race=RaceConfig(type="head_to_model", where=where), car=car_config(models[0], car),
                   look=models[0].look)
     worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim,
@@ -234,15 +235,29 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
     model = ModelFolder(model_dir).open(checkpoint)
     track_obj = resolve_track(model.folder, track)
+    return evaluate_loaded(model, track_obj, rules, ranking_laps=ranking_laps, video=video, write=write, device=device,
+                           progress=progress, on_lap=on_lap, reward=reward, race=race, randomise=randomise, car=car)
+
+
+def evaluate_loaded(model: OpenModel, track, rules: RaceRules, *, ranking_laps: int = DEFAULT_RANKING_LAPS,
+                    video: bool = False, write: bool = True, device: str = "cpu", progress: bool = False, on_lap=None,
+                    reward=None, race=None, randomise=None, car=None, seed: int = RACE_SEED,
+                    out_dir: Path | None = None, video_width: int = VIDEO_WIDTH_PX,
+                    video_title: str | None = None, video_every: int = 1) -> EvaluationResult:
+    """`evaluate` of a model already open (`ModelFolder.open`, or a race server's stored model) on a `Track`: the
+    same race, result and files. `seed` seeds the world (boxes and bots drawn at random, randomisation);
+    `out_dir` (created) receives the evaluation's files instead of a new `<model>/evaluation-<stamp>/`;
+    `video_width` is the track picture's width in the video (pixels), `video_title` its title (default: the
+    model's folder name and the track), `video_every` k draws every k-th step (`video.render_video`)."""
     if race_config(model, race).head_to_model:  # the model races a copy of itself; car 0's run is its result
         if randomise is not None or reward is not None:
             raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
                                 "without randomise or reward; drop those options or evaluate another race type")
-        worlds, runs = run_pair([model, model], track_obj, rules, video=video, device=device, car=car,
+        worlds, runs = run_pair([model, model], track, rules, video=video, device=device, car=car, seed=seed,
                                 on_lap=(lambda k, lap: on_lap(lap) if k == 0 else None) if on_lap else None)
         world, run = worlds[0], runs[0]
     else:
-        world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise, car=car)
+        world = make_world(model, track, rules, seed=seed, reward=reward, race=race, randomise=randomise, car=car)
         policy = make_policy(model, world, device)
         image_of = None
         if video:
@@ -250,13 +265,13 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
 
             image_of = camera_image
         run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
-    result = EvaluationResult(model.name, model.folder.path, model.checkpoint.name, track_obj.name,
+    result = EvaluationResult(model.name, model.folder.path, model.checkpoint.name, track.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                               wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race),
                               randomise=world.randomise.changed() if world.randomise else None,
                               car=world.sim.car_params.name)
     if write:
-        _write(result, world, video, progress)
+        _write(result, world, video, progress, out_dir, (video_width, video_title, video_every))
     return result
 
 
@@ -265,8 +280,15 @@ def race_table(race: RaceConfig) -> dict:
     return race.table()
 
 
-def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None:
-    out = logs.new_evaluation_dir(result.model_dir)
+def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Path | None = None,
+           look: tuple = (VIDEO_WIDTH_PX, None, 1)) -> None:
+    """The evaluation's files in `out` (default: a new evaluation folder of the model); `look` is the video's
+    (track width in pixels, title or None, every k-th step)."""
+    video_width, video_title, video_every = look
+    if out is None:
+        out = logs.new_evaluation_dir(result.model_dir)
+    else:
+        out.mkdir(parents=True, exist_ok=True)
     result.out_dir = out
     run = result.run
     result.files["simtrace"] = logs.write_simtrace(logs.eval_simtrace_path(out), run.trace)
@@ -283,8 +305,10 @@ def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None
         sim = world.sim
         track = sim.track_reversed if result.rules.reverse else sim.track
         t0 = time.perf_counter()
-        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=f"{result.model} on {result.track}",
-                                             max_speed=_top_speed(world.metadata), progress=progress)
+        title = video_title if video_title is not None else f"{result.model} on {result.track}"
+        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=title,
+                                             max_speed=_top_speed(world.metadata), progress=progress,
+                                             width_px=video_width, frame_every=video_every)
         result.wall_seconds += time.perf_counter() - t0
         _write_summary(result)
 
