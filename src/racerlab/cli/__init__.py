@@ -25,7 +25,7 @@ DISK_ERRORS = {  # errors of the disk rather than of racerlab: one line, with wh
 
 # module names under racerlab.cli, in the order `racerlab --help` lists them
 COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "calibrate", "report", "reward", "sim",
-                   "exchange", "console", "cluster"]
+                   "exchange", "console", "cluster", "league"]
 
 
 OUT_DIR = Path("racerlab-out")  # where commands with no model folder to write into put their files
