@@ -249,7 +249,10 @@ def _leaving(app: FastAPI) -> None:
 def _racing(app: FastAPI) -> None:
     @app.get("/")
     def races(request: Request, actor: User):
-        return render(request, "races.html", races=request.app.state.league.races(actor))
+        league = request.app.state.league
+        views = league.races(actor)
+        boards = {r.name: league.standings(actor, r.name) for r in views}  # a club has a handful of races
+        return render(request, "races.html", races=views, boards=boards)
 
     @app.get("/races/{name}")
     def race(request: Request, name: str, actor: User):

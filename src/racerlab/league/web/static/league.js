@@ -44,7 +44,7 @@ function why(s) {
 }
 
 // ---- the race page: live leaderboard and the caller's submissions ------------------------------------------------
-function boardRow(row, me, previous) {
+function boardRow(row, me, previous, video) {
   const ranked = row.rank != null;
   const tr = el("tr", {class: `${row.alias === me ? "me" : ""} ${ranked ? "" : "unranked"}`, "data-alias": row.alias},
     el("td", {class: "num"}, ranked ? row.rank : "—"),
@@ -54,18 +54,18 @@ function boardRow(row, me, previous) {
     el("td", {class: "num"}, row.off_track == null ? "—" : row.off_track),
     el("td", {class: "num"}, row.laps_completed == null ? "—" : row.laps_completed),
     el("td", {class: "num"}, row.submissions),
-    el("td", {}, row.video ? el("a", {href: `/api/submissions/${row.submission_id}/files/video`, target: "_blank",
+    el("td", {}, row.video && video ? el("a", {href: `/api/submissions/${row.submission_id}/files/video`, target: "_blank",
       rel: "noopener"}, "watch") : ""));
   const key = `${row.rank}|${row.time_s}|${row.status}|${row.submissions}`;
   if (previous && previous.get(row.alias) !== key) tr.classList.add("flash-row");
   return [tr, key];
 }
 
-function renderBoard(standings, me, state) {
+function renderBoard(standings, me, state, video) {
   const body = document.querySelector("#leaderboard tbody");
   const seen = new Map();
   const rows = standings.rows.map((r) => {
-    const [tr, key] = boardRow(r, me, state.keys);
+    const [tr, key] = boardRow(r, me, state.keys, video);
     seen.set(r.alias, key);
     return tr;
   });
@@ -99,7 +99,7 @@ function liveRace(root) {
   const source = new EventSource(`/api/races/${encodeURIComponent(name)}/events`);
   source.addEventListener("board", (ev) => {
     const data = JSON.parse(ev.data);
-    renderBoard(data.standings, me, state);
+    renderBoard(data.standings, me, state, root.dataset.video === "yes");
     renderMine(data.mine);
     root.dataset.version = data.race.version;
     document.getElementById("used").textContent = data.race.submissions_used;
