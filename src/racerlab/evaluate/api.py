@@ -38,6 +38,7 @@ from racerlab.spec import MAX_SPEED, RaceConfig
 HUD_MIN_TOP_SPEED = 0.5  # m/s: a slow model's speed bar still spans this much
 RACE_SEED = 0  # every race draws the same random stream (boxes, bots, randomisation): results repeat
 WEIGHTS_ONLY_KEY = "weights_only"  # see make_policy
+VIDEO_WIDTH_PX = 960  # the track picture's width in an evaluation's video
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -290,10 +291,13 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
 def evaluate_loaded(model: LoadedModel, track, rules: RaceRules, *, ranking_laps: int = DEFAULT_RANKING_LAPS,
                     video: bool = False, write: bool = True, device: str = "cpu", progress: bool = False, on_lap=None,
                     reward=None, race=None, randomise=None, car=None, seed: int = RACE_SEED,
-                    out_dir: Path | None = None) -> EvaluationResult:
+                    out_dir: Path | None = None, video_width: int = VIDEO_WIDTH_PX,
+                    video_title: str | None = None) -> EvaluationResult:
     """`evaluate` of a model already loaded (`load_model`, or a race server's stored model) on a `Track`: the
     same race, result and files. `seed` seeds the world (boxes and bots drawn at random, randomisation);
-    `out_dir` (created) receives the evaluation's files instead of a new `<model>/evaluation-<stamp>/`."""
+    `out_dir` (created) receives the evaluation's files instead of a new `<model>/evaluation-<stamp>/`;
+    `video_width` is the track picture's width in the video (pixels), `video_title` its title (default: the
+    model's folder name and the track)."""
     if race_config(model, race).head_to_model:  # the model races a copy of itself; car 0's run is its result
         if randomise is not None or reward is not None:
             raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
@@ -316,7 +320,7 @@ def evaluate_loaded(model: LoadedModel, track, rules: RaceRules, *, ranking_laps
                               randomise=world.randomise.changed() if world.randomise else None,
                               car=world.sim.car_params.name)
     if write:
-        _write(result, world, video, progress, out_dir)
+        _write(result, world, video, progress, out_dir, video_width, video_title)
     return result
 
 
@@ -325,7 +329,8 @@ def race_table(race: RaceConfig) -> dict:
     return race.table()
 
 
-def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Path | None = None) -> None:
+def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Path | None = None,
+           video_width: int = VIDEO_WIDTH_PX, video_title: str | None = None) -> None:
     if out is None:
         out = logs.new_evaluation_dir(result.model_dir)
     else:
@@ -346,8 +351,10 @@ def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Pa
         sim = world.sim
         track = sim.track_reversed if result.rules.reverse else sim.track
         t0 = time.perf_counter()
-        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=f"{result.model} on {result.track}",
-                                             max_speed=_top_speed(world.metadata), progress=progress)
+        title = video_title if video_title is not None else f"{result.model} on {result.track}"
+        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=title,
+                                             max_speed=_top_speed(world.metadata), progress=progress,
+                                             width_px=video_width)
         result.wall_seconds += time.perf_counter() - t0
         _write_summary(result)
 

@@ -18,6 +18,7 @@ import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,6 @@ from racerlab.spec import DEFAULT_SIMULATOR, SIMULATORS, STEPS_PER_SECOND, RaceC
 RULES_FORMAT = "racerlab.league.rules/1"
 RACE_TYPES = ("time_trial", "object_avoidance", "head_to_bot")
 TIMINGS = ("best_lap", "average_lap", "total_time")
-TIMING_WORDS = {"best_lap": "best lap", "average_lap": "best average", "total_time": "total time"}
 MAX_LAPS = 20
 MAX_TIME_CAP_S = 1800.0
 
@@ -105,9 +105,10 @@ class Rules:
         return RaceConfig.from_mapping({**self.race, "type": self.race_type}, where="race rules")
 
     def describe(self) -> str:
-        """One line: "reInvent2019_track, time trial, best lap of 3 laps (1 needed), off-track +3 s"."""
-        needed = f", {self.min_laps} needed" if self.timing == "best_lap" else (
-            f" over {self.min_laps} in a row" if self.timing == "average_lap" else ", all needed")
+        """One line: "reInvent2019_track, time trial, best lap of 3 laps (1 completed needed), off-track +3 s"."""
+        timing = {"best_lap": f"best lap of {self.laps} laps ({self.min_laps} completed needed)",
+                  "average_lap": f"best average over {self.min_laps} laps in a row of {self.laps}",
+                  "total_time": f"total time of {self.laps} laps"}[self.timing]
         objects = ""
         cfg = self.race_config()
         if cfg.num_obstacles:
@@ -115,8 +116,8 @@ class Rules:
         if cfg.num_bot_cars:
             objects = f", {cfg.num_bot_cars} bot cars at {cfg.bot_car_speed:g} m/s"
         direction = ", reversed" if self.reverse else ""
-        return (f"{self.track}{direction}, {self.race_type.replace('_', ' ')}{objects}, "
-                f"{TIMING_WORDS[self.timing]} of {self.laps} laps{needed}, off-track +{self.off_track_penalty:g} s")
+        return (f"{self.track}{direction}, {self.race_type.replace('_', ' ')}{objects}, {timing}, "
+                f"off-track +{self.off_track_penalty:g} s")
 
 
 def check_rules(r: Rules) -> None:
@@ -215,10 +216,16 @@ def pin_track(tracks_dir: Path, name_or_path) -> tuple[str, str]:
 
 
 def load_pinned(tracks_dir: Path, name: str, sha: str):
-    """The pinned track `sha` (named `name`), checked against its hash."""
+    """The pinned track `sha` (named `name`), checked against its hash. A process keeps the last few it loaded:
+    one Track object per track, so that the camera's raster of it (cached per Track) is built once per worker."""
+    return _load_pinned(str(tracks_dir), name, sha)
+
+
+@lru_cache(maxsize=8)
+def _load_pinned(tracks_dir: str, name: str, sha: str):
     from racerlab.track import from_array
 
-    path = tracks_dir / f"{sha}.npy"
+    path = Path(tracks_dir) / f"{sha}.npy"
     if not path.is_file():
         raise LeagueError(f"{path}: the race's track {name} is missing from the league folder; restore the folder "
                           "from a backup", 500)

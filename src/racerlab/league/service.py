@@ -360,7 +360,7 @@ class League(SubmissionsMixin):
     def _race_row(self, s: Session, name: str) -> Race:
         race = s.scalars(select(Race).where(Race.name == str(name))).first()
         if race is None:
-            raise LeagueError(f"no race named {name!r}; `racerlab league races` lists them", 404)
+            raise LeagueError(f"no race named {name!r}; `racerlab league race list DIR` lists them", 404)
         return race
 
     def _race_view(self, s: Session, race: Race, actor: Actor, now: datetime) -> RaceView:

@@ -28,7 +28,7 @@ from racerlab.league.races import iso, race_state
 from racerlab.league.rules import Rules
 from racerlab.league.store import LeagueError
 from racerlab.league.tables import Race, Submission, User, Worker, utcnow
-from racerlab.league.views import FILES, STATUS_WORDS, StandingRow, Standings, SubmissionView, loads
+from racerlab.league.views import FILES, STATUS_WORDS, QueueView, StandingRow, Standings, SubmissionView, loads
 
 INSERT_TRIES = 10
 DEFAULT_EVAL_S = 30.0  # the ETA's guess before any evaluation has finished
@@ -169,7 +169,7 @@ class SubmissionsMixin:
         if not sub.result_dir:
             return []
         folder = self.store.path(sub.result_dir)
-        return [kind for kind, rel in FILES.items() if (folder / rel).is_file()]
+        return [kind for kind, rel in FILES.items() if kind == "logs" or (folder / rel).is_file()]
 
     def _owned(self, s: Session, actor: Actor, submission_id: int) -> tuple[Submission, Race, str]:
         sub = s.get(Submission, int(submission_id))
@@ -210,9 +210,21 @@ class SubmissionsMixin:
             if sub is None or not (public or sub.user_id == actor.id or may(actor.role, "submission.view_any")):
                 raise LeagueError(f"no submission {submission_id} of yours", 404)
             path = self.store.path(sub.result_dir) / FILES[kind] if sub.result_dir else None
+        if kind == "logs" and path is not None and not path.is_file():
+            logs_bundle(path.resolve().parent, path, f"{alias_of(self, sub)}-{race.name}-{sub.number}")
         if path is None or not path.is_file():
             raise LeagueError(f"submission {submission_id} has no {kind} (yet)", 404)
         return path
+
+    def queue(self, actor: Actor) -> QueueView:
+        """How the queue stands: queued and evaluating submissions (all races), live workers, mean evaluation."""
+        with self.store.read() as s:
+            self._acting(s, actor, "race.view")
+            counts = dict(s.execute(select(Submission.status, func.count()).where(
+                Submission.status.in_(("queued", "evaluating"))).group_by(Submission.status)).all())
+            mean = self._mean_eval_s(s)
+            return QueueView(counts.get("queued", 0), counts.get("evaluating", 0), self._live_workers(s),
+                             None if mean is None else round(mean, 2))
 
     def requeue(self, actor: Actor, submission_id: int) -> SubmissionView:
         """Staff put a failed submission back in the queue (it is evaluated again from the start)."""
@@ -263,6 +275,29 @@ class SubmissionsMixin:
             data = r.to_json()
             w.writerow([csv_cell(data[c]) for c in CSV_COLUMNS])
         return out.getvalue()
+
+
+def alias_of(league, sub: Submission) -> str:
+    with league.store.read() as s:
+        return s.get(User, sub.user_id).alias
+
+
+def logs_bundle(attempt: Path, dest: Path, name: str) -> Path:
+    """The attempt's folder (model_metadata.json, evaluation-<stamp>/ without the video) as `dest` (.tar.gz),
+    under the folder name `name`; written whole or not at all."""
+    import os
+    import tarfile
+
+    from racerlab.logs.atomic import temp_path_for
+
+    tmp = temp_path_for(dest)
+    with tarfile.open(tmp, "w:gz") as tar:
+        for p in sorted(attempt.rglob("*")):
+            keep = p.is_dir() or (p.suffix != ".mp4" and p != dest)
+            if keep and not p.name.startswith("."):
+                tar.add(p, f"{name}/{p.relative_to(attempt).as_posix()}", recursive=False)
+    os.replace(tmp, dest)
+    return dest
 
 
 def _standing_rows(subs, race: Race) -> list[StandingRow]:

@@ -37,8 +37,8 @@ from racerlab.league.web.auth import needs, signed_in
 
 User = Annotated[Actor, Depends(signed_in)]
 FLASH_COOKIE = "racerlab_league_flash"
-FILE_LABELS = {"simtrace": "simtrace (CSV)", "metrics": "EvalMetrics.json", "summary": "summary.json",
-               "result": "league result (JSON)", "video": "video (MP4)"}
+FILE_LABELS = {"logs": "all logs (.tar.gz)", "simtrace": "simtrace (CSV)", "metrics": "EvalMetrics.json",
+               "summary": "summary.json", "result": "league result (JSON)", "video": "video (MP4)"}
 
 
 def _environment() -> Environment:
@@ -297,7 +297,7 @@ def _racing(app: FastAPI) -> None:
         league = request.app.state.league
         sub = league.submission(actor, sid)
         return render(request, "submission.html", sub=sub, race=league.race(actor, sub.race),
-                      files=[k for k in FILES if k in sub.files])
+                      files=[k for k in FILE_LABELS if k in sub.files and k in FILES])
 
     @app.post("/submissions/{sid}/requeue")
     def requeue(request: Request, sid: int, actor: Annotated[Actor, Depends(needs("submission.requeue"))]):
