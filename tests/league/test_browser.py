@@ -2,7 +2,8 @@
 
 The admin creates a race and invites two racers; ana accepts in the browser and submits from the upload form, bob
 accepts and submits from the command line; each watches the status change and the leaderboard update live;
-ana downloads her simtrace, metrics and video, and cannot open bob's submission or files.
+ana downloads her simtrace, metrics and video, and cannot open bob's submission or files. A worker process
+evaluates, as `league serve --workers 1` starts it.
 With RACERLAB_SCREENSHOTS=DIR the pages are saved there as league-*.png (docs/img holds the ones in
 docs/league.md). Skipped, with the reason, where chromium or Playwright is missing.
 """
@@ -17,26 +18,27 @@ from pathlib import Path
 import pytest
 
 from racerlab.cli import main
+from racerlab.league import start_workers
 from tests.console.test_browser import browser  # noqa: F401 - the shared chromium fixture
 from tests.league.conftest import PASSWORD, features_model
-from tests.league.web_fixtures import LiveServer, ThreadWorker, app_for, model_archive
+from tests.league.web_fixtures import LiveServer, app_for, model_archive
 
 WAIT_MS = 300_000  # an evaluation on this shared machine, the first conversion's start included
 
 
-def shot(page, name: str) -> None:
+def shot(page, name: str, full_page: bool = True) -> None:
     folder = os.environ.get("RACERLAB_SCREENSHOTS")
     if folder:
         Path(folder).mkdir(parents=True, exist_ok=True)
         page.wait_for_timeout(1800)  # a changed row's highlight fades first
-        page.screenshot(path=str(Path(folder) / f"league-{name}.png"), full_page=True)
+        page.screenshot(path=str(Path(folder) / f"league-{name}.png"), full_page=full_page)
 
 
 @pytest.fixture
 def club(league, tmp_path, monkeypatch):
     monkeypatch.setenv("RACERLAB_CONFIG_HOME", str(tmp_path / "config"))
     server = LiveServer(app_for(league))
-    workers = ThreadWorker(league)
+    workers = start_workers(league.store.folder, workers=1)  # a real worker process, as `serve --workers 1`
     yield server
     workers.stop()
     server.stop()
@@ -196,9 +198,9 @@ def test_race_day_pictures_for_the_docs(browser, club, league, tmp_path):  # noq
 
     wide = aws_track_path("reInvent2019_wide")
     admin = league.local_admin()
-    league.create_race(admin, "spring-cup", {"track": str(wide), "laps": 2, "min_laps": 2, "video": False, "max_submissions": 10,
-                                             "closes": "+7d", "description": "Club race, round 1: two laps, "
-                                             "the fastest lap of a two-lap run wins"})
+    league.create_race(admin, "spring-cup", {"track": str(wide), "laps": 2, "min_laps": 2, "video": False,
+                                             "max_submissions": 10, "closes": "+7d",
+                                             "description": "Club race, round 1: the fastest lap of a two-lap run"})
     subs = []
     for k, (alias, speed, steer) in enumerate(RACE_DAY):
         actor = racer(league, admin, alias)
@@ -223,6 +225,6 @@ def test_race_day_pictures_for_the_docs(browser, club, league, tmp_path):  # noq
         _invite(page, club.url, "gabi")
         shot(page, "people")
         page.goto(f"{club.url}/admin/audit")
-        shot(page, "audit")
+        shot(page, "audit", full_page=False)
     finally:
         page.close()

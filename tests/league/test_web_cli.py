@@ -186,7 +186,7 @@ def _wait_up(url, cert):
     end = time.monotonic() + 60
     while True:
         try:
-            httpx.get(f"{url}/api/health", verify=str(cert), timeout=5)
+            httpx.get(f"{url}/api/health", verify=str(cert) if cert else True, timeout=5)
             return
         except httpx.HTTPError:
             if time.monotonic() > end:
@@ -204,3 +204,55 @@ def test_a_racer_cannot_read_anothers_results_from_the_command_line(server, leag
     assert capsys.readouterr().out.strip() == "no submissions yet"
     with pytest.raises(LeagueError, match="no submission 1 of yours"):
         Client.stored().submission(1)
+
+
+def test_serve_with_workers_evaluates_what_the_command_line_submits(league, admin, straight, password_file,
+                                                                     tmp_path, capsys):
+    """The whole path a club uses: `league serve DIR --workers 1`, then login, submit --wait and standings."""
+    import socket
+
+    league.create_race(admin, "cup", {"track": str(straight), "laps": 1, "time_cap_s": 30, "video": False})
+    code = league.invite(admin, "ana").code
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(["python", "-m", "racerlab", "league", "serve", str(league.store.folder), "--port",
+                             str(port), "--workers", "1"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        assert "(1 local evaluation worker; Ctrl-C stops the server)" in proc.stdout.readline()
+        url = f"http://127.0.0.1:{port}"
+        _wait_up(url, None)
+        assert main(["league", "login", url, "--invite", code, "--password-file", str(password_file)]) == 0
+        model = features_model(tmp_path / "m", straight, STRAIGHT_AHEAD, seed=9).path
+        assert main(["league", "submit", str(model), "cup", "--wait", "--json"]) == 0
+        out = capsys.readouterr().out
+        sub = json.loads(out[out.index("{"):])
+        assert sub["status"] == "ranked" and sub["laps"][0]["completed"]
+        assert main(["league", "standings", "cup", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["rows"][0]["alias"] == "ana"
+        pids = [w.pid for w in _workers_seen(league)]
+        assert len(pids) == 1
+    finally:
+        proc.terminate()  # SIGTERM, as a service manager stops it: the workers stop with the server
+        proc.wait(120)
+        proc.stdout.close()
+    assert proc.returncode == 0
+    assert not any(_alive(pid) for pid in pids)
+
+
+def _workers_seen(league):
+    from sqlalchemy import select
+
+    from racerlab.league.tables import Worker
+
+    with league.store.read() as s:
+        return s.scalars(select(Worker)).all()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True

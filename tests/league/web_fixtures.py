@@ -109,21 +109,3 @@ class LiveServer:
         self.server.should_exit = True
         self.thread.join(10)
 
-
-class ThreadWorker:
-    """Evaluates the queue from a thread of this process until `stop()` (a stand-in for a worker process)."""
-
-    def __init__(self, league, poll_s: float = 0.2):
-        self.league, self.poll_s = league, poll_s
-        self.done = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True, name="league-test-worker")
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.done.is_set():
-            if not evaluate_queue(self.league):
-                self.done.wait(self.poll_s)
-
-    def stop(self) -> None:
-        self.done.set()
-        self.thread.join(120)

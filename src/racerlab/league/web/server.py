@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 from racerlab.console.security import is_loopback
@@ -52,11 +53,20 @@ def serve(folder, url: str | None = None, *, host: str = "127.0.0.1", port: int 
     pool = start_workers(folder, url, workers=workers) if workers else None
     print(f"racerlab league {folder}: open {address}/  ({workers or 'no'} local evaluation worker"
           f"{'s' if workers != 1 else ''}; Ctrl-C stops the server)", flush=True)
+    previous = signal.signal(signal.SIGTERM, _exit_on_term)
     try:
         uvicorn.run(app, host=host, port=port, log_level=log_level, timeout_graceful_shutdown=2,
                     ssl_certfile=str(tls_cert) if tls_cert else None, ssl_keyfile=str(tls_key) if tls_key else None,
                     proxy_headers=bool(public_url), forwarded_allow_ips="127.0.0.1,::1" if public_url else None)
     finally:
+        signal.signal(signal.SIGTERM, previous)
         if pool is not None:
             pool.stop()
         league.close()
+
+
+def _exit_on_term(signum, frame) -> None:
+    """SIGTERM ends the server like Ctrl-C: uvicorn shuts down, then raises the signal again once it has restored
+    this handler, and the SystemExit lets `serve` stop its workers (the default handler would leave them
+    running without a parent)."""
+    raise SystemExit(0)
