@@ -129,17 +129,19 @@ def percentiles(values) -> dict:
 
 
 def submit_all(league, admin, model, args, work: Path) -> tuple[list[int], float, float]:
-    """Submit every model (one racer in turn each); (ids, seconds the submitting took, this process's CPU)."""
+    """Submit every model (one racer in turn each); (ids, seconds the submit calls took, their CPU here)."""
     racers = [league.accept_invite(league.invite(admin, f"racer{r:03d}").code, "benchmark password")
               for r in range(args.racers)]
     gap = 3600.0 / args.rate if args.arrival == "steady" else 0.0
-    ids, t0, c0 = [], time.perf_counter(), self_cpu()
+    ids, t0, cpu, wall = [], time.perf_counter(), 0.0, 0.0
     for k, folder, _level in submission_folders(model, args.submissions, work / "uploads"):
         if gap:
             time.sleep(max(0.0, t0 + k * gap - time.perf_counter()))
+        c0, w0 = self_cpu(), time.perf_counter()  # the submission alone, not the making of its model folder
         ids.append(league.submit(racers[k % len(racers)], "bench", folder).id)
+        cpu, wall = cpu + self_cpu() - c0, wall + time.perf_counter() - w0
         shutil.rmtree(folder)
-    return ids, time.perf_counter() - t0, self_cpu() - c0
+    return ids, wall, cpu
 
 
 def wait_done(league, admin, ids, timeout_s: float) -> list:

@@ -121,6 +121,38 @@ def test_a_penalty_costs_its_seconds_in_the_lap_time(league, admin, wide, tmp_pa
     assert lap3["elapsed"] - lap1["elapsed"] == pytest.approx(2.0 * lap1["off_track"], abs=1e-6)
 
 
+def _layouts(league, sub):
+    return json.loads(league.submission_file(league.local_admin(), sub.id, "layouts").read_text())["layouts"]
+
+
+def test_boxes_from_the_seed_stand_where_they_stood_for_every_racer(league, admin, wide, tmp_path, work):
+    for seed in (7, 8):
+        league.create_race(admin, f"boxes{seed}", {"track": str(wide), "race_type": "object_avoidance", "obstacles": 3,
+                                                   "seed": seed, "laps": 1, "time_cap_s": 20, "video": False})
+    ana, bob = racer(league, admin, "ana"), racer(league, admin, "bob")
+    subs = [league.submit(ana, "boxes7", features_model(tmp_path / "a", wide, seed=1, race="object_avoidance").path),
+            league.submit(bob, "boxes7", features_model(tmp_path / "b", wide, seed=2, race="object_avoidance").path),
+            league.submit(bob, "boxes8", features_model(tmp_path / "c", wide, seed=3, race="object_avoidance").path),
+            league.submit(ana, "boxes7", features_model(tmp_path / "t", wide, seed=4).path)]  # trained without boxes
+    work(league, 4)
+    a, b, c, t = (league.submission(admin, s.id) for s in subs)
+    assert _layouts(league, a) == _layouts(league, b) != _layouts(league, c)  # one layout per race seed
+    assert len(_layouts(league, a)[0]["xy"]) == 3
+    assert t.status == "refused" and "reads" in t.reason and "boxes" in t.reason and "the model" in t.reason
+    assert str(league.store.folder) not in t.reason
+    assert league.race(ana, "boxes7").submissions_used == 1  # a refused model did not use a submission
+
+
+def test_a_head_to_bot_race_drives_among_bot_cars(league, admin, wide, tmp_path, work):
+    league.create_race(admin, "bots", {"track": str(wide), "race_type": "head_to_bot", "bots": 2, "bot_speed": 0.4,
+                                       "laps": 1, "time_cap_s": 20, "video": False})
+    sub = league.submit(admin, "bots", features_model(tmp_path / "m", wide, race="head_to_bot").path)
+    work(league, 1)
+    done = league.submission(admin, sub.id)
+    assert done.status in ("ranked", "not_ranked", "no_lap") and done.laps
+    assert json.loads(league.submission_file(admin, sub.id, "layouts").read_text())["kind"] == "bot"
+
+
 def test_the_command_line_runs_a_race_from_init_to_the_standings(tmp_path, straight, capsys):
     club = tmp_path / "club"
     pw = tmp_path / "pw"

@@ -84,7 +84,7 @@ def _insert_in_child(folder, url, actor, race, conv, barrier, out):
     league = League.open(folder, url)
     barrier.wait()
     try:
-        out.put(("ok", league._insert(actor, race, conv, _now())))
+        out.put(("ok", league.enter(actor, race, conv, _now())))
     except LeagueError as exc:
         out.put(("refused", str(exc)))
 
@@ -133,7 +133,7 @@ def test_many_threads_at_the_limit_never_pass_it(league, admin, cup, straight, t
     def go(conv):
         barrier.wait()
         try:
-            results.append(league._insert(ana, cup, conv, _now()).number)
+            results.append(league.enter(ana, cup, conv, _now()).number)
         except LeagueError:
             results.append("refused")
 

@@ -8,9 +8,9 @@ forked from a small server that has torch loaded already (so a conversion costs 
    the parent kills it at the deadline;
 2. it copies or unpacks only the files a model has, through `racerlab.exchange`'s archive checks (no links,
    devices, absolute paths or '..', bounded sizes and member count);
-3. it opens the checkpoint through `racerlab.evaluate`'s loader (`load_model`: `weights_only`, non-finite
-   weights refused, the checkpoint's metadata against model_metadata.json), or imports an AWS model with
-   `racerlab.exchange.import_model` first (TensorFlow reads tensors only; a frozen graph is parsed, never run);
+3. it opens the checkpoint through the model folder's one door (`ModelFolder.open`: `weights_only`, non-finite
+   weights refused, the checkpoint's metadata against model_metadata.json), after importing an AWS model with
+   `racerlab.exchange.import_model` (TensorFlow reads tensors only; a frozen graph is parsed, never run);
 4. it writes the networks' weights as safetensors, with model_metadata.json, a small training.toml (the
    observation and camera look the network reads) and model.json.
 
@@ -86,7 +86,7 @@ def _ctx():
     if _context is None:
         if "forkserver" in mp.get_all_start_methods():
             _context = mp.get_context("forkserver")
-            _context.set_forkserver_preload(["torch", "racerlab.evaluate.api", "racerlab.league.convert"])
+            _context.set_forkserver_preload(["torch", "racerlab.model", "racerlab.league.convert"])
         else:  # pragma: no cover - platforms without fork
             _context = mp.get_context("spawn")
     return _context
@@ -219,14 +219,19 @@ def child_main(upload: str, work: str, checkpoint: str, memory_bytes: int, deadl
         torch.set_num_threads(1)
         convert_in_child(Path(upload), out, checkpoint)
     except MemoryError:
-        _fail(out, f"{Path(upload).name}: reading the model needed more than {memory_bytes / 2**30:g} GiB of memory; "
-                   "it was stopped. Submit a DeepRacer or racerlab model of the usual size", 3)
-    except RacerlabError as exc:
-        _fail(out, _scrub(str(exc), upload, out), 2)
+        _fail(out, _memory_text(upload, memory_bytes), 3)
+    except RacerlabError as exc:  # torch's allocator failing under the limit arrives wrapped in the loader's error
+        _fail(out, _memory_text(upload, memory_bytes) if "allocate memory" in str(exc) else
+              _scrub(str(exc), upload, out), 2)
     except Exception as exc:  # noqa: BLE001 - a hostile file must end in one line, not a traceback
         _fail(out, f"{Path(upload).name}: not a model racerlab can read ({type(exc).__name__}: "
                    f"{_scrub(str(exc), upload, out)})", 2)
     sys.stdout.flush()
+
+
+def _memory_text(upload: str, memory_bytes: int) -> str:
+    return (f"{Path(upload).name}: reading the model needed more than {memory_bytes / 2**30:g} GiB of memory; it was "
+            "stopped. Submit a DeepRacer or racerlab model of the usual size")
 
 
 def _scrub(text: str, upload: str, work: Path) -> str:
@@ -244,7 +249,7 @@ def _fail(out: Path, message: str, code: int) -> None:
 
 
 def convert_in_child(upload: Path, out: Path, checkpoint: str) -> None:
-    from racerlab.evaluate.api import load_model
+    from racerlab.model import ModelFolder
 
     staged = out / "input"
     if upload.is_dir():
@@ -255,17 +260,17 @@ def convert_in_child(upload: Path, out: Path, checkpoint: str) -> None:
         safe_extract(upload, staged, keep=keep)
     root = model_root(staged, upload)
     if any(CHECKPOINT_RE.match(p.name) for p in (root / "checkpoints").glob("*.pt")):
-        if not (root / "reward_function.py").is_file():  # the loader asks for one; it is never run
+        if not (root / "reward_function.py").is_file():  # the door asks for one; it is never run
             (root / "reward_function.py").write_text("# not part of the submission; a league never runs it\n")
-        loaded, source = load_model(root, checkpoint), "racerlab"
+        opened, source = ModelFolder(root).open(checkpoint), "racerlab"
     else:
-        loaded, source = _import_aws(staged, out, upload, checkpoint)
-    write_stored(loaded, out / "model", source)
+        opened, source = _import_aws(staged, out, upload, checkpoint)
+    write_stored(opened, out / "model", source)
 
 
 def _import_aws(staged: Path, out: Path, upload: Path, checkpoint: str):
-    from racerlab.evaluate.api import load_model
     from racerlab.exchange.importer import ModelFiles, import_model
+    from racerlab.model import ModelFolder
 
     if checkpoint not in ("best", ""):
         raise LeagueError(f"{upload.name}: an AWS model races the checkpoint its export holds; submit it without "
@@ -274,7 +279,7 @@ def _import_aws(staged: Path, out: Path, upload: Path, checkpoint: str):
     files.require(Path(upload.name))
     source = "aws-checkpoint" if files.checkpoint is not None else "aws-pb"
     imported = import_model(staged, out / "imported")
-    return load_model(imported, "last"), source
+    return ModelFolder(imported).open("last"), source
 
 
 def model_root(staged: Path, upload: Path) -> Path:
@@ -337,20 +342,22 @@ def network_weights(agent_state: dict) -> dict:
     return out
 
 
-def write_stored(loaded, dest: Path, source: str) -> None:
-    """The stored form of a loaded model: weights.safetensors, model_metadata.json, training.toml, model.json."""
+def write_stored(opened, dest: Path, source: str) -> None:
+    """The stored form of an opened model (`model.OpenModel`): weights.safetensors, model_metadata.json,
+    training.toml, model.json."""
     from safetensors.torch import save_file
 
     dest.mkdir(parents=True)
-    tensors = network_weights(loaded.state.agent)
+    tensors = network_weights(opened.state.agent)
     if not tensors:
         raise LeagueError("the checkpoint holds no network weights")
-    agent_format = str(loaded.state.agent.get("format", ""))
+    agent_format = str(opened.state.agent.get("format", ""))
     save_file(tensors, str(dest / WEIGHTS_NAME), metadata={"agent_format": agent_format})
-    (dest / "model_metadata.json").write_text(json.dumps(loaded.metadata.to_json(), indent=2) + "\n")
-    trained = loaded.folder.config().race.type
-    (dest / "training.toml").write_text(f'[run]\nobservation = "{loaded.observation}"\nlook = "{loaded.look}"\n'
+    (dest / "model_metadata.json").write_text(json.dumps(opened.metadata.to_json(), indent=2) + "\n")
+    trained = opened.config.race.type
+    (dest / "training.toml").write_text(f'[run]\nobservation = "{opened.observation}"\nlook = "{opened.look}"\n'
                                         f'[race]\ntype = "{trained}"\n')
-    info = {"format": MODEL_FORMAT, "source": source, "checkpoint": loaded.checkpoint, "agent_format": agent_format,
-            "observation": loaded.observation, "look": loaded.look, "trained_race_type": trained}
+    info = {"format": MODEL_FORMAT, "source": source, "checkpoint": opened.checkpoint.name,
+            "agent_format": agent_format, "observation": opened.observation, "look": opened.look,
+            "trained_race_type": trained}
     (dest / MODEL_JSON).write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")

@@ -84,6 +84,13 @@ class SubmissionsMixin:
             store_converted(conv, self.store.folder / "models")
         finally:
             shutil.rmtree(work, ignore_errors=True)
+        return self.enter(actor, race, conv, now)
+
+    def enter(self, actor: Actor, race: str, conv, now: datetime) -> SubmissionView:
+        """Insert a converted model (`convert.Converted`, stored) as `actor`'s submission to `race`, as of `now`:
+        the window, the identical model and the limit checked in the insert's transaction. On PostgreSQL two such
+        transactions can both read n - 1; the second insert of number n then breaks the unique constraint and
+        this tries again, reading n."""
         for _ in range(INSERT_TRIES):
             try:
                 return self._insert(actor, race, conv, now)
@@ -156,9 +163,14 @@ class SubmissionsMixin:
         return position, round(rounds * mean, 1)
 
     def _live_workers(self, s: Session) -> int:
-        since = utcnow().timestamp() - WORKER_SEEN_S
-        rows = s.scalars(select(Worker).where(Worker.state != "stopped"))
-        return sum(1 for w in rows if w.seen_at.timestamp() >= since)
+        """Workers seen in the last minute, or holding a claim whose lease still runs (a long evaluation)."""
+        now = utcnow()
+        since = now.timestamp() - WORKER_SEEN_S
+        seen = {w.id for w in s.scalars(select(Worker).where(Worker.state != "stopped"))
+                if w.seen_at.timestamp() >= since}
+        busy = s.scalars(select(Submission.worker).where(Submission.status == "evaluating",
+                                                         Submission.lease_until > now)).all()
+        return len(seen | set(busy))
 
     def _mean_eval_s(self, s: Session) -> float | None:
         recent = select(Submission.eval_seconds).where(Submission.eval_seconds.is_not(None)) \

@@ -16,10 +16,11 @@ FINAL = ("ranked", "not_ranked", "no_lap", "refused", "failed")
 STATUSES = ("queued", "evaluating", *FINAL)
 STATUS_WORDS = {"queued": "queued", "evaluating": "under evaluation", "ranked": "ranked", "not_ranked": "not ranked",
                 "no_lap": "no lap", "refused": "refused", "failed": "failed"}
-# a result's files, relative to its evaluation folder; "logs" is the .tar.gz of the attempt's folder without the
-# video: a DRfC model folder (model_metadata.json and evaluation-<stamp>/) for deepracer-utils and racerlab report
+# a result's files, relative to its evaluation folder (layouts: where the boxes or bot cars stood); "logs" is the
+# .tar.gz of the attempt's folder without the video: a DRfC model folder (model_metadata.json and
+# evaluation-<stamp>/) for deepracer-utils and racerlab report
 FILES = {"simtrace": "evaluation-simtrace/0-iteration.csv", "metrics": "EvalMetrics.json", "summary": "summary.json",
-         "video": "evaluation.mp4", "result": "league.json", "logs": "../logs.tar.gz"}
+         "video": "evaluation.mp4", "result": "league.json", "layouts": "layouts.json", "logs": "../logs.tar.gz"}
 
 
 def _jsonable(obj):

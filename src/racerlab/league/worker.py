@@ -139,7 +139,14 @@ def worker_main(folder: str, url: str | None, worker: str, stop=None, lease_s: f
 
     pin_environment()
     stop = stop if stop is not None else threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        return _work(folder, url, worker, stop, lease_s, poll_s, max_jobs)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _work(folder, url, worker, stop, lease_s, poll_s, max_jobs) -> int:
     store = Store.open(folder, url, upgrade=False)
     host, pid = socket.gethostname()[:64], os.getpid()
     queue.worker_seen(store, worker, host, pid, "idle")
