@@ -256,3 +256,18 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+def test_the_readmes_league_lines_parse_with_the_real_parser():
+    import shlex
+    from pathlib import Path
+
+    from racerlab.cli import build_parser
+
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    start = text.index("```bash\n", text.index("## Run a league")) + len("```bash\n")
+    lines = [shlex.split(line, comments=True) for line in text[start:text.index("```", start)].splitlines()]
+    commands = [line[1:] for line in lines if line]
+    assert [c[1] for c in commands] == ["init", "race", "invite", "serve", "login", "submit", "standings"]
+    for argv in commands:
+        build_parser().parse_args(argv)  # a wrong flag exits here

@@ -25,7 +25,8 @@ from racerlab.league.web.auth import needs, signed_in
 User = Annotated[Actor, Depends(signed_in)]
 FILE_TYPES = {"simtrace": ("text/csv", "csv"), "metrics": ("application/json", "json"),
               "summary": ("application/json", "json"), "video": ("video/mp4", "mp4"),
-              "result": ("application/json", "json"), "logs": ("application/gzip", "tar.gz")}
+              "result": ("application/json", "json"), "layouts": ("application/json", "json"),
+              "logs": ("application/gzip", "tar.gz")}
 RACE_CHANGES = ("closes", "max_submissions", "opens", "description", "public_videos")
 
 

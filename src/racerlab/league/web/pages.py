@@ -38,7 +38,8 @@ from racerlab.league.web.auth import needs, signed_in
 User = Annotated[Actor, Depends(signed_in)]
 FLASH_COOKIE = "racerlab_league_flash"
 FILE_LABELS = {"logs": "all logs (.tar.gz)", "simtrace": "simtrace (CSV)", "metrics": "EvalMetrics.json",
-               "summary": "summary.json", "result": "league result (JSON)", "video": "video (MP4)"}
+               "summary": "summary.json", "result": "league result (JSON)", "layouts": "boxes and bots (JSON)",
+               "video": "video (MP4)"}
 
 
 def _environment() -> Environment:
