@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import racerlab
+from racerlab import kernelcache
 from racerlab.calibrate import fit as fit_mod
 from racerlab.calibrate import fit_car, split, stretches
 from racerlab.calibrate.run import car_toml
@@ -171,10 +172,10 @@ def test_the_table_is_part_of_the_compiled_kernels_cache_key(tmp_path):
     root = tmp_path / "racerlab"
     src = Path(racerlab.__file__).parent
     shutil.copytree(src, root, ignore=shutil.ignore_patterns("__pycache__", "data"))
-    before = racerlab._compiled_sources_key(str(root))
+    before = kernelcache.sources_key(str(root))
     spec = root / "spec.py"
     spec.write_text(spec.read_text().replace('CarConstant("track_m"', 'CarConstant("track_m" ', 1))
-    assert racerlab._compiled_sources_key(str(root)) != before
+    assert kernelcache.sources_key(str(root)) != before
 
 
 def test_a_replaced_car_keeps_its_class():
