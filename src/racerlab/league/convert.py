@@ -213,10 +213,15 @@ def child_main(upload: str, work: str, checkpoint: str, memory_bytes: int, deadl
 
     out = Path(work)
     try:
-        limit_resources(memory_bytes, deadline_s)
+        # racerlab's own modules load before the limits, which are for the submission: the forkserver's preload is
+        # not there when another part of the process (the console's runs) started the one forkserver first
         import torch
 
+        import racerlab.exchange.importer  # noqa: F401
+        import racerlab.model  # noqa: F401
+
         torch.set_num_threads(1)
+        limit_resources(memory_bytes, deadline_s)
         convert_in_child(Path(upload), out, checkpoint)
     except MemoryError:
         _fail(out, _memory_text(upload, memory_bytes), 3)
