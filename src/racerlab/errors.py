@@ -19,3 +19,22 @@ class ConfigError(RacerlabError, ValueError):
 
 class RewardFunctionError(RacerlabError):
     """The user's reward function raised or returned something that is not a finite number."""
+
+
+class ModelRefused(RacerlabError):
+    """A trained model's checkpoint that racerlab will not use (`ModelFolder.open`, `racerlab.agent.inference_policy`):
+    one line, `<checkpoint>: <problem>; <fix>`. `reason` says which cause refused it, for a reader that handles one
+    of them itself (resume skips an unreadable or non-finite checkpoint for an older one); `problem` is the line's
+    middle, without the path and the fix."""
+
+    UNREADABLE = "unreadable"  # not a checkpoint racerlab can read: damaged, another format, more than data in it
+    NONFINITE = "non-finite"  # NaN or infinite weights: the training diverged there
+    METADATA = "metadata"  # trained with a model_metadata.json whose weights cannot carry over to the folder's
+    NETWORK = "network"  # the weights do not fit the network built for the inputs it is used with
+
+    def __init__(self, path, reason: str, problem: str, fix: str):
+        super().__init__(f"{path}: {problem}; {fix}")
+        self.path, self.reason, self.problem, self.fix = path, reason, problem, fix
+
+    def __reduce__(self):  # one argument per field, so that it crosses process boundaries (a league's workers)
+        return type(self), (self.path, self.reason, self.problem, self.fix)

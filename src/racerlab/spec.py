@@ -5,8 +5,11 @@ Every other part reads these names from here (a leaf module: it imports nothing 
 
 - Time: one environment step is one camera frame at 15 Hz of simulated time (facts §2).
 - The car (facts §3): wheelbase, wheel track, the steering clip and the commanded-speed clip that the
-  simulator applies, and the point 0.14 m ahead of the base where AWS measures positions; `CarParams`
-  adds racerlab's dynamic limits (grip, acceleration, braking, lags), calibrated in `racerlab.sim.car`.
+  simulator applies, and the point 0.14 m ahead of the base where AWS measures positions; racerlab's dynamic
+  constants (lags, gains, traction limits), modelled in `racerlab.sim.car`. `CAR_CONSTANTS` is the one table of
+  them all (default, unit, valid and plausible values, "off" value, packing for the compiled step, randomisation,
+  the fit's search range), from which `CarParams`' fields and validation, `CAR_PLAUSIBLE`, `sim.car`'s packed
+  order and `RANDOMISED` and `calibrate.fit`'s lists are derived; `CAR_TABLE` holds the fitted cars.
 - Episode statuses: the simtrace's `episode_status` strings (in the simulator's code order) and the labels
   of the metrics JSON (facts §7).
 - Races (next_capabilities §A): `RaceConfig`, a race's settings with DRfC's names and defaults (object
@@ -17,7 +20,6 @@ Every other part reads these names from here (a leaf module: it imports nothing 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -47,68 +49,188 @@ DEFAULT_SIMULATOR = "droa"
 CONTROLS = ("velocity", "effort")  # model_metadata version >= 5 | 3-4 (facts §3)
 MAX_DELAY_STEPS = 3.0  # the compiled step keeps this many past commands (plus one)
 WHEEL_CAP_MPS = 3.5  # 100 rad/s (URDF wheel velocity limit) x 0.035 m (the controller's wheel radius)
+MAX_SUBSTEPS = 64  # bounds the compiled step's inner loop for everyone (a [car] table's `substeps`)
 
 
-@dataclass(frozen=True)
+class Range(NamedTuple):
+    """The values from `low` to `high`, `low` itself left out when `above` (a CarParams constant's domain)."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    above: bool = False
+
+    def holds(self, value) -> bool:
+        """`value` is in the range (NaN never is)."""
+        return (value > self.low if self.above else value >= self.low) and value <= self.high
+
+    def words(self) -> str:
+        """The range as an error message says it: "> 0", ">= 0", "in [0, 3]"."""
+        if self.high == math.inf:
+            return f"{'>' if self.above else '>='} {self.low:g}"
+        return f"in [{self.low:g}, {self.high:g}]"
+
+
+POSITIVE = Range(0.0, above=True)
+NON_NEGATIVE = Range(0.0)
+
+
+class Search(NamedTuple):
+    """Where `racerlab calibrate` searches a constant: from `low` to `high`, of the constant itself or, `inverse`, of
+    1 / constant (0 = off: a slide or a fade speed of infinity), and, `only_if_on`, only for a car that has the term
+    (on logs without it the extra freedom only lets the other constants wander)."""
+
+    low: float
+    high: float
+    inverse: bool = False
+    only_if_on: bool = False
+
+
+class CarConstant(NamedTuple):
+    """One of the car's constants, a field of `CarParams`, and everything racerlab does with it.
+
+    `valid`: what CarParams takes (tests build extreme cars); `choices`: the same for a name; `plausible`: what a
+    user's [car] table may set, (low, high) in `unit` (`implausible`); `off`: the value that switches its term off
+    (randomised draws and the fit keep it off); `packed`: how the compiled step reads it (`sim.car.pack`: "value",
+    "radians"; "" not at all), its position being its place among the packed rows; `randomised`: None when
+    randomised dynamics leave it alone, else the least a draw may go (`sim.car.randomised`, within the fit's spread
+    `CAR_SPREAD`); `fit`: where `racerlab calibrate` searches it (`calibrate.fit`), None when it is not fitted.
+    """
+
+    name: str
+    default: float | int | bool | str
+    unit: str
+    meaning: str
+    valid: Range | None = None
+    choices: tuple[str, ...] = ()
+    plausible: tuple[float, float] | None = None
+    off: float | None = None
+    packed: str = ""
+    randomised: float | None = None
+    fit: Search | None = None
+
+
+# The car's constants in CarParams' order (the fit searches them in this order too). A new car term is one row here,
+# its dynamics in `sim.car` and its fitted values in CAR_TABLE (docs/car.md). The packed positions are compiled into
+# the simulator's numba kernels, so racerlab's cache of compiled kernels is keyed on this file too.
+CAR_CONSTANTS = (
+    # geometry and the command clips (facts §3)
+    CarConstant("wheelbase_m", WHEELBASE_M, "m", "between the axles", POSITIVE, plausible=(0.05, 1.0),
+                packed="value"),
+    CarConstant("track_m", WHEEL_TRACK_M, "m", "between the left and the right wheels", POSITIVE,
+                plausible=(0.05, 1.0)),
+    CarConstant("max_steer_deg", MAX_STEERING_DEG, "degrees", "both front wheels: the command clipped to ± this",
+                POSITIVE, plausible=(5.0, 60.0), packed="radians"),
+    CarConstant("min_speed_mps", MIN_SPEED, "m/s", "commanded speeds are clipped to at least this", NON_NEGATIVE,
+                plausible=(0.0, 10.0), packed="value"),
+    CarConstant("max_speed_mps", MAX_SPEED, "m/s", "the command clip; the wheels' own cap is `wheel_cap_mps`",
+                POSITIVE, plausible=(0.1, 10.0), packed="value"),
+    # which car
+    CarConstant("simulator", DEFAULT_SIMULATOR, "", "droa: DeepRacer on AWS, DRfC >= 6; console: DRfC <= 5",
+                choices=SIMULATORS),
+    CarConstant("control", "velocity", "", "velocity (model version >= 5) or effort (3-4)", choices=CONTROLS),
+    # the fitted dynamics (`sim.car` says what each does); the defaults are the droa velocity car fitted on the
+    # DRoA 2026 logs (issue 34: steps timed by DRoA's rule)
+    CarConstant("delay_steps", 0.538, "steps", "the action starts to act this many steps after its row (a fraction: "
+                "within the step)", Range(0.0, MAX_DELAY_STEPS), plausible=(0.0, MAX_DELAY_STEPS), packed="value",
+                randomised=0.0, fit=Search(0.0, 3.0)),
+    CarConstant("steer_tau_s", 0.161, "s", "the hinge's first-order lag (the simapp's ROS 2 controller: 0.167 s)",
+                NON_NEGATIVE, plausible=(0.0, 2.0), packed="value", randomised=0.0, fit=Search(0.0, 1.0)),
+    CarConstant("yaw_gain", 0.638, "", "yaw rate / the kinematic bicycle's at low speed", POSITIVE,
+                plausible=(0.05, 5.0), packed="value", randomised=0.05, fit=Search(0.15, 1.2)),
+    CarConstant("slide_mps", 0.0, "m/s", "the gain halves at this speed (gain / (1 + (v / slide)²))", NON_NEGATIVE,
+                plausible=(0.0, 100.0), off=0.0, packed="value", randomised=0.0, fit=Search(0.0, 2.5, inverse=True)),
+    CarConstant("yaw_tau_s", 0.014, "s", "first-order lag of the yaw rate toward the one the wheels ask for (body "
+                "inertia, slip)", NON_NEGATIVE, plausible=(0.0, 2.0), packed="value", randomised=0.0,
+                fit=Search(0.0, 0.5)),
+    CarConstant("speed_tau_s", 0.0089, "s", "first-order lag of the ground speed toward the target", NON_NEGATIVE,
+                plausible=(0.0, 5.0), packed="value", randomised=0.0, fit=Search(0.0, 1.0)),
+    CarConstant("accel_mps2", 14.9, "m/s²", "traction limit speeding up", POSITIVE, plausible=(0.1, 200.0),
+                packed="value", randomised=0.1, fit=Search(0.5, 30.0)),
+    CarConstant("brake_mps2", 13.0, "m/s²", "traction limit slowing down", POSITIVE, plausible=(0.1, 200.0),
+                packed="value", randomised=0.1, fit=Search(0.5, 30.0)),
+    CarConstant("ground_factor", 1.0135, "", "ground speed / command (wheel mesh radius ~0.036 m against the "
+                "controller's 0.035)", POSITIVE, plausible=(0.5, 2.0), packed="value", randomised=0.5,
+                fit=Search(0.95, 1.12)),
+    CarConstant("accel_fade_mps", 0.0, "m/s", "the acceleration falls as 1 - (v / fade)², < 0 above it (ROS 1)",
+                NON_NEGATIVE, plausible=(0.0, 20.0), off=0.0, packed="value", randomised=0.0,
+                fit=Search(0.0, 1.0, inverse=True)),
+    CarConstant("steer_kick", 0.0, "", "share of a steering command's change the hinge takes at once (ROS 1's PID "
+                "derivative)", Range(0.0, 1.0), plausible=(0.0, 1.0), packed="value", randomised=0.0,
+                fit=Search(0.0, 0.9)),
+    # the draws stop at 1 m/s² of saturation, and so does the fit: 0 would switch it off, the car turning hardest
+    CarConstant("tyre_sat_mps2", 0.0, "m/s²", "the tyres saturate toward this lateral acceleration: κ / √(1 + "
+                "(v²κ / it)²)", NON_NEGATIVE, plausible=(0.0, 50.0), off=0.0, packed="value", randomised=1.0,
+                fit=Search(0.0, 1.0, inverse=True, only_if_on=True)),
+    CarConstant("front_drive", 0.0, "", "share of the speed change the steered front wheels push along their angle",
+                NON_NEGATIVE, plausible=(0.0, 5.0), off=0.0, packed="value", randomised=0.0,
+                fit=Search(0.0, 2.0, only_if_on=True)),
+    CarConstant("steer_offset_deg", 0.0, "degrees", "the wheels point this much left (+) of the command (the 2022 "
+                "logs)", Range(), plausible=(-5.0, 5.0), off=0.0, packed="radians",
+                fit=Search(-3.0, 3.0, only_if_on=True)),
+    # fixed per car
+    CarConstant("wheel_cap_mps", WHEEL_CAP_MPS, "m/s", "commands above it are clipped by the wheel joints' velocity "
+                "limit", POSITIVE, plausible=(0.1, 20.0), packed="value"),
+    CarConstant("regulated", True, "", "False: effort control without a speed loop (droa, version 3-4): full "
+                "traction always", packed="value"),
+    CarConstant("grip_mps2", 4.9, "m/s²", "lateral acceleration limit (mu 0.5 x g)", POSITIVE, plausible=(0.1, 50.0),
+                packed="value"),
+    # how racerlab drives it
+    CarConstant("step_jitter", False, "", "steps last a length drawn from the simulator's measured distribution "
+                "(training: on)"),
+    CarConstant("randomise", 0.0, "spreads", "each episode draws the constants around these, this many times the "
+                "fit's spread", NON_NEGATIVE, plausible=(0.0, 5.0)),
+    CarConstant("substeps", 4, "", "integration sub-steps per step", Range(1.0), plausible=(1, MAX_SUBSTEPS),
+                packed="value"),
+)
+
+
+@functools.cache
+def constants_by_name(table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> dict[str, CarConstant]:
+    """`table`'s rows by name."""
+    return {c.name: c for c in table}
+
+
+def car_fields(table: tuple[CarConstant, ...]):
+    """A class decorator: the class as a frozen dataclass whose fields are `table`'s rows, in order, with their
+    defaults and the types of their defaults; `TABLE` (a class attribute) is the table, which its validation, packing,
+    randomisation and fit read."""
+
+    def build(cls):
+        cls.__annotations__ = {c.name: type(c.default) for c in table}
+        for c in table:
+            setattr(cls, c.name, c.default)
+        cls.TABLE = table
+        return dataclass(frozen=True)(cls)
+
+    return build
+
+
+@car_fields(CAR_CONSTANTS)
 class CarParams:
-    """The car's geometry and dynamics; the defaults are the `droa` simulator's car for a version-5 model.
+    """The car's geometry and dynamics: one field per row of `CAR_CONSTANTS` (name, default, unit, meaning); the
+    defaults are the `droa` simulator's car for a version-5 model.
 
     `racerlab.sim.car` has the model (its docstring says what each constant does) and `car_params` picks
     the fitted constants of a simulator and model version (`CAR_TABLE`, fitted by `racerlab.calibrate`).
     """
 
-    wheelbase_m: float = WHEELBASE_M
-    track_m: float = WHEEL_TRACK_M
-    max_steer_deg: float = MAX_STEERING_DEG
-    min_speed_mps: float = MIN_SPEED
-    max_speed_mps: float = MAX_SPEED  # the command clip; the wheels' own cap is `wheel_cap_mps`
-    simulator: str = DEFAULT_SIMULATOR
-    control: str = "velocity"
-    # the defaults are the droa velocity car fitted on the DRoA 2026 logs (issue 34: steps timed by DRoA's rule)
-    delay_steps: float = 0.538  # the action starts to act this many steps after its row (fraction: within the step)
-    steer_tau_s: float = 0.161  # the hinge's first-order lag (the simapp's ROS 2 controller: 0.167 s)
-    steer_kick: float = 0.0  # share of a steering command's change the hinge takes at once (ROS 1's PID derivative)
-    yaw_gain: float = 0.638  # yaw rate / the kinematic bicycle's at low speed
-    slide_mps: float = 0.0  # the gain halves at this speed (gain / (1 + (v / slide)²)); 0 = no slide
-    yaw_tau_s: float = 0.014  # first-order lag of the yaw rate toward the one the wheels ask for (body inertia, slip)
-    speed_tau_s: float = 0.0089  # first-order lag of the ground speed toward the target
-    accel_mps2: float = 14.9  # traction limits
-    brake_mps2: float = 13.0
-    accel_fade_mps: float = 0.0  # the acceleration falls as 1 - (v / fade)², < 0 above it (ROS 1); 0 = no fade
-    ground_factor: float = 1.0135  # ground speed / command (wheel mesh radius ~0.036 m against the controller's 0.035)
-    wheel_cap_mps: float = WHEEL_CAP_MPS  # commands above it are clipped by the wheel joints' velocity limit
-    regulated: bool = True  # False: effort control without a speed loop (droa, version 3-4): full traction always
-    grip_mps2: float = 4.9  # lateral acceleration limit (mu 0.5 x g)
-    tyre_sat_mps2: float = 0.0  # the tyres saturate toward this lateral acceleration: κ / √(1 + (v²κ / it)²); 0 = off
-    front_drive: float = 0.0  # share of the speed change the steered front wheels push along their angle; 0 = off
-    steer_offset_deg: float = 0.0  # the wheels point this much left (+) of the command (the 2022 logs); 0 = none
-    step_jitter: bool = False  # steps last a length drawn from the simulator's measured distribution (training: on)
-    randomise: float = 0.0  # each episode draws the constants around these, this many times the fit's spread
-    substeps: int = 4
-
     def __post_init__(self):
-        for name in ("wheelbase_m", "track_m", "max_steer_deg", "max_speed_mps", "accel_mps2", "brake_mps2",
-                     "grip_mps2", "yaw_gain", "ground_factor", "wheel_cap_mps"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"CarParams.{name} must be > 0")
-        for name in ("steer_tau_s", "speed_tau_s", "slide_mps", "yaw_tau_s", "accel_fade_mps", "steer_kick",
-                     "randomise", "tyre_sat_mps2", "front_drive"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"CarParams.{name} must be >= 0")
-        if not 0 <= self.min_speed_mps <= self.max_speed_mps:
-            raise ValueError("CarParams needs 0 <= min_speed_mps <= max_speed_mps")
-        if not 0 <= self.delay_steps <= MAX_DELAY_STEPS:
-            raise ValueError(f"CarParams.delay_steps must be in [0, {MAX_DELAY_STEPS:g}]")
-        if self.simulator not in SIMULATORS:
-            raise ValueError(f"CarParams.simulator must be one of {SIMULATORS}, got {self.simulator!r}")
-        if self.control not in CONTROLS:
-            raise ValueError(f"CarParams.control must be one of {CONTROLS}, got {self.control!r}")
-        if self.substeps < 1:
-            raise ValueError("CarParams.substeps must be >= 1")
-        if not self.steer_kick <= 1:
-            raise ValueError("CarParams.steer_kick must be in [0, 1]")
+        where = type(self).__name__
+        for c in self.TABLE:
+            value = getattr(self, c.name)
+            if c.valid is not None and not c.valid.holds(value):
+                raise ValueError(f"{where}.{c.name} must be {c.valid.words()}")
+            if c.choices and value not in c.choices:
+                raise ValueError(f"{where}.{c.name} must be one of {c.choices}, got {value!r}")
+        if not self.min_speed_mps <= self.max_speed_mps:
+            raise ValueError(f"{where} needs 0 <= min_speed_mps <= max_speed_mps")
         if not abs(self.steer_offset_deg) < self.max_steer_deg:
-            raise ValueError("CarParams.steer_offset_deg must be within ±max_steer_deg")
+            raise ValueError(f"{where}.steer_offset_deg must be within ±max_steer_deg")
+
+    def has(self, name: str) -> bool:
+        """The term of constant `name` is on: its value is not the row's `off` (a constant without one always is)."""
+        off = constants_by_name(self.TABLE)[name].off
+        return off is None or getattr(self, name) != off
 
     def wheel_offsets(self) -> np.ndarray:
         """(4, 2) wheel-centre offsets in the car frame: left rear, left front, right rear, right front."""
@@ -214,7 +336,7 @@ STEP_LENGTHS: dict[str, tuple[float, ...]] = {
     "droa": (0.0466, 0.0554, 0.0592, 0.0622, 0.0631, 0.0641, 0.0651, 0.067, 0.0699, 0.0738, 0.1272),
     "console": (0.031, 0.054, 0.06, 0.063, 0.065, 0.067, 0.069, 0.071, 0.074, 0.079, 0.099),
 }
-CAR_KEYS = tuple(f.name for f in dataclasses.fields(CarParams))
+CAR_KEYS = tuple(c.name for c in CAR_CONSTANTS)
 
 
 def control_of(version) -> str:
@@ -510,28 +632,21 @@ def _row_function(per_row: tuple[str, ...], parts: tuple[tuple[str, int], ...]) 
 
 
 # ---- plausible cars ---------------------------------------------------------------------------------------
-# What a [car] table may set each constant to: CarParams takes any positive value (tests build extreme cars), a
-# user's table is checked against these, wide around every fitted car (docs/car.md), so that a wheelbase in mm, a
-# steering limit in radians or an inf is one line, not a silent nonsense car or a hang. MAX_SUBSTEPS bounds the
-# compiled step's inner loop for everyone.
-MAX_SUBSTEPS = 64
+# What a [car] table may set each constant to (the `plausible` column of CAR_CONSTANTS): CarParams takes any valid
+# value (tests build extreme cars), a user's table is checked against these, wide around every fitted car
+# (docs/car.md), so that a wheelbase in mm, a steering limit in radians or an inf is one line, not a silent nonsense
+# car or a hang.
 CAR_PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # name -> (low, high, unit)
-    "wheelbase_m": (0.05, 1.0, "m"), "track_m": (0.05, 1.0, "m"), "max_steer_deg": (5.0, 60.0, "degrees"),
-    "min_speed_mps": (0.0, 10.0, "m/s"), "max_speed_mps": (0.1, 10.0, "m/s"),
-    "delay_steps": (0.0, MAX_DELAY_STEPS, "steps"), "steer_tau_s": (0.0, 2.0, "s"), "yaw_gain": (0.05, 5.0, ""),
-    "slide_mps": (0.0, 100.0, "m/s"), "yaw_tau_s": (0.0, 2.0, "s"), "speed_tau_s": (0.0, 5.0, "s"),
-    "accel_mps2": (0.1, 200.0, "m/s²"), "brake_mps2": (0.1, 200.0, "m/s²"), "ground_factor": (0.5, 2.0, ""),
-    "wheel_cap_mps": (0.1, 20.0, "m/s"), "grip_mps2": (0.1, 50.0, "m/s²"), "substeps": (1, MAX_SUBSTEPS, ""),
-    "steer_kick": (0.0, 1.0, ""), "accel_fade_mps": (0.0, 20.0, "m/s"), "randomise": (0.0, 5.0, "spreads"),
-    "tyre_sat_mps2": (0.0, 50.0, "m/s²"), "front_drive": (0.0, 5.0, ""), "steer_offset_deg": (-5.0, 5.0, "degrees"),
-}
+    c.name: (*c.plausible, c.unit) for c in CAR_CONSTANTS if c.plausible is not None}
 
 
-def implausible(name: str, value) -> str | None:
-    """Why `value` is no plausible `name` for a DeepRacer car (`CAR_PLAUSIBLE`), or None when it is."""
-    if name not in CAR_PLAUSIBLE or isinstance(value, bool) or not isinstance(value, int | float):
+def implausible(name: str, value, table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> str | None:
+    """Why `value` is no plausible `name` for a DeepRacer car (the `plausible` column of `table`), or None when it
+    is."""
+    row = constants_by_name(table).get(name)
+    if row is None or row.plausible is None or isinstance(value, bool) or not isinstance(value, int | float):
         return None
-    low, high, unit = CAR_PLAUSIBLE[name]
+    low, high = row.plausible
     if math.isfinite(value) and low <= value <= high:
         return None
-    return f"{value!r} is not a plausible value for a DeepRacer car; give {low:g} to {high:g} {unit}".rstrip()
+    return f"{value!r} is not a plausible value for a DeepRacer car; give {low:g} to {high:g} {row.unit}".rstrip()

@@ -12,13 +12,13 @@ from racerlab.agent import make_agent
 from racerlab.agent.imitate import Imitation, teacher_targets
 from racerlab.errors import ConfigError
 from racerlab.logs import read_metrics_jsonl
-from racerlab.model import ModelFolder, init_model
+from racerlab.model import ModelFolder, init_model, nonfinite_tensors
 from racerlab.model.config import parse_training_config
 from racerlab.model.init import make_metadata
 from racerlab.sim import World
 from racerlab.sim.observations import FeaturesObservation
 from racerlab.train import train
-from racerlab.train.distill import TEACHER_KEY, DaggerDriver, PairedObservation
+from racerlab.train.distill import TEACHER_KEY, DaggerDriver, PairedObservation, Teacher
 
 TRACK = "lab_technical"  # the bundled default track
 
@@ -49,11 +49,12 @@ def test_the_paired_observation_is_the_frames_and_the_features_of_the_same_cars(
 
 def _driver(world, meta):
     features = FeaturesObservation(world.sim)
-    teacher_meta = make_metadata("features", "continuous", max_speed=4.0)
-    teacher = make_agent(features.space, teacher_meta, device="cpu", seed=1)
+    teacher = Teacher(meta.actions)
+    teacher.metadata = make_metadata("features", "continuous", max_speed=4.0)
+    teacher.agent = make_agent(features.space, teacher.metadata, device="cpu", seed=1)
     student = make_agent(world.observation.space, meta, device="cpu", seed=2)
     imitation = Imitation(student, precision="float32")
-    driver = DaggerDriver(imitation, teacher, teacher_meta.actions, meta.actions, noise=0.0, seed=0)
+    driver = DaggerDriver(imitation, teacher, noise=0.0, seed=0)
     obs = PairedObservation(world.observation, world.sim, "camera")()
     return driver, teacher, imitation, obs
 
@@ -61,7 +62,7 @@ def _driver(world, meta):
 def test_the_driver_labels_every_step_with_the_teacher_and_mixes_who_drives(camera_world):
     world, meta = camera_world
     driver, teacher, imitation, obs = _driver(world, meta)
-    expected = teacher_targets(teacher.policy(obs[TEACHER_KEY]), driver.teacher_space, meta.actions)
+    expected = teacher_targets(teacher.agent.policy(obs[TEACHER_KEY]), teacher.metadata.actions, meta.actions)
     assert expected.shape == (3, 2) and np.abs(expected).max() <= 1.0
     driver.mix = 1.0  # round 0: the teacher drives every step
     actions, record = driver.explore(obs)
@@ -85,10 +86,7 @@ def trained_teacher(tmp_path_factory):
 def test_rounds_fit_the_student_and_leave_a_plain_camera_model(tmp_path, trained_teacher):
     from racerlab.evaluate.api import load_model, make_policy
 
-    model = init_model(tmp_path / "cam", track=TRACK, sensor="camera", max_speed=4.0, action_space="continuous",
-                       teacher=False)
-    # short iterations: 4 episodes each, one PPO epoch when it trains on
-    model.write_hyperparameters(model.hyperparameters().replace(num_episodes_between_training=4, num_epochs=1))
+    model = _camera_student(tmp_path / "cam")
     teacher_checkpoints = [c.name for c in trained_teacher.checkpoints()]
     r = train(model.path, teacher=trained_teacher.path, iterations=2, progress=False, num_cars=2)
     assert r.iterations == 2
@@ -106,6 +104,40 @@ def test_rounds_fit_the_student_and_leave_a_plain_camera_model(tmp_path, trained
     assert make_policy(load_model(model.path), world)(world.observe()).shape == (2, 2)
     again = train(model.path, iterations=1, progress=False, num_cars=2)
     assert again.iterations == 3 and "losses/entropy" in again.history[-1]
+
+
+def _camera_student(path, **init):
+    model = init_model(path, track=TRACK, sensor="camera", max_speed=4.0, action_space="continuous", teacher=False,
+                       **init)
+    # short iterations: 4 episodes each, one PPO epoch when it trains on
+    model.write_hyperparameters(model.hyperparameters().replace(num_episodes_between_training=4, num_epochs=1))
+    return model
+
+
+def test_a_camera_student_whose_fit_turns_nan_rolls_back_as_a_features_model_does(tmp_path, trained_teacher,
+                                                                                    monkeypatch):
+    """The DAgger rounds skipped the NaN guard, the collapse checks and the rollback (issue 41); the features
+    model's case is tests/train/test_trust.py::test_a_non_finite_loss_is_rolled_back_recorded_and_said."""
+    model = _camera_student(tmp_path / "cam")
+    real_fit, rates = Imitation.fit, []
+
+    def once_poisoned(self, inputs, targets, steps, deadline=None):
+        metrics = real_fit(self, inputs, targets, steps, deadline=deadline)
+        rates.append(self.optimizer.param_groups[0]["lr"])
+        if len(rates) == 1:
+            next(self.policy.parameters()).data.fill_(float("inf"))
+            metrics["distill/loss_end"] = float("nan")
+        return metrics
+
+    monkeypatch.setattr(Imitation, "fit", once_poisoned)
+    r = train(model.path, teacher=trained_teacher.path, iterations=1, progress=False, num_cars=2)
+    assert rates == [0.0005, 0.00025]  # the second try runs with the lowered rate: teacher.lr's
+    said = [n for n in r.notes if "rolled back" in n]
+    assert r.iterations == 1 and len(said) == 1 and "0.0005 → 0.00025" in said[0]
+    assert "lower teacher.lr in training.toml" in said[0]
+    entry = read_metrics_jsonl(model.path / "metrics" / "metrics.jsonl")[-1]
+    assert entry["rollbacks"] == 1 and "rolled back" in entry["events"][0] and entry["distill/round"] == 0.0
+    assert not nonfinite_tensors(model.load_state(model.resolve_checkpoint("last")).agent)
 
 
 def test_init_camera_trains_its_own_teacher_inside_the_folder(tmp_path):

@@ -2,7 +2,8 @@
 
 The loss is the mean of a robust distance (√(d² + 1 cm²)) between the replayed and the logged front point over
 every step of every stretch: close to the median error the report gives, and smooth enough for Powell's method.
-Each constant is searched within `BOUNDS`; the spread is the standard deviation over fits on resampled episodes.
+Each constant is searched within its row's `fit` range (`spec.CAR_CONSTANTS`, gathered in `BOUNDS`); the spread is
+the standard deviation over fits on resampled episodes.
 """
 
 from __future__ import annotations
@@ -16,19 +17,31 @@ from scipy.optimize import minimize
 from racerlab.calibrate.data import Stretches
 from racerlab.calibrate.floor import floor_errors
 from racerlab.sim.car import pack, rollout_batch
-from racerlab.spec import CarParams, car_params
+from racerlab.spec import CAR_CONSTANTS, CarConstant, CarParams, car_params
 
 HORIZONS = (1, 3, 8, 15)  # steps after which errors are reported
-# what is fitted, and where it is searched; `slide_mps`, `accel_fade_mps` and `tyre_sat_mps2` are searched as their
-# inverses (0 = none)
-BOUNDS = {"delay_steps": (0.0, 3.0), "steer_tau_s": (0.0, 1.0), "yaw_gain": (0.15, 1.2), "slide_inv": (0.0, 2.5),
-          "yaw_tau_s": (0.0, 0.5), "speed_tau_s": (0.0, 1.0), "accel_mps2": (0.5, 30.0), "brake_mps2": (0.5, 30.0),
-          "ground_factor": (0.95, 1.12), "fade_inv": (0.0, 1.0),
-          "steer_kick": (0.0, 0.9), "sat_inv": (0.0, 1.0),  # saturation >= 1 m/s²
-          "front_drive": (0.0, 2.0), "steer_offset_deg": (-3.0, 3.0)}
-FITTED = ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s", "accel_mps2", "brake_mps2",
-          "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2", "front_drive", "steer_offset_deg")
-INVERSE = {"slide_inv": "slide_mps", "fade_inv": "accel_fade_mps", "sat_inv": "tyre_sat_mps2"}  # searched as 1 / x
+
+
+def fitted_rows(table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> tuple[CarConstant, ...]:
+    """The rows of `table` a fit searches (its `fit` column), in the order the search takes them."""
+    return tuple(c for c in table if c.fit is not None)
+
+
+def search_key(c: CarConstant) -> str:
+    """The name of a fitted constant in the search: its own, or "1/name" for one searched as its inverse."""
+    return f"1/{c.name}" if c.fit.inverse else c.name
+
+
+def search_bounds(table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> dict[str, tuple[float, float]]:
+    """Where a fit searches each of `table`'s fitted constants: search key (`search_key`) -> (low, high)."""
+    return {search_key(c): (c.fit.low, c.fit.high) for c in fitted_rows(table)}
+
+
+# what is fitted, and where it is searched (the `fit` column of spec.CAR_CONSTANTS); `slide_mps`, `accel_fade_mps`
+# and `tyre_sat_mps2` are searched as their inverses (0 = none)
+FITTED = tuple(c.name for c in fitted_rows())
+BOUNDS = search_bounds()
+INVERSE = {search_key(c): c.name for c in fitted_rows() if c.fit.inverse}  # searched as 1 / x
 
 
 def predict(st: Stretches, car: CarParams) -> np.ndarray:
@@ -79,29 +92,34 @@ def median_interval(err: np.ndarray, episodes: np.ndarray, *, level: float = 0.9
 
 
 def _searched(base: CarParams) -> dict[str, tuple[float, float]]:
-    """The bounds of what a fit from `base` searches: everything in `BOUNDS`, the tyres' saturation only for a car
-    that has it (the console cars; ROS 2's droa car has none, and on logs without it the extra freedom only lets
-    the lags and the kick wander), the front wheels' drive and the wheels' offset only for a car that has them (the
-    console velocity car, the console effort car)."""
-    off = {"sat_inv": base.tyre_sat_mps2 <= 0, "front_drive": base.front_drive <= 0,
-           "steer_offset_deg": base.steer_offset_deg == 0}
-    return {k: b for k, b in BOUNDS.items() if not off.get(k, False)}
+    """The bounds of what a fit from `base` searches: every constant of its table with a `fit` search, those marked
+    `only_if_on` only for a car that has them (the tyres' saturation: the console cars, ROS 2's droa car has none, and
+    on logs without it the extra freedom only lets the lags and the kick wander; the front wheels' drive: the console
+    velocity car; the wheels' offset: the console effort car)."""
+    bounds = search_bounds(base.TABLE)
+    return {search_key(c): bounds[search_key(c)] for c in fitted_rows(base.TABLE)
+            if not c.fit.only_if_on or base.has(c.name)}
 
 
 def _to_vector(car: CarParams, keys) -> np.ndarray:
-    vals = {f: getattr(car, f) for f in FITTED}
-    for inv, name in INVERSE.items():
-        value = vals.pop(name)
-        vals[inv] = 1.0 / value if value > 0 else 0.0
-    return np.array([min(max(vals[k], lo), hi) for k, (lo, hi) in keys.items()])
+    rows = {search_key(c): c for c in fitted_rows(car.TABLE)}
+    out = []
+    for k, (lo, hi) in keys.items():
+        value = getattr(car, rows[k].name)
+        if rows[k].fit.inverse:
+            value = 1.0 / value if value > 0 else 0.0
+        out.append(min(max(value, lo), hi))
+    return np.array(out)
 
 
 def _to_car(base: CarParams, vec, keys) -> CarParams:
-    vals = {k: float(min(max(v, lo), hi)) for (k, (lo, hi)), v in zip(keys.items(), vec, strict=True)}
-    for inv, name in INVERSE.items():
-        if inv in vals:
-            value = vals.pop(inv)
-            vals[name] = 1.0 / value if value > 1e-3 else 0.0
+    rows = {search_key(c): c for c in fitted_rows(base.TABLE)}
+    vals = {}
+    for (k, (lo, hi)), v in zip(keys.items(), vec, strict=True):
+        value = float(min(max(v, lo), hi))
+        if rows[k].fit.inverse:
+            value = 1.0 / value if value > 1e-3 else 0.0
+        vals[rows[k].name] = value
     return replace(base, **vals)
 
 
@@ -111,8 +129,8 @@ def _loss(st: Stretches, car: CarParams) -> float:
 
 
 def fit_car(st: Stretches, base: CarParams, *, max_evals: int = 1500) -> CarParams:
-    """The constants of `base` (from `FITTED`; the saturation, the front drive and the wheels' offset only when `base`
-    has them, `_searched`) that best replay the stretches `st`."""
+    """The constants of `base` (those of its table with a `fit` search; the saturation, the front drive and the
+    wheels' offset only when `base` has them, `_searched`) that best replay the stretches `st`."""
     if not math.isfinite(_loss(st, base)):
         raise ValueError("the starting car gives non-finite predictions")
     keys = _searched(base)
@@ -152,7 +170,8 @@ def fit_with_spread(fit_st: Stretches, held_st: Stretches, simulator: str, versi
         pick = rng.choice(eps, size=len(eps), replace=True)
         idx = np.concatenate([np.flatnonzero(fit_st.episode == e) for e in pick])
         samples.append(fit_car(fit_st.take(idx), car, max_evals=max_evals // 3))
-    spread = {f: float(np.std([getattr(c, f) for c in samples])) if samples else math.nan for f in FITTED}
+    spread = {c.name: float(np.std([getattr(s, c.name) for s in samples])) if samples else math.nan
+              for c in fitted_rows(car.TABLE)}
     err = errors(held_st, car)
     return Fit(car, spread, medians(err), medians(constant_velocity_errors(held_st)),
                learned_floor(fit_st, held_st, car), len(fit_st), len(held_st), held_st,

@@ -12,7 +12,7 @@ import numpy as np
 
 from racerlab.analysis import load
 from racerlab.calibrate.data import HORIZON, Stretches, concat, split, stretches
-from racerlab.calibrate.fit import BOUNDS, FITTED, Fit, fit_with_spread
+from racerlab.calibrate.fit import Fit, fit_with_spread, fitted_rows, search_bounds
 from racerlab.errors import ConfigError, RacerlabError
 from racerlab.sim.car import log_timing
 from racerlab.spec import DEFAULT_SIMULATOR, car_params
@@ -104,9 +104,9 @@ def on_bounds(fit: Fit) -> list[str]:
     """The fitted constants that sit on the edge of their search range (a lower edge of 0, no lag, is an answer):
     the logs did not pin them down."""
     out = []
-    for name, (lo, hi) in BOUNDS.items():
+    for name, (lo, hi) in search_bounds(fit.car.TABLE).items():
         value = getattr(fit.car, name, None)
-        if value is None:  # slide_mps is searched as its inverse: 0 (no slide) and the fastest slide are edges
+        if value is None:  # a constant searched as its inverse ("1/slide_mps"): 0 (none) and the fastest are edges
             continue
         edges = [hi] if lo == 0 else [lo, hi]  # 0 is a real answer for a lag or a delay: none
         if min(abs(value - e) for e in edges) <= 1e-3 * (hi - lo):
@@ -132,7 +132,7 @@ def car_toml(fit: Fit, source: str = "") -> str:
              + " (constant velocity: " + ", ".join(f"{v:.3f}" for v in fit.constant_velocity.values()) + ")"
              + _interval_note(fit),
              "[car]", f'simulator = "{fit.car.simulator}"']
-    for name in FITTED:
+    for name in (c.name for c in fitted_rows(fit.car.TABLE)):
         spread = fit.spread.get(name, math.nan)
         note = f"  # ± {spread:.3g}" if math.isfinite(spread) else ""
         lines.append(f"{name} = {getattr(fit.car, name):.4g}{note}")

@@ -1,19 +1,18 @@
 """One rollout worker: a batched `World` (or one per track) and a CPU copy of the policy.
 
-The class is plain Python; `racerlab.cluster.collector` makes it a Ray actor. It builds its worlds with
-`racerlab.train.worlds`, so a worker's worlds are exactly those `racerlab train` would build,
-with the worker's share of the cars, its own seed and its own round-robin start offset (DRfC
-gives each robomaker its own start counter).
+The class is plain Python; `racerlab.cluster.collector` makes it a Ray actor. It assembles its parts with the
+trainer's `racerlab.train.assemble` (settings, reward watchdog and caller, worlds, agent), so a worker's worlds are
+exactly those `racerlab train` would build, with the worker's share of the cars, its own seed and its own
+round-robin start offset (DRfC gives each robomaker its own start counter).
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import replace
+from functools import partial
 
-from racerlab.model import ModelFolder
-from racerlab.reward import RewardCaller, RewardWatchdog
-from racerlab.train import WorldBuilder, apply_overrides
+from racerlab.train import apply_overrides, assemble
 from racerlab.train.rollout import Collector
 
 _LEARNER_ONLY = ("optimizer", "generator")  # state keys a worker keeps its own of
@@ -47,6 +46,20 @@ def worker_cars(num_cars: int, index: int, workers: int, unit: int = 1) -> int:
     return unit * max(1, groups // workers + (1 if index < groups % workers else 0))
 
 
+def worker_config(base, overrides: dict, *, index: int, workers: int):
+    """Worker `index`'s settings: its [[worker]] table, then the flags, then its share of the run (its tracks, cars,
+    seed and round-robin start offset; on the CPU)."""
+    cfg = apply_overrides(base.for_worker(index), **overrides)
+    r = cfg.track
+    own = base.worker_sets(index, "track", "names") and not overrides.get("tracks")
+    track = replace(r, names=r.names if own else worker_tracks(r.names, index, workers),
+                    start_offset=(r.start_offset + index / workers) % 1.0)
+    unit = 2 if cfg.race.head_to_model else 1
+    run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers, unit),
+                  seed=cfg.run.seed + WORKER_SEED_STRIDE * index, device="cpu")
+    return replace(cfg, track=track, run=run)
+
+
 class RolloutWorker:
     """Collects whole training episodes with the weights the learner broadcasts."""
 
@@ -56,29 +69,15 @@ class RolloutWorker:
         torch.set_num_threads(1)
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         self.index = index
-        folder = ModelFolder(model_dir)
-        self.metadata = folder.metadata()
-        base = folder.config()
-        cfg = apply_overrides(base.for_worker(index), **overrides)  # its [[worker]] table, then the flags
-        r = cfg.track
-        own = base.worker_sets(index, "track", "names") and not overrides.get("tracks")
-        track = replace(r, names=r.names if own else worker_tracks(r.names, index, workers),
-                        start_offset=(r.start_offset + index / workers) % 1.0)
-        unit = 2 if cfg.race.head_to_model else 1
-        run = replace(cfg.run, num_cars=worker_cars(cfg.run.num_cars, index, workers, unit),
-                      seed=cfg.run.seed + WORKER_SEED_STRIDE * index, device="cpu")
-        self.cfg = replace(cfg, track=track, run=run)
-        self.watchdog = RewardWatchdog(folder.reward_function(), cfg.run.reward_budget_s,
-                                       lambda text: print(f"worker {index}: {text}", flush=True))
-        self.reward = RewardCaller(self.watchdog)
-        # generated tracks ([track] generated): a worker keeps its first draw
-        builder = WorldBuilder(self.cfg, self.metadata, self.reward, track_flag=bool(overrides.get("tracks")))
-        self.worlds = builder.training_worlds()
+        # the trainer's assembly with this worker's share; generated tracks ([track] generated): its first draw stays
+        parts = assemble(model_dir, overrides, note=lambda text: print(f"worker {index}: {text}", flush=True),
+                         worlds=lambda builder: builder.training_worlds(),
+                         config=partial(worker_config, index=index, workers=workers))
+        self.metadata, self.cfg = parts.metadata, parts.cfg
+        self.watchdog, self.reward = parts.watchdog, parts.reward
+        self.worlds = parts.worlds
         self.collector = Collector(self.worlds)
-        from racerlab.agent import make_agent
-
-        self.agent = make_agent(self.worlds[0].observation.space, self.metadata, folder.hyperparameters(),
-                                device="cpu", seed=self.cfg.run.seed)
+        self.agent = parts.agent
 
     def describe(self) -> dict:
         return {"index": self.index, "pid": os.getpid(), "cars": self.cfg.run.num_cars,

@@ -4,7 +4,8 @@
 training). `TrainingState` is what the file holds: the agent's weights, the model_metadata.json and
 hyperparameters they were trained with, the observation, the run's counters, the collection's resume state
 and the best checkpoint so far. Every writer (training, clone, import) builds one and every reader gets one
-from `ModelFolder.load_state`; nothing else reads the dict's keys.
+from `ModelFolder.open` (which reads it with `ModelFolder.load_state`); nothing else reads the dict's keys.
+`nonfinite_tensors` finds the weights that hold NaN or infinity.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import re
 import time
 from dataclasses import dataclass, field, fields, replace
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ModelRefused
 
 CHECKPOINT_FORMAT = "racerlab.checkpoint/1"
 CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
@@ -77,13 +78,15 @@ class TrainingState:
 
     @classmethod
     def from_dict(cls, data, where) -> TrainingState:
-        """A checkpoint's state; `where` (its path) names it in the one-line error for a file without agent weights
-        or of another format."""
+        """A checkpoint's state; `where` (its path) names it in the one-line `ModelRefused` for a file without agent
+        weights or of another format."""
         if not isinstance(data, dict) or not isinstance(data.get("agent"), dict):
-            raise RacerlabError(f"{where}: not a racerlab checkpoint (no agent weights in it)")
+            raise ModelRefused(where, ModelRefused.UNREADABLE, "not a racerlab checkpoint (no agent weights in it)",
+                               "only open checkpoints racerlab saved")
         if data.get("format") != CHECKPOINT_FORMAT:
-            raise RacerlabError(f"{where}: a checkpoint of format {data.get('format')!r}, and this racerlab reads "
-                                f"{CHECKPOINT_FORMAT!r}; train a new one or use the racerlab that wrote it")
+            raise ModelRefused(where, ModelRefused.UNREADABLE, f"a checkpoint of format {data.get('format')!r}, and "
+                               f"this racerlab reads {CHECKPOINT_FORMAT!r}", "train a new one or use the racerlab that "
+                               "wrote it")
         known = {f.name for f in fields(cls)} - {"collection"}
         state = cls(**{k: v for k, v in data.items() if k in known and v is not None})
         state.collection = {k: v for k, v in data.items() if k not in known and k != "format" and v is not None}
@@ -99,3 +102,14 @@ class TrainingState:
         checkpoint, rollbacks and round-robin state start afresh."""
         return replace(self, cloned=True, best_name=None, best_metric=None, best_floor=None, rollbacks=0, collection={},
                        metadata=metadata, saved_at=0.0)
+
+
+def nonfinite_tensors(state, prefix: str = "") -> list[str]:
+    """Names (dotted paths) of the floating-point tensors in a checkpoint that hold NaN or infinity."""
+    import torch
+
+    if isinstance(state, torch.Tensor):
+        bad = state.is_floating_point() and not bool(torch.isfinite(state).all())
+        return [prefix] if bad else []
+    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, list | tuple) else ()
+    return [name for k, v in items for name in nonfinite_tensors(v, f"{prefix}.{k}" if prefix else str(k))]

@@ -3,7 +3,8 @@
 Checkpoints follow AWS's scheme (facts §9): `checkpoints/<N>_Step-<S>.pt` for iteration N after S
 training env steps, N = 0 before any training; `deepracer_checkpoints.json` names the last and
 the best; the last 4 plus the best are kept. Every file is written atomically (temporary name,
-then rename), so a kill at any moment leaves the previous complete state.
+then rename), so a kill at any moment leaves the previous complete state. A trained model is read through
+`ModelFolder.open` (`model.opened`: the checks every reader gets).
 """
 
 from __future__ import annotations
@@ -14,13 +15,14 @@ import shlex
 import time
 from pathlib import Path
 
-from racerlab.errors import RacerlabError
+from racerlab.errors import ModelRefused, RacerlabError
 from racerlab.logs import atomic_write_bytes, atomic_write_json, atomic_write_text, finite_json
 from racerlab.model.checkpoint import CheckpointInfo, TrainingState
 from racerlab.model.config import TrainingConfig, load_training_config
 from racerlab.model.hyperparameters import Hyperparameters, load_hyperparameters
 from racerlab.model.lock import TrainingLock
 from racerlab.model.metadata import ModelMetadata, load_model_metadata
+from racerlab.model.opened import OpenModel, open_model
 from racerlab.reward import load_reward_function
 
 KEEP_LAST = 4
@@ -162,8 +164,11 @@ class ModelFolder:
         except json.JSONDecodeError:
             return {}
 
-    def resolve_checkpoint(self, which: str | int = "last") -> CheckpointInfo:
-        """`best`, `last` or an iteration number; a clear error when there is none."""
+    def resolve_checkpoint(self, which: str | int | CheckpointInfo = "last") -> CheckpointInfo:
+        """`best`, `last`, an iteration number or a `CheckpointInfo` (taken as it is); a clear error when there is
+        none."""
+        if isinstance(which, CheckpointInfo):
+            return which
         cps = self.checkpoints()
         if not cps:
             raise RacerlabError(f"{self.path}: no checkpoints yet; train it first with "
@@ -184,8 +189,15 @@ class ModelFolder:
                                 f"{', '.join(str(c.iteration) for c in cps)}")
         return hit[0]
 
+    def open(self, checkpoint: str | int | CheckpointInfo = "best") -> OpenModel:
+        """The model at `checkpoint` (best, last, an iteration number or a `CheckpointInfo`) for any reader: the
+        folder's model_metadata.json and the checkpoint's state, refusing (`ModelRefused`) a checkpoint that cannot
+        be read, holds non-finite weights or was trained with an incompatible model_metadata.json (`model.opened`)."""
+        return open_model(self, checkpoint)
+
     def load_state(self, info: CheckpointInfo) -> TrainingState:
-        """The checkpoint's `TrainingState`; a file without agent weights is a one-line error."""
+        """The checkpoint's `TrainingState` as it is, unchecked (`open` checks it); a file that is not a readable
+        racerlab checkpoint is a one-line `ModelRefused`."""
         return TrainingState.from_dict(self.load_checkpoint(info), self.checkpoint_path(info))
 
     def load_checkpoint(self, info: CheckpointInfo) -> dict:
@@ -199,11 +211,22 @@ class ModelFolder:
             return torch.load(path, map_location="cpu", weights_only=True)
         except pickle.UnpicklingError as exc:
             what = _first_line(exc)
-            raise RacerlabError(f"{path}: refused: the checkpoint holds more than racerlab writes (tensors, numbers, "
-                                f"strings, lists, dicts): {what}; only load checkpoints racerlab saved") from None
+            raise ModelRefused(path, ModelRefused.UNREADABLE, "refused: the checkpoint holds more than racerlab "
+                               f"writes (tensors, numbers, strings, lists, dicts): {what}",
+                               "only load checkpoints racerlab saved") from None
         except Exception as exc:  # noqa: BLE001 - a damaged file is reported, not a traceback
-            raise RacerlabError(f"{path}: cannot read the checkpoint ({type(exc).__name__}: {_first_line(exc)})"
-                                ) from None
+            raise ModelRefused(path, ModelRefused.UNREADABLE, f"cannot read the checkpoint ({type(exc).__name__}: "
+                               f"{_first_line(exc)})", f"it is damaged or incomplete: {self.instead_of(info)}"
+                               ) from None
+
+    def instead_of(self, info: CheckpointInfo) -> str:
+        """What to open instead of a checkpoint that cannot be used: the newest older one (`--checkpoint N`, as
+        evaluate, race, export and clone take it), else another, else none: train again."""
+        others = [c.iteration for c in self.checkpoints() if c.iteration != info.iteration]
+        older = [n for n in others if n < info.iteration]
+        if older:
+            return f"pick an older one with --checkpoint {older[-1]}"
+        return f"pick another one with --checkpoint {others[-1]}" if others else "train it again"
 
     def save_state(self, state: TrainingState) -> CheckpointInfo:
         """Write `state` as its iteration's checkpoint (atomically: a kill leaves the previous files whole)."""
@@ -243,17 +266,6 @@ class ModelFolder:
         for c in self.checkpoints():
             if c.iteration > iteration:
                 self.checkpoint_path(c).unlink(missing_ok=True)
-
-
-def nonfinite_tensors(state, prefix: str = "") -> list[str]:
-    """Names (dotted paths) of the floating-point tensors in a checkpoint that hold NaN or infinity."""
-    import torch
-
-    if isinstance(state, torch.Tensor):
-        bad = state.is_floating_point() and not bool(torch.isfinite(state).all())
-        return [prefix] if bad else []
-    items = state.items() if isinstance(state, dict) else enumerate(state) if isinstance(state, list | tuple) else ()
-    return [name for k, v in items for name in nonfinite_tensors(v, f"{prefix}.{k}" if prefix else str(k))]
 
 
 def _first_line(exc: Exception) -> str:

@@ -19,7 +19,7 @@ import math
 import numpy as np
 from numba import njit
 
-from racerlab.sim.car import P_DELAY, QUEUE, advance
+from racerlab.sim.car import P_DELAY, P_MAX_SPEED, P_MAX_STEER, QUEUE, advance
 from racerlab.spec import MODEL_POINT_AHEAD_M, STATUS_NAMES
 from racerlab.track.kernels import measure_on_track, point_in_road
 
@@ -233,8 +233,8 @@ def features(rows, car, ctr, meas, trk_f, trk_r, closed, length, lookahead, car_
     cos(heading error), width, then for each lookahead distance d the centre point at arc
     length s + d in the car's frame (x ahead, y left), divided by 2 m].
     """
-    vmax = car_params[0, 3]
-    smax = car_params[0, 1]
+    vmax = car_params[0, P_MAX_SPEED]
+    smax = car_params[0, P_MAX_STEER]
     nla = lookahead.shape[0]
     for i in rows:
         rev = ctr[i, KREV] != 0

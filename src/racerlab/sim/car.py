@@ -38,11 +38,13 @@ What the real simulator does (docs/car.md has the measurements) and how racerlab
 `rollout` replays logged actions from a logged state with this model (the calibration, `racerlab
 calibrate`, fits the constants with it); `advance` is the compiled integration the simulator steps every
 car with. The constants of each simulator and model version are in `racerlab.spec` (`CAR_TABLE`,
-`car_params`).
+`car_params`); what each constant is, and whether it is packed, drawn and fitted, is its row of
+`spec.CAR_CONSTANTS`, from which `pack`'s order (the `P_*` positions the kernels read) and `RANDOMISED` come.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -50,31 +52,50 @@ from numba import njit
 
 from racerlab.sim.rollout_inputs import check_rollout_inputs
 from racerlab.spec import (
+    CAR_CONSTANTS,
     CAR_SPREAD,
     MAX_DELAY_STEPS,
     MODEL_POINT_AHEAD_M,
     STEP_LENGTHS,
     STEP_QUANTILES,
     STEP_S,
+    CarConstant,
     CarParams,
     car_params,
+    constants_by_name,
 )
 
 QUEUE = int(MAX_DELAY_STEPS) + 2  # commands kept per car: this step's and the ones before it
-# positions in `pack`'s array
-(P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED, P_SPEED_TAU, P_ACCEL, P_BRAKE, P_STEER_TAU, P_GRIP, P_SUBSTEPS,
- P_DELAY, P_YAW_GAIN, P_SLIDE, P_GROUND, P_CAP, P_REGULATED, P_YAW_TAU, P_FADE, P_KICK, P_SAT, P_DRIVE,
- P_OFFSET) = range(22)
+_FORMS = {"value": float, "radians": math.radians}  # how a packed constant is stored (`CarConstant.packed`)
+
+
+@functools.cache
+def packed_rows(table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> tuple[CarConstant, ...]:
+    """The rows of `table` the compiled step reads, in the order of `pack`'s array."""
+    return tuple(c for c in table if c.packed)
+
+
+@functools.cache
+def columns(table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> dict[str, int]:
+    """Each packed constant's position in `pack`'s array: its place among `table`'s packed rows."""
+    return {c.name: i for i, c in enumerate(packed_rows(table))}
 
 
 def pack(car: CarParams) -> np.ndarray:
-    """The car's constants packed for the compiled step (`advance` reads them by position)."""
-    return np.array([car.wheelbase_m, math.radians(car.max_steer_deg), car.min_speed_mps, car.max_speed_mps,
-                     car.speed_tau_s, car.accel_mps2, car.brake_mps2, car.steer_tau_s, car.grip_mps2,
-                     float(car.substeps), car.delay_steps, car.yaw_gain, car.slide_mps, car.ground_factor,
-                     car.wheel_cap_mps, 1.0 if car.regulated else 0.0, car.yaw_tau_s, car.accel_fade_mps,
-                     car.steer_kick, car.tyre_sat_mps2, car.front_drive, math.radians(car.steer_offset_deg)],
-                    dtype=np.float64)
+    """The car's constants packed for the compiled step (`advance` reads them by position, `columns`)."""
+    return np.array([_FORMS[c.packed](getattr(car, c.name)) for c in packed_rows(car.TABLE)], dtype=np.float64)
+
+
+# positions in `pack`'s array, module constants so that numba compiles them into the kernels
+_COL = columns()
+P_WB, P_MAX_STEER, P_MIN_SPEED, P_MAX_SPEED = (_COL[n] for n in ("wheelbase_m", "max_steer_deg", "min_speed_mps",
+                                                                 "max_speed_mps"))
+P_DELAY, P_STEER_TAU, P_YAW_GAIN, P_SLIDE, P_YAW_TAU, P_SPEED_TAU = (
+    _COL[n] for n in ("delay_steps", "steer_tau_s", "yaw_gain", "slide_mps", "yaw_tau_s", "speed_tau_s"))
+P_ACCEL, P_BRAKE, P_GROUND, P_FADE, P_KICK, P_SAT, P_DRIVE, P_OFFSET = (
+    _COL[n] for n in ("accel_mps2", "brake_mps2", "ground_factor", "accel_fade_mps", "steer_kick", "tyre_sat_mps2",
+                      "front_drive", "steer_offset_deg"))
+P_CAP, P_REGULATED, P_GRIP, P_SUBSTEPS = (_COL[n] for n in ("wheel_cap_mps", "regulated", "grip_mps2", "substeps"))
 
 
 # How each simulator's simtraces stamp their steps (docs/car.md, "The logs' step timing"), by (simulator, control):
@@ -112,31 +133,32 @@ def step_durations(tstamps, timing: str) -> np.ndarray:
     raise ValueError(f"unknown step timing {timing!r}; use one of {', '.join(TIMINGS)}")
 
 
-# each randomised constant's place in `pack`'s array, and the least it may be drawn
-RANDOMISED = {"delay_steps": (P_DELAY, 0.0), "steer_tau_s": (P_STEER_TAU, 0.0), "steer_kick": (P_KICK, 0.0),
-              "yaw_gain": (P_YAW_GAIN, 0.05), "slide_mps": (P_SLIDE, 0.0), "yaw_tau_s": (P_YAW_TAU, 0.0),
-              "speed_tau_s": (P_SPEED_TAU, 0.0), "accel_mps2": (P_ACCEL, 0.1), "brake_mps2": (P_BRAKE, 0.1),
-              "ground_factor": (P_GROUND, 0.5), "accel_fade_mps": (P_FADE, 0.0), "tyre_sat_mps2": (P_SAT, 1.0),
-              "front_drive": (P_DRIVE, 0.0)}
+@functools.cache
+def randomised_rows(table: tuple[CarConstant, ...] = CAR_CONSTANTS) -> dict[str, tuple[int, float]]:
+    """Each randomised constant of `table`: its place in `pack`'s array and the least it may be drawn."""
+    cols = columns(table)
+    return {c.name: (cols[c.name], c.randomised) for c in table if c.randomised is not None}
+
+
+RANDOMISED = randomised_rows()
 SPREAD_CLIP = 2.0  # draws stay within this many spreads of the fitted value
 
 
 def randomised(car: CarParams, rng: np.random.Generator, n: int) -> np.ndarray:
     """(n, P) packed constants of n cars drawn around `car` (randomised dynamics, `[car] randomise`): each constant
     of `spec.CAR_SPREAD` (the fit's spread over resampled episodes) normal around its value with `car.randomise`
-    times that spread, cut at SPREAD_CLIP spreads; a constant that is off (slide, fade, saturation, front drive: 0)
-    stays off."""
+    times that spread, cut at SPREAD_CLIP spreads, no lower than its row's `randomised` and no higher than its valid
+    range; a constant that is off (slide, fade, saturation, front drive: 0) stays off."""
     out = np.tile(pack(car), (n, 1))
-    spread = CAR_SPREAD.get((car.simulator, car.control), {})
-    for name, sd in spread.items():
-        col, low = RANDOMISED[name]
-        value = getattr(car, name)
-        if value == 0 and name in ("slide_mps", "accel_fade_mps", "tyre_sat_mps2", "front_drive"):
+    drawn = randomised_rows(car.TABLE)
+    rows = constants_by_name(car.TABLE)
+    for name, sd in CAR_SPREAD.get((car.simulator, car.control), {}).items():
+        col, low = drawn[name]
+        if not car.has(name):
             continue
         z = np.clip(rng.standard_normal(n), -SPREAD_CLIP, SPREAD_CLIP)
-        out[:, col] = np.maximum(value + car.randomise * sd * z, low)
-    out[:, P_DELAY] = np.minimum(out[:, P_DELAY], MAX_DELAY_STEPS)
-    out[:, P_KICK] = np.minimum(out[:, P_KICK], 1.0)
+        draw = np.minimum(np.maximum(getattr(car, name) + car.randomise * sd * z, low), rows[name].valid.high)
+        out[:, col] = np.radians(draw) if rows[name].packed == "radians" else draw
     return out
 
 

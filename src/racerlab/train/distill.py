@@ -1,4 +1,4 @@
-"""A camera model trained from a features teacher (DAgger), in the trainer's iterations.
+"""A camera model trained from a features teacher (DAgger), composed into the trainer's seams.
 
 The method (docs/learner.md, "A camera model from a features teacher"):
 1. **Teacher.** A `features` model learns the track by PPO in a minute or two (it sees the car's speed, offset,
@@ -16,10 +16,16 @@ The method (docs/learner.md, "A camera model from a features teacher"):
    in every training.
 The student is the model's own network (the AWS camera network), so the checkpoints are plain PPO checkpoints:
 evaluation, export, clone and a later `racerlab train` without a teacher (PPO from there) read them as any other.
+
+The composition (`taught_trainer`): a `Trainer` of the model's parts with the paired collection (`PairedCollection`:
+the paired observation, the cars driven by `DaggerDriver`), DAgger's learner (`DaggerLearner`: the data set and
+the fit) and the teacher phase before the run (`TeacherPhase`); the iteration, its health checks and rollback,
+the checkpoint and the logs are the trainer's own, as for every model.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import KW_ONLY, InitVar, dataclass, replace
@@ -33,7 +39,10 @@ from racerlab.model import ModelFolder
 from racerlab.model.config import RandomiseSettings, RunSettings, TeacherSettings
 from racerlab.model.hyperparameters import Hyperparameters
 from racerlab.sim.observations import FeaturesObservation
-from racerlab.train.loop import Trainer, _ctrl_c_after
+from racerlab.train.health import RateSetting
+from racerlab.train.loop import Trainer
+from racerlab.train.parts import RunParts, trainer_parts
+from racerlab.train.worlds import LocalCollection
 
 TEACHER_KEY = "teacher:features"  # the teacher's input in a paired observation (no network input has this name)
 
@@ -62,13 +71,64 @@ class PairedObservation:
         return out
 
 
-class PairedCollection:
-    """The trainer's local collection with every world's observation paired with the teacher's features; its
-    `state()` also keeps the teacher's training seconds, so a resumed run knows what the teacher had."""
+class Teacher:
+    """The features model a taught run learns from, loaded by the teacher phase (`load`): its greedy actions as the
+    student's actions (`label`, in the student's `student_space`)."""
 
-    def __init__(self, inner, key: str):
+    def __init__(self, student_space):
+        self.student_space = student_space
+        self.agent = None  # a features PPO agent: `policy(features)`
+        self.metadata = None
+
+    def load(self, path: Path, features_space) -> None:
+        self.agent, self.metadata = load_teacher(path, features_space)
+
+    def label(self, features) -> np.ndarray:
+        return teacher_targets(self.agent.policy(features), self.metadata.actions, self.student_space)
+
+
+@dataclass
+class DaggerDriver:
+    """What drives the cars while round `round`'s data is collected: per step and car the teacher with probability
+    `mix`, else the student's greedy action plus Gaussian `noise` (continuous actions); `record["target"]` is the
+    teacher's action in the student's action space, for every step."""
+
+    imitation: Imitation
+    teacher: Teacher
+    _: KW_ONLY
+    noise: float
+    seed: InitVar[int]
+    mix: float = 1.0
+    round: int = 0
+
+    def __post_init__(self, seed: int) -> None:
+        self.reseed(seed)
+
+    def reseed(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def explore(self, obs) -> tuple[np.ndarray, dict]:
+        targets = self.teacher.label(obs[TEACHER_KEY])
+        actions = targets.copy()
+        if self.mix < 1.0:
+            student = self.imitation.greedy(obs)
+            if not self.imitation.discrete and self.noise > 0:
+                student = student + self.rng.normal(0.0, self.noise, student.shape)
+            own = self.rng.random(len(targets)) >= self.mix
+            actions[own] = student[own]
+        return actions, {"target": targets}
+
+
+class PairedCollection:
+    """A collection (`train.seams.Collection`) whose worlds' observations are paired with the teacher's features and
+    whose cars `driver` drives, the teacher's share in round k being `mix ** k`; its `state()` also keeps the
+    teacher's training seconds, so a resumed run knows what the teacher had."""
+
+    def __init__(self, inner, key: str, driver: DaggerDriver, mix: float):
         self.inner = inner
         self.key = key
+        self.driver = driver
+        self.mix = mix
         self.teacher_seconds = 0.0
         self._pair()
 
@@ -80,10 +140,14 @@ class PairedCollection:
     def before_iteration(self, iteration: int) -> None:
         self.inner.before_iteration(iteration)
         self._pair()  # new generated tracks: new worlds
+        self.driver.round, self.driver.mix = iteration, self.mix ** iteration
 
     def collect(self, agent, target_episodes: int, max_steps: int, first_episode_number: int = 0, *,
                 deadline: float | None = None, tick=None, tick_s: float = 10.0):
-        return self.inner.collect(agent, target_episodes, max_steps, first_episode_number=first_episode_number,
+        """The driver drives: the teacher its share, `agent` (the student the driver's imitation fits) the rest."""
+        if agent is not self.driver.imitation.agent:
+            raise ValueError("the paired collection's driver fits another agent than the one it was given")
+        return self.inner.collect(self.driver, target_episodes, max_steps, first_episode_number=first_episode_number,
                                   deadline=deadline, tick=tick, tick_s=tick_s)
 
     def state(self) -> dict:
@@ -94,43 +158,74 @@ class PairedCollection:
         self.teacher_seconds = float((saved or {}).get("teacher_seconds", 0.0))
 
     def metrics(self, iteration: int) -> dict:
-        return self.inner.metrics(iteration)
+        return {**self.inner.metrics(iteration), "distill/round": float(self.driver.round),
+                "distill/teacher_mix": self.driver.mix, "distill/teacher_seconds": self.teacher_seconds}
 
     def close(self) -> None:
         self.inner.close()
 
 
-@dataclass
-class DaggerDriver:
-    """What drives the cars while a round's data is collected (the collector's `agent`): per step and car the
-    teacher with probability `mix`, else the student's greedy action plus Gaussian `noise` (continuous actions);
-    `record["target"]` is the teacher's action in the student's action space, for every step."""
+class DaggerLearner:
+    """DAgger's learner (`train.seams.Learner`): a round's steps join the aggregated data set (`demos`), the
+    current teacher labels all of it again, and the student's policy network is fitted to the labels
+    (`imitation`: `passes` x the new steps / `batch_size` minibatch steps). A rollback restores the student's
+    weights and the fit's optimiser and halves the fit's rate (`teacher.lr`)."""
 
-    imitation: Imitation
-    teacher: object  # a features agent: `policy(features)`
-    teacher_space: object
-    student_space: object
-    _: KW_ONLY
-    noise: float
-    seed: InitVar[int]
-    mix: float = 1.0
+    def __init__(self, imitation: Imitation, demos: Demonstrations, driver: DaggerDriver, settings: TeacherSettings,
+                 *, source: str, note):
+        self.imitation = imitation
+        self.agent = imitation.agent
+        self.demos = demos
+        self.driver = driver
+        self.settings = settings
+        self.rate = RateSetting("teacher.lr", settings.lr, source, default=TeacherSettings().lr)
+        self.note = note
+        self.deadline: float | None = None
 
-    def __post_init__(self, seed: int) -> None:
-        self.rng = np.random.default_rng(seed)
+    @property
+    def lr(self) -> float:
+        return self.imitation.optimizer.param_groups[0]["lr"]
 
-    def label(self, features) -> np.ndarray:
-        return teacher_targets(self.teacher.policy(features), self.teacher_space, self.student_space)
+    @lr.setter
+    def lr(self, value: float) -> None:
+        for group in self.imitation.optimizer.param_groups:
+            group["lr"] = float(value)
 
-    def explore(self, obs) -> tuple[np.ndarray, dict]:
-        targets = self.label(obs[TEACHER_KEY])
-        actions = targets.copy()
-        if self.mix < 1.0:
-            student = self.imitation.greedy(obs)
-            if not self.imitation.discrete and self.noise > 0:
-                student = student + self.rng.normal(0.0, self.noise, student.shape)
-            own = self.rng.random(len(targets)) >= self.mix
-            actions[own] = student[own]
-        return actions, {"target": targets}
+    def finite(self) -> bool:
+        return self.agent.finite()
+
+    def state_dict(self) -> dict:
+        return {"student": self.agent.state_dict(), "fit": copy.deepcopy(self.imitation.optimizer.state_dict())}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state["student"])
+        self.imitation.optimizer.load_state_dict(copy.deepcopy(state["fit"]))
+
+    def learn(self, rollout) -> dict:
+        t0 = time.perf_counter()
+        metrics = self._fit(rollout)
+        d = self.driver
+        self.note(f"dagger round {d.round}: teacher drives {d.mix:.0%} of steps; collect {rollout.seconds:.1f} s "
+                  f"({rollout.rewards.size} steps), fit {time.perf_counter() - t0:.1f} s "
+                  f"({metrics['distill/steps']:.0f} steps of {self.imitation.batch_size} on {len(self.demos)}; loss "
+                  f"{metrics['distill/loss_start']:.4f} → {metrics['distill/loss_end']:.4f})")
+        return metrics
+
+    def _fit(self, ro) -> dict:
+        if ro.rewards.size == 0:
+            return {"distill/loss_start": math.nan, "distill/loss_end": math.nan, "distill/steps": 0.0,
+                    "distill/set": float(len(self.demos)), "nonfinite": 0.0}
+        keys = (*self.agent.keys, TEACHER_KEY)
+        added = self.demos.add({k: ro.obs[k] for k in keys})
+        targets = self.driver.teacher.label(self.demos.column(TEACHER_KEY))  # the current teacher labels all again
+        s = self.settings
+        steps = math.ceil(s.passes * added / s.batch_size)
+        inputs = {k: self.demos.column(k) for k in self.agent.keys}
+        metrics = self.imitation.fit(inputs, targets, steps, deadline=self.deadline)
+        metrics["distill/set"] = float(len(self.demos))
+        # a loss gone non-finite is the NaN guard's to roll back (train.health), as a PPO update's
+        metrics["nonfinite"] = float(metrics["distill/steps"] > 0 and not math.isfinite(metrics["distill/loss_end"]))
+        return metrics
 
 
 def teacher_folder(model: ModelFolder, name: str) -> Path:
@@ -175,109 +270,70 @@ def load_teacher(path: Path, features_space):
     return agent, meta
 
 
-class DistillTrainer(Trainer):
-    """`Trainer` whose iterations are DAgger rounds from a features teacher (module docstring). `teacher`: a
-    teacher folder given for this run (used as it is); None takes training.toml's `[teacher] model`."""
+@dataclass
+class TeacherPhase:
+    """The step before a taught run's first round (the trainer's `before_run`): create the model's own teacher if
+    it has none yet, train it (its own `Trainer`, on the CPU) for what is left of teacher.iterations and
+    teacher.minutes within --minutes, and load it; a teacher given for the run (`trains` False) is loaded as it
+    is."""
 
-    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *, teacher=None,
-                 **overrides):
-        super().__init__(model_dir, progress, stop_at_first_lap, **overrides)
-        self.settings: TeacherSettings = self.cfg.teacher
-        if self.metadata.training_algorithm != "clipped_ppo" or not hasattr(self.agent, "policy_net"):
-            raise ConfigError(f"{self.folder.metadata_path}: a teacher trains PPO students only; this model is "
-                              f"{self.metadata.training_algorithm}: set [teacher] model = \"\" in training.toml")
-        if self.eval_world.observation.name.startswith("features"):
-            raise ConfigError(f"{self.cfg.source}: [teacher] is for camera and lidar models; a features model "
-                              "learns by itself: set [teacher] model = \"\"")
-        name = str(teacher) if teacher is not None else self.settings.model
-        self.teacher_path = teacher_folder(self.folder, name)
-        self.trains_teacher = teacher is None and self.settings.minutes > 0
-        self.collector = PairedCollection(self.collector, self.agent.keys[0])
-        s = self.settings
-        self.imitation = Imitation(self.agent, batch_size=s.batch_size, lr=s.lr, precision=s.precision,
-                                   seed=self.cfg.run.seed, threads=self.cfg.run.threads)
-        self.demos = Demonstrations(s.max_steps, seed=self.cfg.run.seed)
-        self.features_space = FeaturesObservation(self.eval_world.sim).space
-        self.teacher = self.teacher_meta = self.driver = None
+    parts: RunParts
+    path: Path
+    trains: bool
+    teacher: Teacher
+    collection: PairedCollection
 
-    # ---- the teacher ---------------------------------------------------------------------------
-    def _teach(self) -> None:
-        """Before the run's first round: create the model's own teacher if it has none yet, train it for what is
-        left of teacher.iterations and teacher.minutes (within --minutes), and load it."""
-        if self.teacher is not None:
-            return
-        if self.trains_teacher:
-            if not ModelFolder(self.teacher_path).metadata_path.exists():
-                create_teacher(self.folder, self.cfg, self.teacher_path)
-                self.note(f"teacher: created the features model {self.teacher_path} (same track, car, actions, "
-                          "reward)")
-            left = self.settings.minutes * 60 - self.collector.teacher_seconds
-            if self.deadline is not None:
-                left = min(left, self.deadline - time.perf_counter())
-            done = max((c.iteration for c in ModelFolder(self.teacher_path).checkpoints()), default=0)
-            if left >= 1 and done < self.settings.iterations:
-                self._train_teacher(left, self.settings.iterations - done)
-        self.teacher, self.teacher_meta = load_teacher(self.teacher_path, self.features_space)
-        self.driver = DaggerDriver(self.imitation, self.teacher, self.teacher_meta.actions, self.metadata.actions,
-                                   noise=self.settings.noise, seed=self.cfg.run.seed + self.state.iteration)
+    def __call__(self, trainer: Trainer) -> None:
+        s, model = self.parts.cfg.teacher, self.parts.folder
+        if self.trains:
+            if not ModelFolder(self.path).metadata_path.exists():
+                create_teacher(model, self.parts.cfg, self.path)
+                trainer.note(f"teacher: created the features model {self.path} (same track, car, actions, reward)")
+            left = s.minutes * 60 - self.collection.teacher_seconds
+            if trainer.deadline is not None:
+                left = min(left, trainer.deadline - time.perf_counter())
+            done = max((c.iteration for c in ModelFolder(self.path).checkpoints()), default=0)
+            if left >= 1 and done < s.iterations:
+                self._train(trainer, left, s.iterations - done)
+        self.teacher.load(self.path, FeaturesObservation(trainer.eval_world.sim).space)
+        self.collection.driver.reseed(self.parts.cfg.run.seed + trainer.state.iteration)
 
-    def _train_teacher(self, seconds: float, iterations: int) -> None:
-        from racerlab.train.loop import train
-
-        self.note(f"phase teacher: training {self.teacher_path.name}/ for {iterations} iterations, at most "
-                  f"{seconds:.0f} s")
+    def _train(self, trainer: Trainer, seconds: float, iterations: int) -> None:
+        trainer.note(f"phase teacher: training {self.path.name}/ for {iterations} iterations, at most "
+                     f"{seconds:.0f} s")
         t0 = time.perf_counter()
-        r = train(self.teacher_path, minutes=seconds / 60, iterations=iterations, progress=self.progress.enabled,
-                  device="cpu")
+        r = Trainer(self.path, progress=trainer.progress.enabled, minutes=seconds / 60, iterations=iterations,
+                    device="cpu").run()
         spent = time.perf_counter() - t0
-        self.collector.teacher_seconds += spent
+        self.collection.teacher_seconds += spent
         lap = "no lap yet" if math.isnan(r.best_lap_time) else f"best lap {r.best_lap_time:.2f} s"
-        self.note(f"phase teacher: {r.iterations} iterations in {spent:.0f} s, {lap}")
+        trainer.note(f"phase teacher: {r.iterations} iterations in {spent:.0f} s, {lap}")
 
-    # ---- one round -----------------------------------------------------------------------------
-    def iterate(self, t_start: float) -> dict:
-        s = self.state
-        round_k = s.iteration
-        self._teach()
-        if self.deadline is not None and time.perf_counter() >= self.deadline:
-            return {}
-        self.collector.before_iteration(round_k)
-        self.driver.mix = self.settings.mix ** round_k
-        target = max(self.hp.num_episodes_between_training, self.cfg.run.num_cars)
-        ro = self.collector.collect(self.driver, target, self.cfg.run.max_steps_per_iteration,
-                                    first_episode_number=s.episodes, deadline=self.deadline, tick=self.progress.tick)
-        if ro.cut and not ro.episodes:
-            s.env_steps += ro.env_steps
-            return {}
-        t_fit = time.perf_counter()
-        with self.progress.heartbeat(f"dagger round {round_k}: fitting the student"):
-            metrics = self._fit(ro)
-        fit_s = time.perf_counter() - t_fit
-        s.env_steps += ro.env_steps
-        past = self.deadline is not None and time.perf_counter() >= self.deadline
-        t_eval = time.perf_counter()
-        with self.progress.heartbeat("evaluation episodes"):
-            evals = [] if ro.cut or past else self._evaluate()
-        eval_s = time.perf_counter() - t_eval
-        self.note(f"dagger round {round_k}: teacher drives {self.driver.mix:.0%} of steps; collect {ro.seconds:.1f} s "
-                  f"({ro.rewards.size} steps), fit {fit_s:.1f} s ({metrics['distill/steps']:.0f} steps of "
-                  f"{self.imitation.batch_size} on {len(self.demos)}; loss {metrics['distill/loss_start']:.4f} → "
-                  f"{metrics['distill/loss_end']:.4f}), evaluate {eval_s:.1f} s")
-        metrics.update({"distill/round": float(round_k), "distill/teacher_mix": self.driver.mix,
-                        "distill/teacher_seconds": self.collector.teacher_seconds, "distill/eval_seconds": eval_s})
-        with _ctrl_c_after():
-            return self._commit(ro, evals, metrics, fit_s, t_start)
 
-    def _fit(self, ro) -> dict:
-        if ro.rewards.size == 0:
-            return {"distill/loss_start": math.nan, "distill/loss_end": math.nan, "distill/steps": 0.0,
-                    "distill/set": float(len(self.demos))}
-        keys = (*self.agent.keys, TEACHER_KEY)
-        added = self.demos.add({k: ro.obs[k] for k in keys})
-        targets = self.driver.label(self.demos.column(TEACHER_KEY))  # the current teacher labels every step again
-        s = self.settings
-        steps = math.ceil(s.passes * added / s.batch_size)
-        inputs = {k: self.demos.column(k) for k in self.agent.keys}
-        metrics = self.imitation.fit(inputs, targets, steps, deadline=self.deadline)
-        metrics["distill/set"] = float(len(self.demos))
-        return metrics
+def _check_student(parts: RunParts) -> None:
+    if parts.metadata.training_algorithm != "clipped_ppo" or not hasattr(parts.agent, "policy_net"):
+        raise ConfigError(f"{parts.folder.metadata_path}: a teacher trains PPO students only; this model is "
+                          f"{parts.metadata.training_algorithm}: set [teacher] model = \"\" in training.toml")
+    if parts.worlds[0].observation.name.startswith("features"):
+        raise ConfigError(f"{parts.cfg.source}: [teacher] is for camera and lidar models; a features model "
+                          "learns by itself: set [teacher] model = \"\"")
+
+
+def taught_trainer(model_dir, *, teacher=None, progress: bool = True, stop_at_first_lap: bool = False,
+                   **overrides) -> Trainer:
+    """The trainer of a model taught by a features teacher (module docstring): `teacher` is a teacher folder given
+    for this run (used as it is); None takes training.toml's `[teacher] model` (the model's own, trained first)."""
+    parts = trainer_parts(model_dir, overrides, progress=progress)
+    _check_student(parts)
+    s, seed = parts.cfg.teacher, parts.cfg.run.seed
+    path = teacher_folder(parts.folder, str(teacher) if teacher is not None else s.model)
+    imitation = Imitation(parts.agent, batch_size=s.batch_size, lr=s.lr, precision=s.precision, seed=seed,
+                          threads=parts.cfg.run.threads)
+    tutor = Teacher(parts.metadata.actions)
+    driver = DaggerDriver(imitation, tutor, noise=s.noise, seed=seed)
+    collection = PairedCollection(LocalCollection(parts.builder), parts.agent.keys[0], driver, s.mix)
+    learner = DaggerLearner(imitation, Demonstrations(s.max_steps, seed=seed), driver, s, source=parts.cfg.source,
+                            note=parts.note)
+    phase = TeacherPhase(parts, path, teacher is None and s.minutes > 0, tutor, collection)
+    return Trainer(parts, stop_at_first_lap=stop_at_first_lap, collector=collection, learner=learner,
+                   before_run=phase)

@@ -8,6 +8,8 @@ after MAX_ROLLBACKS the run stops with `TrainingDiverged`.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -29,29 +31,43 @@ class TrainingDiverged(RacerlabError):
     pass
 
 
-class Health:
-    """Watches `agent`'s updates. `hp` is the model's hyperparameters (the file's lr), `reward_path` names the
-    reward in the advice, `discrete` says whether the entropy check applies, `note(text)` tells the user."""
+@dataclass(frozen=True)
+class RateSetting:
+    """Where a learner's learning rate is set, for the advice: its key (`lr`, `teacher.lr`), the file's value, the
+    file, and the rate to suggest when the file's is above it."""
 
-    def __init__(self, agent, hp, reward_path, *, discrete: bool, note, model_path):
+    key: str
+    value: float
+    source: str
+    default: float = AWS_DEFAULT_LR
+
+
+class Health:
+    """Watches a learner's updates (`train.seams.Learner`: PPO's or SAC's agent itself, or DAgger's fit of the
+    student). `agent` is the model's agent (its policy's spread is checked), `rate` where the learner's rate is set,
+    `reward_path` names the reward in the advice, `discrete` says whether the entropy check applies, `note(text)`
+    tells the user."""
+
+    def __init__(self, learner, agent, rate: RateSetting, reward_path, *, discrete: bool, note, model_path):
+        self.learner = learner
         self.agent = agent
-        self.hp = hp
+        self.rate = rate
         self.reward_path = reward_path
         self.discrete = discrete
         self.note = note
         self.model_path = model_path
         self.rollbacks = 0
-        self.last_good = None  # the agent's state after the last committed iteration
+        self.last_good = None  # the learner's state after the last committed iteration
         self.last_eval: float | None = None
         self.events: list[str] = []  # rollbacks since the last metrics line, written into the next one
 
     def sound(self, metrics, iteration: int) -> bool:
         """NaN guard: True when the update is sound; otherwise roll back and lower the learning rate."""
-        bad = bool(metrics.get("nonfinite")) or not self.agent.finite() or any(
+        bad = bool(metrics.get("nonfinite")) or not self.learner.finite() or any(
             isinstance(v, float) and not math.isfinite(v) for k, v in metrics.items() if k.startswith("losses/"))
         if bad:
-            self.rollback("non-finite loss or weights", "lower lr in hyperparameters.json or check the reward "
-                          "function's scale", iteration)
+            self.rollback("non-finite loss or weights", f"lower {self.rate.key} in {Path(self.rate.source).name} or "
+                          "check the reward function's scale", iteration)
         return not bad
 
     def collapse(self, metrics, evals, rewards) -> tuple[str, str] | None:
@@ -119,20 +135,20 @@ class Health:
         return None
 
     def lr_advice(self) -> str:
-        """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): AWS's
-        default 0.0003 when the file's is higher, else a tenth of the file's."""
-        lr, ours = self.hp.lr, getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering
-        now = f" (halved to {ours:g} by rollbacks)" if ours < lr else ""
-        hint = AWS_DEFAULT_LR if lr > AWS_DEFAULT_LR else lr / 10
-        return f"the learning rate: lr {lr:g} in {self.hp.source}{now} is too high; try {hint:g} or lower"
+        """The learning-rate advice, naming the file's rate (and the rate the rollbacks have halved it to): the
+        setting's default (AWS's 0.0003 for PPO and SAC) when the file's is higher, else a tenth of the file's."""
+        r, ours = self.rate, self.learner.lr
+        now = f" (halved to {ours:g} by rollbacks)" if ours < r.value else ""
+        hint = r.default if r.value > r.default else r.value / 10
+        return f"the learning rate: {r.key} {r.value:g} in {r.source}{now} is too high; try {hint:g} or lower"
 
     def rollback(self, what: str, cause: str, iteration: int) -> None:
         """Restore the last good weights, halve the learning rate, say so and record it for metrics.jsonl;
         after MAX_ROLLBACKS stop with TrainingDiverged."""
         self.rollbacks += 1
-        lr = getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering (agent.ppo.KL_TARGET)
-        self.agent.load_state_dict(self.last_good)
-        self.agent.lr = lr / 2
+        lr = self.learner.lr
+        self.learner.load_state_dict(self.last_good)
+        self.learner.lr = lr / 2
         text = (f"{what} in iteration {iteration + 1}: rolled back to the last good weights, learning rate "
                 f"{lr:g} → {lr / 2:g} ({self.rollbacks}/{MAX_ROLLBACKS}); likely cause: {cause}")
         self.note(text)

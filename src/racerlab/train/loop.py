@@ -1,8 +1,10 @@
-"""`train(model_dir)`: the iteration loop — collect episodes, update, evaluate, checkpoint, log.
+"""`Trainer`: the iteration loop — collect episodes, learn, evaluate, checkpoint, log — composed of a run's parts
+(`train.parts`) and its seams (`train.seams`: the collection, the logs, the learner).
 
 One iteration, as DeepRacer runs it (facts §6, §9): the cars drive whole training episodes with
 the current policy (`num_episodes_between_training`, or one per car when there are more cars);
-the agent learns from them (`agent.learn(rollout)`: PPO's update, SAC's replay memory); a few
+the learner learns from them (by default the agent itself, `agent.learn(rollout)`: PPO's update, SAC's replay
+memory; a taught model's DAgger fit, `train.distill`); the health checks judge the update (`train.health`); a few
 greedy evaluation episodes pick the best checkpoint; the checkpoint, the AWS-format logs and
 racerlab's metrics are written atomically. A training stopped at any moment (Ctrl-C, kill -9,
 a reward function that raises) resumes from the last complete iteration.
@@ -14,6 +16,7 @@ import math
 import signal
 import threading
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -21,21 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import ConfigError, RacerlabError
-from racerlab.model import (
-    ModelFolder,
-    TrainingConfig,
-    TrainingState,
-    check_compatible,
-    nonfinite_tensors,
-    parse_model_metadata,
-)
-from racerlab.reward import RewardCaller, RewardWatchdog
+from racerlab.model import TrainingState, check_compatible, nonfinite_tensors, parse_model_metadata
 from racerlab.train.evaluation import eval_metric, laptime_tie_ms, pick_best, run_greedy_episodes
-from racerlab.train.health import Health
-from racerlab.train.progress import Progress
+from racerlab.train.health import Health, RateSetting
+from racerlab.train.parts import RunParts, trainer_parts
 from racerlab.train.records import TrainingLogs
-from racerlab.train.seams import Collection, IterationLogs
-from racerlab.train.worlds import LocalCollection, WorldBuilder
+from racerlab.train.seams import Collection, IterationLogs, Learner
+from racerlab.train.worlds import LocalCollection
 
 
 @contextmanager
@@ -76,67 +71,88 @@ class TrainResult:
     notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
 
-def _check_flags(minutes, episodes, iterations, num_cars) -> None:
-    """Command-line values the training cannot use: one line naming the flag."""
-    for flag, value, least in (("--minutes", minutes, 0), ("--episodes", episodes, 0), ("--iterations", iterations, 0),
-                               ("--cars", num_cars, 1)):
-        if value is None:
-            continue
-        if not (isinstance(value, int | float) and math.isfinite(value)) or value < least:
-            what = "a number >= 0 (0 = no limit)" if least == 0 else "at least 1"
-            raise ConfigError(f"{flag} must be {what}, got {value!r}")
+class AgentLearner:
+    """The default learner (`train.seams.Learner`): the agent itself, PPO's update or SAC's replay memory, its rate
+    hyperparameters.json's lr."""
 
+    def __init__(self, agent, hp):
+        self.agent = agent
+        self.rate = RateSetting("lr", hp.lr, str(hp.source))
 
-def apply_overrides(cfg: TrainingConfig, *, minutes=None, episodes=None, iterations=None, num_cars=None,
-                    device=None, seed=None, tracks=None) -> TrainingConfig:
-    _check_flags(minutes, episodes, iterations, num_cars)
-    stop = cfg.stop
-    stop = replace(stop, minutes=stop.minutes if minutes is None else float(minutes),
-                   episodes=stop.episodes if episodes is None else int(episodes),
-                   iterations=stop.iterations if iterations is None else int(iterations))
-    run = cfg.run
-    run = replace(run, num_cars=run.num_cars if num_cars is None else int(num_cars),
-                  device=run.device if device is None else device, seed=run.seed if seed is None else int(seed))
-    track = cfg.track if not tracks else replace(cfg.track, names=tuple(tracks))
-    return replace(cfg, stop=stop, run=run, track=track)
+    def learn(self, rollout) -> dict:
+        return self.agent.learn(rollout)
+
+    def finite(self) -> bool:
+        return self.agent.finite()
+
+    def state_dict(self) -> dict:
+        return self.agent.state_dict()
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state)
+
+    @property
+    def lr(self) -> float:
+        return getattr(self.agent, "lr_ceiling", self.agent.lr)  # PPO's rate before its steering (agent.ppo.KL_TARGET)
+
+    @lr.setter
+    def lr(self, value: float) -> None:
+        self.agent.lr = value
+
+    @property
+    def deadline(self) -> float | None:
+        return self.agent.deadline
+
+    @deadline.setter
+    def deadline(self, value: float | None) -> None:
+        self.agent.deadline = value
 
 
 class Trainer:
-    """Holds the pieces of one training run; `run()` iterates until a stop condition.
+    """One training run, composed; `run()` iterates until a stop condition.
 
-    `collector` is where the episodes come from (a `train.seams.Collection`; default: a `LocalCollection` of this
-    machine's worlds; the cluster passes its Ray collection) and `logs` what writes the iteration's records (a
-    `train.seams.IterationLogs`; default: `TrainingLogs`; the cluster passes its per-worker logs). The driver
-    builds training worlds only for the local collection.
+    `model` is the model folder (its parts are assembled here from it and the keyword `overrides`: minutes,
+    episodes, iterations, num_cars, device, seed, tracks) or a `train.parts.RunParts` already assembled
+    (`trainer_parts`), whose progress view then replaces `progress`. The seams (`train.seams`): `collector`, where
+    the episodes come from (default: a `LocalCollection` of this machine's worlds; the cluster passes its Ray
+    collection, a taught model its paired collection); `logs`, what writes the iteration's records (default:
+    `TrainingLogs`; the cluster passes its per-worker logs); `learner`, what learns from the episodes (default:
+    the agent itself; a taught model passes DAgger's fit). `before_run(trainer)` is a step run once, after the
+    resume and before the first iteration (a taught model's teacher phase). Every learner goes through the same
+    iteration and its health checks. The driver builds training worlds only for the local collection.
     """
 
-    def __init__(self, model_dir, progress: bool = True, stop_at_first_lap: bool = False, *,
-                 collector: Collection | None = None, logs: IterationLogs | None = None, **overrides):
-        self.t_created = time.perf_counter()  # --minutes counts the set-up (tracks, compiling the simulator) too
-        self.cpu_created = time.process_time()  # the first lap's CPU seconds (a shared machine's wall time varies)
+    def __init__(self, model, progress: bool = True, stop_at_first_lap: bool = False, *,
+                 collector: Collection | None = None, logs: IterationLogs | None = None,
+                 learner: Learner | None = None, before_run: Callable[[Trainer], None] | None = None, **overrides):
+        if isinstance(model, RunParts):
+            if overrides:
+                raise TypeError(f"Trainer: overrides {sorted(overrides)} belong in the parts' assembly")
+            parts = model
+        else:
+            parts = trainer_parts(model, overrides, progress=progress)
+        self.parts = parts
+        self.t_created = parts.started  # --minutes counts the set-up (tracks, compiling the simulator) too
+        self.cpu_created = parts.cpu_started  # the first lap's CPU seconds (a shared machine's wall time varies)
         self.stop_at_first_lap = stop_at_first_lap
-        self.folder = ModelFolder(model_dir)
-        self.folder.require()
-        self.metadata = self.folder.metadata()
-        self.hp = self.folder.hyperparameters()
-        self.cfg = apply_overrides(self.folder.config(), **overrides)
-        self.notes: list[str] = []
-        self.progress = Progress(enabled=progress)
-        self.watchdog = RewardWatchdog(self.folder.reward_function(), self.cfg.run.reward_budget_s, self.note)
-        self.reward = RewardCaller(self.watchdog)
-        self.builder = WorldBuilder(self.cfg, self.metadata, self.reward, track_flag=bool(overrides.get("tracks")))
+        self.folder, self.metadata, self.hp, self.cfg = parts.folder, parts.metadata, parts.hp, parts.cfg
+        self.progress = parts.progress
+        self.watchdog, self.reward, self.builder = parts.watchdog, parts.reward, parts.builder
+        self.eval_world, self.agent = parts.worlds[0], parts.agent
         self.collector = collector if collector is not None else LocalCollection(self.builder)
-        self.eval_world = self.builder.evaluation_world()
-        from racerlab.agent import make_agent
-
-        self.agent = make_agent(self.eval_world.observation.space, self.metadata, self.hp, device=self.cfg.run.device,
-                                seed=self.cfg.run.seed)
+        self.learner = learner if learner is not None else AgentLearner(self.agent, self.hp)
+        self.before_run = before_run
         self._set_threads()  # after the agent is built: the thread count depends on its networks
         self.logs = logs if logs is not None else TrainingLogs(self.folder.path, self.cfg)
-        self.health = Health(self.agent, self.hp, self.folder.reward_path, note=self.note, model_path=self.folder.path,
-                             discrete=self.metadata.action_space_type == "discrete")
+        self.health = Health(self.learner, self.agent, self.learner.rate, self.folder.reward_path, note=self.note,
+                             model_path=self.folder.path, discrete=self.metadata.action_space_type == "discrete")
         self.state = TrainingState(agent={}, train_steps=0)  # the counters; weights go in at each checkpoint
         self.deadline: float | None = None  # perf_counter time of --minutes' end
+
+    @property
+    def notes(self) -> list[str]:
+        """What the run said besides the iteration lines."""
+        return self.progress.notes
 
     # ---- set-up ------------------------------------------------------------------------------
     def _set_threads(self):
@@ -160,7 +176,7 @@ class Trainer:
         if not cps:
             info = self.folder.save_state(self._checkpoint_state())
             self.folder.update_index(info, float("nan"), None, None)
-            self.health.last_good = self.agent.state_dict()
+            self.health.last_good = self.learner.state_dict()
             return False
         info, ck = self._newest_readable(cps)
         check_compatible(parse_model_metadata(ck.metadata, f"{info.name} (checkpoint)"), self.metadata,
@@ -174,7 +190,7 @@ class Trainer:
         self.collector.restore(ck.collection)
         self.folder.drop_after(ck.iteration)
         self.logs.truncate(ck.iteration, ck.episodes)
-        self.health.last_good = self.agent.state_dict()
+        self.health.last_good = self.learner.state_dict()
         return not ck.cloned
 
     def _check_observation(self, ck: TrainingState, info):
@@ -200,7 +216,6 @@ class Trainer:
 
     def note(self, text: str) -> None:
         """Tell the user (the progress output) and keep it for the result's notes."""
-        self.notes.append(text)
         self.progress.note(text)
 
     def _newest_readable(self, cps):
@@ -259,22 +274,24 @@ class Trainer:
             return {}
         t_learn = time.perf_counter()
         with self.progress.heartbeat("updating the policy"):  # a camera update can take a minute on 2 cores
-            metrics = self.agent.learn(ro)
+            metrics = self.learner.learn(ro)
         learn_s = time.perf_counter() - t_learn
         s.env_steps += ro.env_steps
         if not self.health.sound(metrics, s.iteration):
             return {}
         past = self.deadline is not None and time.perf_counter() >= self.deadline
+        t_eval = time.perf_counter()
         with self.progress.heartbeat("evaluation episodes"):  # at the time limit: learn and save, no evaluation
             evals = [] if ro.cut or past else self._evaluate()
+        seconds = (learn_s, time.perf_counter() - t_eval)
         collapsed = self.health.collapse(metrics, evals, ro.rewards)
         if collapsed:
             self.health.rollback(*collapsed, s.iteration)
             return {}
         with _ctrl_c_after():  # the iteration's logs, checkpoint and metrics line are written together
-            return self._commit(ro, evals, metrics, learn_s, t_start)
+            return self._commit(ro, evals, metrics, seconds, t_start)
 
-    def _commit(self, ro, evals, metrics, learn_s, t_start) -> dict:
+    def _commit(self, ro, evals, metrics, seconds, t_start) -> dict:
         s = self.state
         s.iteration += 1
         s.episodes += len(ro.episodes)
@@ -286,19 +303,21 @@ class Trainer:
         best = next((c for c in self.folder.checkpoints() if c.name == s.best_name), None)
         self.folder.update_index(saved, value, best, s.best_metric)
         self.folder.prune(best)
-        self.health.last_good = state.agent  # the snapshot just saved (a deep copy), not a second one
-        entry = self._summary(ro, evals, metrics, learn_s, value)
+        self.health.last_good = self.learner.state_dict()
+        entry = self._summary(ro, evals, metrics, seconds, value)
         self.logs.append_metrics(entry)
         return entry
 
-    def _summary(self, ro, evals, metrics, learn_s, value) -> dict:
+    def _summary(self, ro, evals, metrics, seconds, value) -> dict:
+        """The iteration's metrics.jsonl line; `seconds`: the learner's and the evaluation's."""
         s = self.state
         eps = ro.episodes
         laps = [e.lap_time for e in eps if e.status == "lap_complete"]
         return {
             "iteration": s.iteration, "episodes": s.episodes, "env_steps": s.env_steps, "train_steps": s.train_steps,
             "car": self.eval_world.sim.car_params.name,
-            "time": time.time(), "collect_seconds": round(ro.seconds, 4), "learn_seconds": round(learn_s, 4),
+            "time": time.time(), "collect_seconds": round(ro.seconds, 4), "learn_seconds": round(seconds[0], 4),
+            "eval_seconds": round(seconds[1], 4),
             "charts/env_steps_per_s": ro.env_steps / max(ro.seconds, 1e-9),
             "charts/mean_reward": float(np.mean([e.reward for e in eps])) if eps else 0.0,
             "charts/completion": float(np.mean([min(e.progress, 100.0) for e in eps])) if eps else 0.0,
@@ -338,13 +357,15 @@ class Trainer:
     def _run(self) -> TrainResult:
         t_start = self.t_created
         self.deadline = t_start + self.cfg.stop.minutes * 60 if self.cfg.stop.minutes else None
-        self.agent.deadline = self.deadline  # the update in progress at the deadline ends after its minibatch
+        self.learner.deadline = self.deadline  # the update in progress at the deadline ends after its minibatch
         resumed = self._resume_or_start()
         s = self.state
         start_iteration, start_episodes = s.iteration, s.episodes
         self.progress.start(self, resumed)
         result = TrainResult(self.folder.path, car=self.eval_world.sim.car_params.name)
         try:
+            if self.before_run is not None:
+                self.before_run(self)
             while not (reason := self._limit_reached(t_start, start_iteration, start_episodes)):
                 entry = self.iterate(t_start)
                 if entry:
@@ -380,15 +401,3 @@ class Trainer:
             return elapsed / done * max(max_eps - done, 0)
         return None
 
-
-def train(model_dir, *, progress: bool = True, stop_at_first_lap: bool = False, teacher=None,
-          **overrides) -> TrainResult:
-    """Train the model in `model_dir` (resuming if it has checkpoints). Keyword overrides: minutes,
-    episodes, iterations, num_cars, device, seed, tracks. With a teacher (`teacher`, a features model's folder, or
-    training.toml's `[teacher] model`) the iterations are DAgger rounds from it (`racerlab.train.distill`)."""
-    if teacher is not None or ModelFolder(model_dir).config().teacher.model:
-        from racerlab.train.distill import DistillTrainer
-
-        return DistillTrainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, teacher=teacher,
-                              **overrides).run()
-    return Trainer(model_dir, progress=progress, stop_at_first_lap=stop_at_first_lap, **overrides).run()

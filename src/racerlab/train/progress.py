@@ -39,10 +39,12 @@ def _lap(x) -> str:
 
 
 class Progress:
-    """Prints to stdout (rich colours on a terminal, plain text otherwise); silent when disabled."""
+    """Prints to stdout (rich colours on a terminal, plain text otherwise); silent when disabled. Keeps the run's
+    notes (what it said besides the iteration lines) for its result."""
 
     def __init__(self, enabled: bool = True):
         self.enabled = enabled
+        self.notes: list[str] = []
         self.rows = 0  # iteration lines printed, for the column header's repeats
         self.console = None
         if enabled and sys.stdout.isatty():
@@ -64,6 +66,7 @@ class Progress:
             print(text, flush=True)
 
     def note(self, text: str) -> None:
+        self.notes.append(text)
         self._print(text, "yellow")
 
     @contextmanager

@@ -1,8 +1,11 @@
-"""The two seams of `Trainer(collector=, logs=)`, written down: what a collection and a logs writer must offer.
+"""The seams of `Trainer(collector=, logs=, learner=)`, written down: what a collection, a logs writer and a
+learner must offer.
 
 This machine's implementations are `train.worlds.LocalCollection` and `train.records.TrainingLogs`; the cluster's
-are `cluster.training.ClusterCollection` and `cluster.training.WorkerLogs`. A test checks that each has every
-method with the signature given here.
+are `cluster.training.ClusterCollection` and `cluster.training.WorkerLogs`; a taught model's are
+`train.distill.PairedCollection` and `train.distill.DaggerLearner`. The default learner is the agent itself
+(`train.loop.AgentLearner`: PPO's update, SAC's replay memory). A test checks that each has every method with the
+signature given here.
 """
 
 from __future__ import annotations
@@ -57,3 +60,27 @@ class IterationLogs(Protocol):
 
     def close(self) -> None:
         """Flush and close."""
+
+
+@runtime_checkable
+class Learner(Protocol):
+    """What learns from each iteration's episodes. Every learner gets the trainer's health checks (`train.health`):
+    after `learn`, the NaN guard (`finite()`, a `nonfinite` metric or a non-finite `losses/...` one), the collapse
+    checks, and the rollback, which restores the `state_dict()` of the last committed iteration and halves `lr`.
+
+    Besides the methods: `lr`, the learning rate a rollback halves (settable); `deadline`, set by the trainer: a
+    `time.perf_counter()` value at which an update in progress ends after its step (`--minutes`); `rate`, where the
+    rate is set (`train.health.RateSetting`), for the rollback's advice.
+    """
+
+    def learn(self, rollout) -> dict:
+        """Learn from an iteration's `Rollout`; returns its metrics (metrics.jsonl keys, float values)."""
+
+    def finite(self) -> bool:
+        """True when every weight it trains is finite."""
+
+    def state_dict(self) -> dict:
+        """A snapshot (a deep copy) of what it trains, weights and optimiser, to roll back to."""
+
+    def load_state_dict(self, state: dict) -> None:
+        """Go back to a `state_dict()` snapshot."""
