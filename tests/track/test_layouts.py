@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.generalise import (
+from racerlab.track.core import from_array, ring_area
+from racerlab.track.layouts import (
     held_out_tracks,
     layout_shape,
     same_layout,
     training_tracks,
 )
-from racerlab.track.core import from_array, ring_area
 from tests.conftest import AWS_TRACKS
 
 
