@@ -97,6 +97,7 @@ class RandomiseSettings:
     pose_shift_m: float = 0.0  # sideways camera offset drawn from [-d, d] metres per episode
     lidar_noise_m: float = 0.0  # extra Gaussian noise on every lidar range, metres, fresh every scan
     latency_steps: int = 0  # the action chosen at step t is applied at step t + latency_steps (0, 1 or 2)
+    latency_varies: bool = False  # each episode draws its latency from 0..latency_steps instead (uniform)
     steering_gain: float = 0.0  # steering multiplied by a gain drawn from [1 - g, 1 + g] per episode
     throttle_gain: float = 0.0  # speed multiplied by a gain drawn from [1 - g, 1 + g] per episode
     speed_scale: float = 1.0  # the car's max-speed setting: applied speed = speed / action top x top_speed x scale
@@ -371,6 +372,8 @@ def _validate_randomise(r: RandomiseSettings, s: str) -> None:
     for name in ("exposure", "gamma", "steering_gain", "throttle_gain"):
         _check(0 <= getattr(r, name) < 1, s, f"randomise.{name} must be in [0, 1): a range around 1")
     _check(r.latency_steps in (0, 1, 2), s, "randomise.latency_steps must be 0, 1 or 2")
+    _check(r.latency_steps > 0 or not r.latency_varies, s, "randomise.latency_varies draws each episode's latency "
+           "from 0 to latency_steps: set latency_steps to 1 or 2, or remove latency_varies")
     _check(r.speed_scale > 0 and r.top_speed >= 0, s, "randomise.speed_scale must be > 0 and top_speed >= 0")
 
 
