@@ -35,7 +35,7 @@ from racerlab.exchange import export_onnx, export_tflite
 from racerlab.exchange.export import car_feed, car_inputs, frozen_graph, policy_tower
 from racerlab.exchange.frames import car_observations
 from racerlab.exchange.graphdef import graph_bytes
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from racerlab.exchange.runtimes import OnnxRunner, OpenVinoRunner, TfliteRunner
 from racerlab.exchange.tflite import tflite_from_frozen_graph
 
@@ -92,18 +92,18 @@ def rate(run, feed, repeat: int) -> tuple[float, np.ndarray]:
     return best, out
 
 
-def runners(model, tmp: Path) -> dict:
+def runners(opened, model, tmp: Path) -> dict:
     """format -> (runner, feeds racerlab observations (True) or the car's named inputs (False))."""
     def unpack(archive):
         with tarfile.open(archive) as tar:
             tar.extractall(archive.with_suffix(""), filter="data")
         return archive.with_suffix("")
 
-    path = model.folder.path
-    onnx_dir = unpack(export_onnx(path, tmp / f"{model.name}-onnx.tar"))
-    lite_dir = unpack(export_tflite(path, tmp / f"{model.name}-tflite.tar"))
+    path = opened.folder.path
+    onnx_dir = unpack(export_onnx(path, tmp / f"{opened.name}-onnx.tar"))
+    lite_dir = unpack(export_tflite(path, tmp / f"{opened.name}-tflite.tar"))
     _, _, output, _ = policy_tower(model)
-    fp16 = tmp / f"{model.name}-fp16.tflite"
+    fp16 = tmp / f"{opened.name}-fp16.tflite"
     fp16.write_bytes(tflite_from_frozen_graph(graph_bytes(frozen_graph(model)), car_inputs(model), output, fp16=True))
     return {
         "torch": (TorchRunner(model), True),
@@ -115,19 +115,19 @@ def runners(model, tmp: Path) -> dict:
 
 
 def measure(model_dir: Path, tmp: Path, frames: int, repeat: int) -> None:
-    model = load_local_model(model_dir)
+    opened, model = open_for_export(model_dir)
     obs, n_real = car_observations(model.shapes, frames, REAL)
     feed = car_feed(model, obs)
     discrete = model.metadata.action_space_type == "discrete"
     anchor, want = None, None
-    for name, (run, racerlab_obs) in runners(model, tmp).items():
+    for name, (run, racerlab_obs) in runners(opened, model, tmp).items():
         fps, out = rate(run, obs if racerlab_obs else feed, repeat)
         if anchor is None:
             anchor, want = fps, out
         diff = np.abs(out - want)
         agree = (out.argmax(1) == want.argmax(1)) if discrete else (diff.max(1) <= 1e-4)
         print(json.dumps({
-            "model": model.name, "sensors": list(model.metadata.sensor), "network": model.metadata.neural_network,
+            "model": opened.name, "sensors": list(model.metadata.sensor), "network": model.metadata.neural_network,
             "actions": model.metadata.action_space_type, "format": name, "frames_per_s": round(fps, 1),
             "ms_per_frame": round(1000.0 / fps, 3), "vs_torch": round(fps / anchor, 2),
             "agree": f"{int(agree.sum())}/{len(agree)}", "max_abs_diff": float(f"{diff.max():.3g}"),

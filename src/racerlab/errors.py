@@ -38,3 +38,8 @@ class ModelRefused(RacerlabError):
 
     def __reduce__(self):  # one argument per field, so that it crosses process boundaries (a league's workers)
         return type(self), (self.path, self.reason, self.problem, self.fix)
+
+
+class RacerlabWarning(UserWarning):
+    """Something left out of a user's input and carried on without (skipped files, dropped rows); the command line
+    prints it as one line."""

@@ -6,7 +6,6 @@ import errno
 import os
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -42,51 +41,6 @@ def test_a_full_disk_is_one_line_and_the_last_iteration_survives(tmp_path, capsy
     assert state["iteration"] == 1
     assert main(["train", str(model.path), "--iterations", "2"]) == 0  # space again: resumes
     assert model.checkpoints()[-1].iteration == 3  # iteration 1 kept, two more on top
-
-
-def test_numba_compiles_into_the_users_cache_not_the_source_tree(tmp_path):
-    import racerlab
-
-    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
-    env.update(XDG_CACHE_HOME=str(tmp_path / "cache"), PYTHONPATH=os.path.dirname(os.path.dirname(racerlab.__file__)))
-    code = "import os, racerlab, numba; print(os.environ['NUMBA_CACHE_DIR']); print(numba.config.CACHE_DIR)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
-    key = racerlab._compiled_sources_key()
-    assert len(key) == 16 and out.split() == [str(tmp_path / "cache" / "racerlab" / "numba" / key)] * 2
-    env["NUMBA_CACHE_DIR"] = str(tmp_path / "mine")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True).stdout
-    assert out.split() == [str(tmp_path / "mine")] * 2  # the user's choice is kept
-
-
-def test_a_change_to_any_compiled_source_gets_a_fresh_numba_cache(tmp_path):
-    """numba checks a cached kernel against its own file only: the simulator's step, which calls the car's compiled
-    functions, kept the car before a refit. The cache folder is named by all compiled sources together."""
-    import shutil
-
-    import racerlab
-
-    package = tmp_path / "racerlab"
-    shutil.copytree(os.path.dirname(racerlab.__file__), package, ignore=shutil.ignore_patterns("__pycache__", "data"))
-    key = racerlab._compiled_sources_key(str(package))
-    assert key == racerlab._compiled_sources_key()  # the same sources, wherever they are
-    with open(package / "cli" / "quickstart.py", "a") as fh:  # no compiled code in it
-        fh.write("# a comment\n")
-    assert racerlab._compiled_sources_key(str(package)) == key
-    with open(package / "sim" / "car.py", "a") as fh:  # the car's compiled functions
-        fh.write("# a comment\n")
-    assert racerlab._compiled_sources_key(str(package)) != key
-
-
-def test_numba_caches_of_other_sources_unused_for_two_weeks_are_removed(tmp_path):
-    import racerlab
-
-    now = time.time()
-    for name, days in (("current", 40), ("other_checkout", 2), ("old_version", 15), ("agent_0123", 30)):
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "k.nbi").write_text("x")
-        os.utime(tmp_path / name, (now - days * 86400,) * 2)
-    racerlab._prune_numba_caches(str(tmp_path), "current")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["current", "other_checkout"]
 
 
 def test_a_short_console_token_is_refused(tmp_path, capsys, monkeypatch):

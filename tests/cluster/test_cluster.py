@@ -44,23 +44,64 @@ def _small_model(path: Path, episodes: int = 4) -> Path:
     return folder.path
 
 
+def start_node(args: list[str], tmp: Path) -> subprocess.Popen:
+    """`ray start --block` of one node on 127.0.0.1 with one CPU, its files under `tmp`, under a reaper
+    (`_REAPER`) that takes the node down when this process closes its end of the reaper's stdin or ends, however it
+    ends: a test run that died left both nodes running.
+
+    Ray turns 127.0.0.1 given as a node's address into the machine's network address (its services then listen on
+    every interface) unless clusters of several machines are off (`collector.loopback_only`), and with them off a
+    second node refuses to start: the head runs with them off, the second node with Ray's resolving of 127.0.0.1
+    left out (`_KEEP_LOOPBACK`)."""
+    head = "--head" in args
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0" if head else "1")
+    command = [RAY] if head else [sys.executable, "-c", _KEEP_LOOPBACK]
+    return subprocess.Popen([sys.executable, "-c", _REAPER, *command, "start", *args, "--node-ip-address=127.0.0.1",
+                             "--num-cpus=1", "--block", "--disable-usage-stats", f"--temp-dir={tmp}"], env=env,
+                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+
+
+# The reaper leads the node's process group: at the end of its stdin it stops `ray start`, then kills the group (the
+# agents a raylet starts outlive it by a minute, and `ray start` sent SIGTERM while it starts its node hangs).
+_REAPER = ("import os, signal, subprocess, sys\n"
+           "node = subprocess.Popen(sys.argv[1:])\n"
+           "sys.stdin.buffer.read()\n"
+           "node.terminate()\n"
+           "try:\n    node.wait(10)\nexcept subprocess.TimeoutExpired:\n    pass\n"
+           "os.killpg(0, signal.SIGKILL)\n")
+# `ray start` with the addresses given kept as they are (Ray resolves 127.0.0.1 to the machine's address)
+_KEEP_LOOPBACK = ("import sys; from ray._private import services; services.resolve_ip_for_localhost = lambda h: h; "
+                  "from ray.scripts.scripts import main; sys.argv[0] = 'ray'; sys.exit(main())")
+
+
+def stop_nodes(procs: list[subprocess.Popen]) -> None:
+    """Each node's reaper told to take its node down (newest first), and killed with its group if it does not."""
+    for p in reversed(procs):
+        if p.stdin and not p.stdin.closed:
+            p.stdin.close()
+    for p in reversed(procs):
+        try:
+            p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+
 @pytest.fixture(scope="module")
 def cluster():
+    from racerlab.cluster.collector import loopback_only
+
     tmp = Path(tempfile.mkdtemp(prefix="rl", dir="/tmp"))
     port = _free_port()
     saved = os.environ.get("RAY_AUTH_MODE")
     os.environ["RAY_AUTH_MODE"] = "disabled"  # a throw-away cluster on 127.0.0.1: no token to hand around
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
-    common = ["--block", "--disable-usage-stats", f"--temp-dir={tmp}"]
-    procs = [subprocess.Popen([RAY, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}",
-                               "--num-cpus=1", "--include-dashboard=false", *common], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
+    loopback_only()  # Ray would give the nodes the machine's address (and listen on every interface) for 127.0.0.1
+    procs = [start_node(["--head", f"--port={port}", "--include-dashboard=false"], tmp)]
     address = f"127.0.0.1:{port}"
     try:
         _wait_for_head(address, tmp)
-        procs.append(subprocess.Popen([RAY, "start", f"--address={address}", "--node-ip-address=127.0.0.1",
-                                       "--num-cpus=1", *common], env=env, stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.DEVNULL, start_new_session=True))
+        procs.append(start_node([f"--address={address}"], tmp))
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
         deadline = time.time() + 90
         while len([n for n in ray.nodes() if n["Alive"]]) < 2 and time.time() < deadline:
@@ -72,15 +113,7 @@ def cluster():
             os.environ.pop("RAY_AUTH_MODE", None)
         else:
             os.environ["RAY_AUTH_MODE"] = saved
-        for p in reversed(procs):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGTERM)
-        for p in reversed(procs):
-            try:
-                p.wait(timeout=8)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
-                p.wait()
+        stop_nodes(procs)
 
 
 def _wait_for_head(address: str, tmp: Path) -> None:
@@ -92,6 +125,36 @@ def _wait_for_head(address: str, tmp: Path) -> None:
                 return
         time.sleep(0.5)
     raise RuntimeError(f"ray head on {address} did not come up (logs in {tmp})")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_test_run_that_dies_leaves_no_ray_node_behind(tmp_path):
+    """Issue 45, item 12: a test run that died (or was killed) left the module's two nodes running. A process that
+    starts a node as the fixture does, killed with SIGKILL, takes the node with it."""
+    repo = Path(__file__).resolve().parents[2]
+    code = ("import sys, time; from pathlib import Path; "
+            "from tests.cluster.test_cluster import _free_port, start_node; port = _free_port(); "
+            "p = start_node(['--head', f'--port={port}', '--include-dashboard=false'], Path(sys.argv[1])); "
+            "print(p.pid, port, flush=True); time.sleep(300)")
+    env = dict(os.environ, RAY_AUTH_MODE="disabled", RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0",
+               PYTHONPATH=os.pathsep.join([str(repo), str(repo / "src"), os.environ.get("PYTHONPATH", "")]))
+    tmp = Path(tempfile.mkdtemp(prefix="rl", dir="/tmp"))
+    run = subprocess.Popen([sys.executable, "-c", code, str(tmp)], cwd=repo, env=env, stdout=subprocess.PIPE,
+                           text=True)
+    try:
+        pid, port = map(int, run.stdout.readline().split())
+        _wait_for_head(f"127.0.0.1:{port}", tmp)
+        deadline = time.time() + 90
+        while time.time() < deadline and not any(b"raylet" in _cmdline(Path(f"/proc/{p}")) for p in _descendants(pid)):
+            time.sleep(0.5)
+        node = _descendants(pid)
+        assert len(node) >= 3  # ray start, the GCS, the raylet at least
+        run.kill()  # the test run dies
+        run.wait()
+        assert still_running(node, within_s=60) == []
+    finally:
+        if run.poll() is None:
+            run.kill()
 
 
 def test_episodes_split_as_drfc_serves_them():
@@ -337,6 +400,14 @@ def test_an_error_inside_a_sweep_training_is_its_one_line(cluster, tmp_path):
     assert "reward_function.py:2" in msg and "KeyError" in msg and "Traceback" not in msg and len(msg.splitlines()) <= 2
 
 
+def still_running(pids, within_s: float) -> list[int]:
+    """Those of `pids` still running (not zombies) after waiting up to `within_s` for them to end."""
+    deadline = time.time() + within_s
+    while time.time() < deadline and any(_alive(p) for p in pids):
+        time.sleep(0.5)
+    return [p for p in pids if _alive(p)]
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(") ", 1)[1][0]
@@ -361,6 +432,88 @@ def test_a_local_cluster_starts_with_token_authentication_and_old_ray_is_refused
     fake.__version__ = "2.9.3"
     with pytest.raises(RacerlabError, match=r"ray 2\.9\.3 .* ray >= 2\.52"):
         collector.connect()
+
+
+def test_a_connected_ray_keeps_its_authentication_mode(cluster, monkeypatch):
+    """Issue 45, item 12: the token test above re-read the real Ray's configuration through `ray._raylet` while this
+    process was connected with authentication off; with no ~/.ray token (a fresh home) the next call into Ray killed
+    the test run, which left both nodes running. racerlab touches only the Ray `import ray` gives, and leaves a
+    connected one alone."""
+    from types import SimpleNamespace
+
+    from ray._raylet import AuthenticationMode, get_authentication_mode
+
+    from racerlab.cluster import collector
+
+    fake = SimpleNamespace(__version__="2.60.0", is_initialized=lambda: False, init=lambda **kw: None)
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    collector.connect()
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    assert get_authentication_mode() != AuthenticationMode.TOKEN
+    assert collector.connect() is ray  # connected: used as it is, its mode untouched
+    assert get_authentication_mode() != AuthenticationMode.TOKEN and ray.get(ray.put(7)) == 7
+
+
+def _listening(pids: set[int]) -> set[str]:
+    """The local addresses the processes `pids` listen on (TCP), read from /proc."""
+    inodes = set()
+    for pid in pids:
+        try:
+            links = [os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd")]
+        except OSError:
+            continue
+        inodes |= {link[8:-1] for link in links if link.startswith("socket:[")}
+    out = set()
+    for table, width in (("/proc/net/tcp", 8), ("/proc/net/tcp6", 32)):
+        for line in Path(table).read_text().splitlines()[1:]:
+            cols = line.split()
+            if cols[3] == "0A" and cols[9] in inodes:  # LISTEN
+                out.add(_address(cols[1].split(":")[0], width))
+    return out
+
+
+def _address(hexed: str, width: int) -> str:
+    raw = bytes.fromhex(hexed)
+    words = b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))  # /proc prints each 32-bit word host-order
+    return socket.inet_ntop(socket.AF_INET if width == 8 else socket.AF_INET6, words)
+
+
+def _descendants(pid: int) -> set[int]:
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                ppid = int(Path(f"/proc/{d}/stat").read_text().rsplit(") ", 1)[1].split()[1])
+            except (OSError, IndexError):
+                continue
+            children.setdefault(ppid, []).append(int(d))
+    out, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        out.add(p)
+        todo += children.get(p, [])
+    return out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_the_test_clusters_nodes_serve_on_loopback_only(cluster):
+    """Issue 45, item 12: Ray turned --node-ip-address=127.0.0.1 into the machine's address, and the GCS and raylets
+    listened on every interface."""
+    nodes = [n for n in ray.nodes() if n["Alive"]]
+    assert len(nodes) == 2 and {n["NodeManagerAddress"] for n in nodes} == {"127.0.0.1"}
+    port = cluster.split(":")[1]
+    heads = [int(p.name) for p in Path("/proc").iterdir() if p.name.isdigit() and _cmdline(p).startswith(b"/") and
+             (f"--port={port}".encode() in _cmdline(p) or f"--address=127.0.0.1:{port}".encode() in _cmdline(p))]
+    served = _listening(set().union(*(_descendants(pid) for pid in heads)))
+    assert served and served <= {"127.0.0.1", "::ffff:127.0.0.1"}, served
+
+
+def _cmdline(proc: Path) -> bytes:
+    try:
+        return (proc / "cmdline").read_bytes()
+    except OSError:
+        return b""
 
 
 def test_an_error_inside_a_worker_is_racerlabs_message_not_rays_traceback(cluster, tmp_path):

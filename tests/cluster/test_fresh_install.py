@@ -55,3 +55,51 @@ def test_sweep_works_on_a_fresh_install(tmp_path):
     out = _racerlab(["sweep", "sweep.toml"], tmp_path, home)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
     assert "one" in out.stdout and (tmp_path / "runs" / "leaderboard.json").is_file()
+
+
+def test_an_error_inside_a_worker_on_a_fresh_install_is_one_line(tmp_path):
+    """Issue 45, item 12: on a fresh home the test of this (in test_cluster.py) killed the test run; a user's
+    `racerlab train --workers 2` with a reward that fails inside a worker ends with racerlab's one line."""
+    home = tmp_path / "home"
+    home.mkdir()
+    model = _small_model(tmp_path / "m", episodes=2)
+    (model / "reward_function.py").write_text("def reward_function(params):\n    return params['no_such_key']\n")
+    out = _racerlab(["train", "m", "--workers", "2", "--iterations", "1"], tmp_path, home)
+    assert out.returncode == 2, out.stdout[-2000:] + out.stderr[-3000:]
+    err = out.stderr.strip().splitlines()[-1]
+    assert err.startswith("racerlab: error: ") and "reward_function.py:2" in err and "KeyError" in err
+    assert "Traceback" not in out.stderr
+
+
+def _descendants(pid: int) -> set[int]:
+    from tests.cluster.test_cluster import _descendants as below
+
+    return below(pid)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_a_local_cluster_serves_on_loopback_and_ctrl_c_leaves_no_ray_process(tmp_path):
+    """Issue 45, item 12: racerlab's own local cluster (train --workers without --ray-address) listened on every
+    interface with the machine's address; it serves on 127.0.0.1, and an interrupted driver takes it down."""
+    import signal
+
+    from tests.cluster.test_cluster import _listening, still_running
+
+    home = tmp_path / "home"
+    home.mkdir()
+    code = ("import time; from racerlab.cluster.collector import connect; r = connect(num_cpus=1); "
+            "print(sorted({n['NodeManagerAddress'] for n in r.nodes()}), flush=True); time.sleep(300)")
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=tmp_path, env=_user_env(home), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "['127.0.0.1']", proc.stderr.read() if proc.poll() else ""
+        ray_pids = _descendants(proc.pid) - {proc.pid}
+        served = _listening(ray_pids | {proc.pid})
+        assert ray_pids and served and served <= {"127.0.0.1", "::ffff:127.0.0.1"}, served
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+        assert still_running(ray_pids, within_s=60) == []
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+

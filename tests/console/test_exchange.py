@@ -11,7 +11,7 @@ import time
 
 import torch
 
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from tests.console.conftest import wait_task
 from tests.exchange.conftest import make_model
 
@@ -48,8 +48,9 @@ def test_car_export_downloads_and_imports_back_as_a_new_model(console, tmp_path)
     back = c.get("/api/models/back").json()
     assert back["sensor"] == ["FRONT_FACING_CAMERA"] and back["checkpoints"]
     assert json.loads((root / "back" / "model_metadata.json").read_text())["action_space"] == meta["action_space"]
-    mine, theirs = load_local_model(root / "cam").networks["policy"], load_local_model(root / "back").networks["policy"]
-    obs = {k: torch.rand(5, *s) * 255 for k, s in load_local_model(root / "cam").shapes.items()}
+    cam, back = (open_for_export(root / name)[1] for name in ("cam", "back"))
+    mine, theirs = cam.networks["policy"], back.networks["policy"]
+    obs = {k: torch.rand(5, *s) * 255 for k, s in cam.shapes.items()}
     with torch.no_grad():  # the policy survives the trip through the car's frozen graph
         torch.testing.assert_close(theirs(obs), mine(obs), rtol=1e-4, atol=1e-5)
     # the same name again is refused before the upload is stored

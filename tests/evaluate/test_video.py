@@ -92,3 +92,15 @@ def test_video_draws_the_race_s_boxes(tmp_path, aws_track):
     c = TrackCanvas(track, width_px=640)
     col, row = (int(round(float(v))) for v in c.px(bx, by))
     assert np.abs(frame[row, col] - np.array(BOX_FILL[:3])).max() < 25  # the box's cardboard, at its place
+
+
+def test_every_second_step_is_still_real_time(tmp_path, aws_track):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    track = aws_track("reInvent2019_wide")
+    w = world_on(track)
+    run = run_evaluation(w, pursuit(w, 3.0), RaceRules(trials=1))
+    path = render_video(tmp_path / "v.mp4", track, run, width_px=640, frame_every=2)
+    reader = imageio.get_reader(path)
+    assert reader.get_meta_data()["fps"] == 7.5
+    assert reader.count_frames() == (run.rows + 1) // 2  # the rows n-1, n-3, ...: the last step always shown

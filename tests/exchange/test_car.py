@@ -11,7 +11,7 @@ import pytest
 from racerlab.errors import ConfigError
 from racerlab.exchange import export_car, frozen_graph
 from racerlab.exchange.graphdef import graph_bytes
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from tests.exchange.conftest import make_model, observations, racerlab_policy_output
 
 ov = pytest.importorskip("openvino", reason="the car check needs OpenVINO: pip install -e '.[test]'")
@@ -55,7 +55,7 @@ def test_openvino_converts_the_car_graph_to_racerlabs_policy(tmp_path, sensor, s
         assert sorted(tar.getnames()) == ["agent/model.pb", "model_metadata.json"]
         tar.extractall(tmp_path / "car", filter="data")
     assert (tmp_path / "car" / "model_metadata.json").read_bytes() == folder.metadata_path.read_bytes()
-    model = load_local_model(folder.path)
+    model = open_for_export(folder.path)[1]
     obs = observations(model.shapes)
     want = racerlab_policy_output(model, obs)
     output = SAC_OUT if algorithm == "sac" else PPO_OUT
@@ -72,7 +72,7 @@ def test_openvino_converts_the_car_graph_to_racerlabs_policy(tmp_path, sensor, s
 def test_tensorflow_runs_the_car_graph_like_racerlab(tmp_path):
     tf = pytest.importorskip("tensorflow", reason="needs TensorFlow: pip install -e '.[test]'")
     folder = make_model(tmp_path / "m", "lidar", "discrete")
-    model = load_local_model(folder.path)
+    model = open_for_export(folder.path)[1]
     obs = observations(model.shapes)
     graph = tf.Graph()
     with graph.as_default():

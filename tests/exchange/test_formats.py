@@ -16,7 +16,7 @@ from racerlab.errors import ConfigError, RacerlabError
 from racerlab.exchange import export_car, export_onnx, export_tflite
 from racerlab.exchange.export import car_feed, car_inputs, policy_tower
 from racerlab.exchange.frames import car_observations
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from tests.exchange.conftest import make_model, racerlab_policy_output
 
 pytest.importorskip("onnxruntime", reason="needs onnxruntime: pip install -e '.[test]'")
@@ -62,7 +62,7 @@ def check_agreement(name: str, got, want, discrete: bool) -> None:
 @pytest.mark.parametrize("sensor,space,algorithm,network", CASES)
 def test_each_runtime_takes_racerlabs_action_on_1000_observations(tmp_path, sensor, space, algorithm, network):
     folder = make_model(tmp_path / "m", sensor, space, algorithm, network)
-    model = load_local_model(folder.path)
+    model = open_for_export(folder.path)[1]
     obs, n_real = car_observations(model.shapes, N, REAL_FRAMES)
     if REAL_FRAMES.is_dir():
         assert n_real == (4 if sensor == "stereo" else 12)  # 4 frames and 4 stereo pairs; a camera takes each eye

@@ -20,7 +20,7 @@ from racerlab.errors import ConfigError, RacerlabError
 from racerlab.exchange import frozen_graph, import_model
 from racerlab.exchange import importer as importer_mod
 from racerlab.exchange.graphdef import graph_bytes
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from tests.exchange.conftest import make_model
 
 pytest.importorskip("tensorboard", reason="the car's graph protos come with tensorboard")
@@ -35,7 +35,7 @@ def car(tmp_path_factory):
     root = tmp_path_factory.mktemp("car")
     model = make_model(root / "m", "camera", "discrete")
     graph = graph_pb2.GraphDef()
-    graph.ParseFromString(graph_bytes(frozen_graph(load_local_model(model.path))))
+    graph.ParseFromString(graph_bytes(frozen_graph(open_for_export(model.path)[1])))
     (root / "car" / "agent").mkdir(parents=True)
     (root / "car" / "model_metadata.json").write_bytes(model.metadata_path.read_bytes())
     (root / "car" / "agent" / "model.pb").write_bytes(graph.SerializeToString())

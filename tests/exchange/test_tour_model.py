@@ -12,7 +12,7 @@ import pytest
 
 from racerlab.exchange.export import car_feed, car_inputs, policy_tower
 from racerlab.exchange.frames import car_observations
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from tests.exchange.conftest import racerlab_policy_output
 from tests.exchange.test_formats import REAL_FRAMES, check_agreement
 
@@ -56,8 +56,8 @@ def test_the_tours_camera_model_goes_to_every_target(tmp_path, monkeypatch):
     assert main(["train", "cam-model", "--iterations", "1"]) == 0
     for flag in ("--car", "--droa", "--onnx", "--tflite"):
         assert main(["export", "cam-model", flag]) == 0
-    model = load_local_model(tmp_path / "cam-model")
-    assert model.metadata.action_space_type == "discrete" and model.checkpoint.iteration >= 1
+    opened, model = open_for_export(tmp_path / "cam-model")
+    assert model.metadata.action_space_type == "discrete" and opened.checkpoint.iteration >= 1
     obs, n_real = car_observations(model.shapes, 1000, REAL_FRAMES)
     want = racerlab_policy_output(model, obs)
     feed = car_feed(model, obs)

@@ -12,7 +12,7 @@ import torch
 
 from racerlab.errors import ConfigError
 from racerlab.exchange import export_drfc, export_droa, import_model
-from racerlab.exchange.local import load_local_model
+from racerlab.exchange.local import open_for_export
 from tests.exchange.conftest import make_model, observations, racerlab_policy_output
 
 tf = pytest.importorskip("tensorflow", reason="TF checkpoints need TensorFlow: pip install -e '.[test]'")
@@ -75,7 +75,7 @@ def test_droa_checkpoint_restores_into_coachs_graph_and_round_trips(tmp_path, sp
     # so 4 fewer (online, its 2 Adam slots, target)
     assert len(shapes) == (101 if space == "continuous" else 97)
 
-    model = load_local_model(folder.path)
+    model = open_for_export(folder.path)[1]
     obs = observations(model.shapes)
     graph = tf.Graph()
     with graph.as_default():
@@ -96,7 +96,7 @@ def test_droa_checkpoint_restores_into_coachs_graph_and_round_trips(tmp_path, sp
     assert float(np.abs(got_value[:, 0] - want_value).max()) <= 1e-4
 
     # import the archive back: same actions on 100 observations, reward kept as text
-    back = load_local_model(import_model(archive, tmp_path / "back"))
+    back = open_for_export(import_model(archive, tmp_path / "back"))[1]
     t = {"camera": torch.as_tensor(obs["camera"])}
     with torch.no_grad():
         a, b = model.networks["policy"](t), back.networks["policy"](t)

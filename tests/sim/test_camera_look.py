@@ -172,9 +172,9 @@ def _frame(world):
 def test_training_toml_look_classic_gives_training_evaluation_and_the_env_the_classic_frames(straight, tmp_path):
     """run.look = "classic" reaches the camera of the training worlds, of an evaluation's world and of the env: each
     renders what a camera built with LOOKS["classic"] renders, and not the AWS look."""
-    from racerlab.evaluate.api import LoadedModel, make_world
+    from racerlab.evaluate.api import make_world
     from racerlab.evaluate.rules import RaceRules
-    from racerlab.model import init_model, load_training_config
+    from racerlab.model import CheckpointInfo, OpenModel, TrainingState, init_model, load_training_config
     from racerlab.sim.env import DeepRacerEnv
     from racerlab.train.worlds import WorldBuilder
 
@@ -187,7 +187,7 @@ def test_training_toml_look_classic_gives_training_evaluation_and_the_env_the_cl
     assert cfg.run.look == "classic" and 'look = "classic"' in cfg.to_toml()
     builder = WorldBuilder(cfg, CAMERA_META, None)
     got = {"training": _frame(builder.world(straight, 1, seed=0))}  # evaluation_world() is a builder.world too
-    model = LoadedModel(folder, folder.metadata(), "best", None, cfg.run.observation, cfg.run.look)
+    model = OpenModel(folder, folder.metadata(), CheckpointInfo.of(0, 0), TrainingState({}))  # no weights: no driving
     got["evaluation"] = _frame(make_world(model, straight, RaceRules()))
     env = DeepRacerEnv(straight, model_metadata=CAMERA_META, look="classic", render_mode="rgb_array")
     got["env"] = _frame(env.world)

@@ -56,3 +56,25 @@ def test_progress_and_reward_keep_aws_rule():
 
 def test_an_iteration_without_evaluation_keeps_the_best():
     assert _run("laptime", [5300.0, math.nan, 5310.0], tie=13.4) == [1, 1, 3]
+
+
+def test_a_changed_best_model_metric_picks_anew_instead_of_reading_the_old_rules_best(tmp_path):
+    """Issue 45: a model trained with best_model_metric = "progress" and switched to "laptime" read its stored
+    progress as a lap time in ms; no lap beat it, and the best checkpoint stayed where the old rule left it."""
+    import re
+
+    from racerlab.model import init_model
+    from racerlab.train import train
+
+    folder = init_model(tmp_path / "m", track="lab_technical", max_speed=2.0)
+    folder.write_hyperparameters(folder.hyperparameters().replace(num_episodes_between_training=2))
+    text = re.sub(r"(?m)^max_episode_steps = .*$", "max_episode_steps = 150", folder.config_path.read_text())
+    folder.config_path.write_text(text)
+    first = train(folder.path, iterations=2, progress=False, num_cars=2)
+    assert first.best_rule == "progress" and first.best_metric <= 100.0  # a progress, in %
+    folder.config_path.write_text(text.replace('best_model_metric = "progress"', 'best_model_metric = "laptime"'))
+    r = train(folder.path, iterations=2, progress=False, num_cars=2)
+    assert r.best_rule == "laptime" and r.best_checkpoint.startswith(("3_", "4_"))  # picked by lap time now
+    assert r.best_metric == 999_999  # no lap: AWS's unfinished lap (train.evaluation.UNFINISHED_LAP_MS)
+    said = [n for n in r.notes if "best_model_metric is laptime" in n]
+    assert len(said) == 1 and f"({first.best_checkpoint}) was picked by progress" in said[0]

@@ -19,8 +19,7 @@ from racerlab.sim import World
 from racerlab.sim.observations import FeaturesObservation
 from racerlab.train import train
 from racerlab.train.distill import TEACHER_KEY, DaggerDriver, PairedObservation, Teacher
-
-TRACK = "lab_technical"  # the bundled default track
+from tests.train.conftest import TRACK, camera_student
 
 
 @pytest.fixture(scope="module")
@@ -75,18 +74,10 @@ def test_the_driver_labels_every_step_with_the_teacher_and_mixes_who_drives(came
     assert not np.allclose(actions, expected)
 
 
-@pytest.fixture(scope="module")
-def trained_teacher(tmp_path_factory):
-    folder = init_model(tmp_path_factory.mktemp("t") / "teacher", track=TRACK, max_speed=4.0,
-                        action_space="continuous")
-    train(folder.path, iterations=2, progress=False, num_cars=8)
-    return folder
-
-
 def test_rounds_fit_the_student_and_leave_a_plain_camera_model(tmp_path, trained_teacher):
-    from racerlab.evaluate.api import load_model, make_policy
+    from racerlab.evaluate.api import make_policy
 
-    model = _camera_student(tmp_path / "cam")
+    model = camera_student(tmp_path / "cam")
     teacher_checkpoints = [c.name for c in trained_teacher.checkpoints()]
     r = train(model.path, teacher=trained_teacher.path, iterations=2, progress=False, num_cars=2)
     assert r.iterations == 2
@@ -101,24 +92,16 @@ def test_rounds_fit_the_student_and_leave_a_plain_camera_model(tmp_path, trained
     assert [c.name for c in trained_teacher.checkpoints()] == teacher_checkpoints
     # a plain camera model: evaluation loads its checkpoint, and training on without a teacher is PPO from there
     world = World(TRACK, 2, model.metadata(), None, "camera", seed=0)
-    assert make_policy(load_model(model.path), world)(world.observe()).shape == (2, 2)
+    assert make_policy(model.open(), world)(world.observe()).shape == (2, 2)
     again = train(model.path, iterations=1, progress=False, num_cars=2)
     assert again.iterations == 3 and "losses/entropy" in again.history[-1]
-
-
-def _camera_student(path, **init):
-    model = init_model(path, track=TRACK, sensor="camera", max_speed=4.0, action_space="continuous", teacher=False,
-                       **init)
-    # short iterations: 4 episodes each, one PPO epoch when it trains on
-    model.write_hyperparameters(model.hyperparameters().replace(num_episodes_between_training=4, num_epochs=1))
-    return model
 
 
 def test_a_camera_student_whose_fit_turns_nan_rolls_back_as_a_features_model_does(tmp_path, trained_teacher,
                                                                                     monkeypatch):
     """The DAgger rounds skipped the NaN guard, the collapse checks and the rollback (issue 41); the features
     model's case is tests/train/test_trust.py::test_a_non_finite_loss_is_rolled_back_recorded_and_said."""
-    model = _camera_student(tmp_path / "cam")
+    model = camera_student(tmp_path / "cam")
     real_fit, rates = Imitation.fit, []
 
     def once_poisoned(self, inputs, targets, steps, deadline=None):
@@ -160,13 +143,23 @@ def test_init_camera_trains_its_own_teacher_inside_the_folder(tmp_path):
 
 
 @pytest.mark.parametrize(("table", "message"), [
-    ({"mix": 2.0}, "teacher.mix must be in [0, 1]"),
+    ({"mix": 2.0}, "teacher.mix = 2.0 is outside its plausible range 0..1"),
     ({"precision": "half"}, "teacher.precision is 'half'"),
     ({"batch_size": 512, "max_steps": 100}, "teacher.max_steps at least teacher.batch_size"),
+    # issue 45: an OverflowError traceback, a 17.5 TiB allocation, fits that never end
+    ({"minutes": float("inf")}, "teacher.minutes = inf is outside its plausible range 0..1440"),
+    ({"minutes": float("nan")}, "teacher.minutes = nan is outside"),
+    ({"max_steps": 1_000_000_000}, "teacher.max_steps = 1000000000 is outside its plausible range 1..1000000"),
+    ({"passes": 1e9}, "teacher.passes = 1000000000.0 is outside its plausible range 0.001..100"),
+    ({"batch_size": 10**9, "max_steps": 10**6}, "teacher.batch_size = 1000000000 is outside"),
+    ({"iterations": 10**9}, "teacher.iterations = 1000000000 is outside its plausible range 0..10000"),
+    ({"lr": 1e6}, "teacher.lr = 1000000.0 is outside"),
+    ({"noise": float("inf")}, "teacher.noise = inf is outside"),
 ])
-def test_bad_teacher_settings_name_the_key(table, message):
-    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")):
+def test_bad_teacher_settings_name_the_key_and_its_range(table, message):
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")) as err:
         parse_training_config({"teacher": table}, "x/training.toml")
+    assert str(err.value).startswith("x/training.toml: ") and "\n" not in str(err.value)
 
 
 def test_a_teacher_that_is_not_a_features_model_is_refused(tmp_path):

@@ -74,9 +74,13 @@ def test_the_learners_offer_what_the_trainer_and_its_health_checks_call():
     from racerlab.agent.sac import SAC
     from racerlab.train.distill import DaggerLearner
 
-    assert _members(Learner) == ["learn", "finite", "state_dict", "load_state_dict"]
-    for learner in (AgentLearner, DaggerLearner, PPO, SAC):  # the agents are learners as they are
+    assert _members(Learner) == ["learn", "finite", "state_dict", "load_state_dict", "keep", "resume"]
+    for learner in (AgentLearner, DaggerLearner):
         assert _mismatches(Learner, learner) == [], learner
+    for agent in (PPO, SAC):  # what AgentLearner hands on to the agent (nothing to keep beside the checkpoint)
+        assert [m for m in _mismatches(Learner, agent) if " is missing" not in m] == [], agent
+        assert sorted(m for m in _mismatches(Learner, agent)) == [f"{agent.__name__}.keep is missing",
+                                                                 f"{agent.__name__}.resume is missing"]
     for learner in (AgentLearner, DaggerLearner):  # the rate a rollback halves: read and set
         assert isinstance(learner.lr, property) and learner.lr.fset is not None, learner
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from racerlab.errors import ConfigError, RacerlabError, RewardFunctionError, TrackError
+from racerlab.errors import ConfigError, ModelRefused, RacerlabError, RewardFunctionError, TrackError
 from racerlab.logs import read_metrics_jsonl
 from racerlab.model import ModelFolder, init_model, nonfinite_tensors
 from racerlab.train import TrainingDiverged, train
@@ -100,7 +100,7 @@ def test_changes_that_cannot_apply_are_refused_with_the_reason(model):
     meta = json.loads(original)
     meta["action_space"] = meta["action_space"][:3]
     model.metadata_path.write_text(json.dumps(meta))
-    with pytest.raises(ConfigError, match="number of actions"):
+    with pytest.raises(ModelRefused, match="number of actions"):  # the door every reader goes through
         train(model.path, iterations=1, **FAST)
     model.metadata_path.write_text(original)
     text = model.config_path.read_text()

@@ -14,9 +14,11 @@ to save.
 What the training loop and evaluation use, the same for PPO and SAC (`make_agent` picks one):
 `explore(obs) -> (actions, record)` for a training step (`record`: what `learn` needs kept per step),
 `learn(rollout) -> metrics` once per iteration (PPO's update; SAC's replay memory and gradient steps),
-and `policy(obs) -> actions`, the greedy actions evaluation drives.
+and `policy(obs) -> actions`, the greedy actions evaluation drives. A trained checkpoint's weights become a policy
+for any reader through `inference_policy` (its greedy actions and its bare networks in eval mode).
 """
 
+from racerlab.agent.build import InferencePolicy, inference_policy, make_agent
 from racerlab.agent.common import resolve_device
 from racerlab.agent.distributions import (
     Categorical,
@@ -45,16 +47,10 @@ from racerlab.agent.ppo import (
 )
 from racerlab.agent.sac import SAC, ReplayBuffer
 
-
-def make_agent(obs, metadata, hyperparameters=None, **kwargs) -> PPO | SAC:
-    """PPO or SAC per `metadata.training_algorithm`; keyword arguments go to the constructor."""
-    cls = SAC if metadata.training_algorithm == "sac" else PPO
-    return cls(obs, metadata, hyperparameters, **kwargs)
-
-
 __all__ = [
-    "PPO", "PPOBatch", "SAC", "Categorical", "DiagGaussian", "ReplayBuffer", "TanhGaussian", "build_networks",
-    "build_ppo_networks", "build_sac_networks", "compute_gae", "count_parameters", "episode_next_values",
-    "epsilon_greedy", "epsilon_schedule", "inference_networks", "make_agent", "make_batch", "minibatch_size",
-    "observation_shapes", "parameter_summary", "ppo_losses", "resolve_device",
+    "PPO", "PPOBatch", "SAC", "Categorical", "DiagGaussian", "InferencePolicy", "ReplayBuffer", "TanhGaussian",
+    "build_networks", "build_ppo_networks", "build_sac_networks", "compute_gae", "count_parameters",
+    "episode_next_values", "epsilon_greedy", "epsilon_schedule", "inference_networks", "inference_policy",
+    "make_agent", "make_batch", "minibatch_size", "observation_shapes", "parameter_summary", "ppo_losses",
+    "resolve_device",
 ]

@@ -81,6 +81,7 @@ class Demonstrations:
         self.seen = 0  # steps ever added
         self.columns: dict[str, np.ndarray] = {}
         self.rng = np.random.default_rng(seed)
+        self.last_rows = np.empty(0, dtype=np.int64)
 
     def __len__(self) -> int:
         return self.size
@@ -102,6 +103,7 @@ class Demonstrations:
             self.columns[k][rows] = np.asarray(v)[:len(rows)]
         self.size += free
         self.seen += n
+        self.last_rows = rows  # where they went (a store of the set writes those rows: train.dagger_store)
         return len(rows)
 
     def column(self, name: str) -> np.ndarray:

@@ -30,12 +30,34 @@ from racerlab.analysis.episodes import episode_summary, iteration_summary, run_m
 from racerlab.errors import RacerlabError
 from racerlab.logs import BEST_LAP_MEANING, BEST_LAP_NAME, best_eval_lap, eval_layouts_path
 from racerlab.logs.atomic import atomic_write_text
+from racerlab.logs.files import read_bytes, special
 from racerlab.model import ModelFolder, resolve_track
 from racerlab.spec import STEP_S, RaceConfig
 from racerlab.track import Track
 
 PNG_DPI = 90
 TABLE_ROWS = 10
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the files beside the logs: read through `logs.files`, like the logs (a pipe or a device there is left out)
+
+SIDE_FILE_BYTES = 64 << 20  # a summary.json or layouts.json is kilobytes
+
+
+def side_json(path: Path):
+    """The JSON of a file beside the logs (summary.json, layouts.json), or None when it is missing, no regular
+    file, too long or damaged: the report goes on without it."""
+    try:
+        return json.loads(read_bytes(path, limit=SIDE_FILE_BYTES))
+    except ValueError:  # LogFileError included
+        return None
+
+
+def readable_config(folder) -> bool:
+    """Whether the training.toml of `folder` (when there is one) can be read: not a pipe or a device, which would
+    block or flood the read."""
+    return special(Path(folder) / "training.toml") is None
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -52,7 +74,7 @@ def log_track(path, df: pd.DataFrame, track=None) -> tuple[Track | None, str]:
     if track:
         return tracks.load(track), "given with --track"
     try:
-        names = ModelFolder(path).tracks(default=False)
+        names = ModelFolder(path).tracks(default=False) if readable_config(path) else ()
     except RacerlabError:
         names = ()
     if names:
@@ -79,16 +101,18 @@ def _evaluation_track(folder: Path) -> Track | None:
     from racerlab import track as tracks
 
     try:
-        name = json.loads((folder / "summary.json").read_text())["track"]
-    except (OSError, ValueError, KeyError, TypeError):
+        name = side_json(folder / "summary.json")["track"]
+    except (KeyError, TypeError):
         return None
     try:
         return tracks.load(name)
     except RacerlabError:
         pass
     try:
-        trk = resolve_track(folder.parent, default=False)
+        trk = resolve_track(folder.parent, default=False) if readable_config(folder.parent) else None
     except RacerlabError:
+        return None
+    if trk is None:
         return None
     return trk if trk.name == name else None
 
@@ -359,14 +383,15 @@ def log_race(path) -> tuple[RaceConfig | None, str]:
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     summary = folder / "summary.json"
-    if summary.is_file():
+    table = (side_json(summary) or {}).get("race") if summary.is_file() else None
+    if isinstance(table, dict) and table:
         try:
-            table = json.loads(summary.read_text()).get("race")
-            if table:
-                return RaceConfig.from_mapping(table, where=str(summary)), "from the evaluation's summary.json"
-        except (OSError, ValueError, RacerlabError):
+            return RaceConfig.from_mapping(table, where=str(summary)), "from the evaluation's summary.json"
+        except RacerlabError:
             pass
     for candidate in (folder, folder.parent, folder.parent.parent):
+        if not readable_config(candidate):
+            continue
         try:
             return ModelFolder(candidate).config().race, "from the model folder's training.toml [race]"
         except (RacerlabError, OSError):
@@ -383,7 +408,7 @@ def log_layouts(path) -> list[dict] | None:
     if not f.is_file():
         return None
     try:
-        rec = json.loads(f.read_text())
+        rec = side_json(f)
         return [{"kind": rec["kind"], "size": tuple(rec["size"]), "xy": np.asarray(lay["xy"], dtype=float),
                  "yaw": np.asarray(lay["yaw"], dtype=float), "lane": np.asarray(lay["lane"]),
                  "episodes": [int(e) for e in lay["episodes"]]} for lay in rec["layouts"]]
@@ -516,10 +541,9 @@ def _evaluation_summaries(path: Path) -> list[tuple[Path, dict]]:
         return []
     out = []
     for f in sorted(path.glob("evaluation-*/summary.json")):
-        try:
-            out.append((f.parent, json.loads(f.read_text())))
-        except (OSError, ValueError):
-            continue  # an evaluation still being written, or damaged: its simtrace is still analysed
+        doc = side_json(f)
+        if isinstance(doc, dict):  # None: still being written, damaged or no file: its simtrace is still analysed
+            out.append((f.parent, doc))
     return out
 
 

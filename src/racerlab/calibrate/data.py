@@ -15,6 +15,7 @@ absurd (an evaluation reset).
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -131,12 +132,42 @@ def concat(parts: list[Stretches]) -> Stretches:
     return Stretches(*(np.concatenate([getattr(s, f) for s in parts]) for f in Stretches.__dataclass_fields__))
 
 
-def split(st: Stretches, held_out_every: int = 3, fold: int = 1) -> tuple[Stretches, Stretches]:
-    """(fit, held out): every `held_out_every`-th episode is held out, from episode `fold` on (the default: the 2nd,
-    5th, ...; folds 0 .. held_out_every - 1 hold out each episode once, for cross-validation)."""
+def split(st: Stretches, held_out_every: int = 3, fold: int = 1,
+          source: str = "the logs") -> tuple[Stretches, Stretches]:
+    """(fit, held out): every `held_out_every`-th episode is held out, from the episode `fold` on (the default: the
+    2nd, 5th, ...; folds 0 .. held_out_every - 1 hold out each episode once, for cross-validation). Whole episodes
+    only: a stretch overlaps its neighbours by all but one step, so stretches of one episode held out between fit
+    ones would be judged on what the fit saw. Too few episodes for that is one line naming `source`."""
     if not 0 <= fold < held_out_every:
         raise ValueError(f"split: fold {fold} is not in 0..{held_out_every - 1}")
-    held = (st.episode % held_out_every) == fold
+    episodes, rank = np.unique(st.episode, return_inverse=True)
+    held = (rank % held_out_every) == fold
     if held.all() or not held.any():
-        held = np.arange(len(st)) % held_out_every == fold  # one episode: hold out stretches instead
+        raise ConfigError(f"{source}: {len(episodes)} episode{'' if len(episodes) == 1 else 's'} to replay; the fit is "
+                          f"judged on whole episodes it did not see, so it needs {max(fold + 1, 2)} or more: give "
+                          "logs of more episodes")
     return st.take(~held), st.take(held)
+
+
+REPLAYED = ("steps", "x", "y", "yaw", "steering_angle", "speed", "tstamp")  # what makes two episodes the same drive
+
+
+def drop_copies(df: pd.DataFrame, seen: dict[bytes, str], source: str) -> tuple[pd.DataFrame, list[str]]:
+    """`df` without its episodes that repeat, row for row, one seen before (in `seen`: fingerprint -> "episode k of
+    LOG", which gains this log's episodes), and a sentence for each copy left out. A copy is no second drive: fitted
+    beside its original it only weighs that drive twice, and held out against it it measures the fit on its own
+    data (a log given twice, an export that holds one episode fifteen times)."""
+    key = "unique_episode" if "unique_episode" in df else "episode"
+    cols = [c for c in REPLAYED if c in df]
+    if key not in df or not cols:
+        return df, []
+    keep, notes = [], []
+    for ep, e in df.groupby(key, sort=True):
+        rows = np.ascontiguousarray(e.sort_values("steps" if "steps" in e else cols[0])[cols].to_numpy(float))
+        mark = hashlib.sha1(rows.tobytes()).digest()
+        if mark in seen:
+            notes.append(f"episode {ep} of {source} repeats {seen[mark]}")
+            continue
+        seen[mark] = f"episode {ep} of {source}"
+        keep.append(ep)
+    return (df if not notes else df[df[key].isin(keep)]), notes

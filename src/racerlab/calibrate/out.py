@@ -7,14 +7,13 @@ a training.toml does not have (pyproject.toml), not a picture beside it that rac
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 import tomllib
 from pathlib import Path
 
 from racerlab.calibrate.fit import FITTED
 from racerlab.errors import ConfigError
+from racerlab.logs.atomic import check_output
 
 PNG_MARK = b"racerlab calibrate"  # the PNG's Software text: a picture this command drew and may redraw
 TRAINING_TABLES = ("track", "run", "stop", "evaluation", "logs", "randomise", "race", "car", "teacher", "worker")
@@ -30,14 +29,7 @@ def check_out(out: Path) -> Path:
     if str(out) in ("", ".") or out.suffix.lower() != ".toml":
         raise ConfigError(f"--out {str(out)!r}: the [car] table goes into a .toml file; give e.g. --out car.toml or "
                           "--out MODEL/training.toml")
-    path = Path(os.path.realpath(out))
-    if not path.parent.is_dir():
-        raise ConfigError(f"--out {out}: the folder {path.parent} does not exist; create it or choose another file")
-    try:  # what the atomic write will do: a new file in that folder
-        tempfile.TemporaryFile(dir=path.parent).close()
-    except OSError as exc:
-        raise ConfigError(f"--out {out}: cannot write in {path.parent} ({exc.strerror}); choose a file in a writable "
-                          "folder") from None
+    path = check_output(out, "--out", "a new file name or a model's training.toml")
     if path.exists():
         _check_toml(out, path)
         table_text(path, _PROBE)  # a [car] table it cannot merge into is found now, not after the fit
@@ -46,10 +38,6 @@ def check_out(out: Path) -> Path:
 
 
 def _check_toml(out: Path, path: Path) -> None:
-    if not path.is_file():
-        raise ConfigError(f"--out {out}: not a regular file; give a new file name or a model's training.toml")
-    if not os.access(path, os.W_OK):
-        raise ConfigError(f"--out {out}: the file is read-only; make it writable or choose another file")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:

@@ -4,56 +4,95 @@ from __future__ import annotations
 
 import math
 import os
-import stat
 import tarfile
+import warnings
 import zlib
+from dataclasses import replace
 
 import numpy as np
 
 from racerlab.analysis import load
-from racerlab.calibrate.data import HORIZON, Stretches, concat, split, stretches
-from racerlab.calibrate.fit import Fit, fit_with_spread, fitted_rows, search_bounds
-from racerlab.errors import ConfigError, RacerlabError
+from racerlab.calibrate.data import HORIZON, Stretches, concat, drop_copies, split, stretches
+from racerlab.calibrate.fit import (
+    FITTED,
+    INVERSE,
+    Fit,
+    errors,
+    fit_with_spread,
+    fitted_rows,
+    learned_floor,
+    median_interval,
+    medians,
+    search_bounds,
+)
+from racerlab.errors import ConfigError, RacerlabError, RacerlabWarning
+from racerlab.logs.files import check_path
 from racerlab.sim.car import log_timing
-from racerlab.spec import DEFAULT_SIMULATOR, car_params
+from racerlab.spec import DEFAULT_SIMULATOR, car_params, implausible
 
 MAX_STRETCHES = 2500  # per log, by default: stretches overlap, more mostly cost time
 MIN_STRETCHES = 150  # fewer (about 10 s of driving) cannot pin nine constants down
 MAX_RESAMPLES = 50  # each is one more fit (seconds to minutes); the spread settles long before
+MAX_VERSION = 6  # model_metadata versions AWS's simulators have used: 1 to 6 (DRoA's)
 
 
 def load_stretches(paths, every: int | None = None, timing: str = "previous") -> Stretches:
     """The stretches of every log in `paths` (each a folder, export or robomaker log `racerlab.analysis.load` reads),
     one starting at every `every`-th row (default: about MAX_STRETCHES per log); episodes of different logs stay
-    apart."""
+    apart. A log given twice (or inside a folder also given) is refused; an episode that repeats another row for row
+    is left out, with one warning saying so (`data.drop_copies`)."""
     for p in paths:
         check_log_path(p)
-    parts = []
+    check_distinct(paths)
+    parts, seen, copies = [], {}, []
     offset = 0
     for p in paths:
-        df = _read(p)
+        df, notes = drop_copies(_read(p), seen, str(p))
+        copies += notes
+        if notes and df.empty:
+            continue  # the whole log repeats the ones before it
         st = stretches(df, every=every or max(1, len(df) // MAX_STRETCHES), source=str(p), timing=timing)
         _check_finite(st, p)
         st.episode = st.episode + offset
         offset = int(st.episode.max()) + 1
         parts.append(st)
+    if copies:
+        more = f" and {len(copies) - 1} more" if len(copies) > 1 else ""
+        warnings.warn(f"left out {len(copies)} episode{'' if len(copies) == 1 else 's'} that repeat another row for "
+                      f"row ({copies[0]}{more}): a copy is no second drive", RacerlabWarning, stacklevel=2)
     return concat(parts)
 
 
 def check_log_path(p) -> None:
     """A log path calibrate can read: a folder or a regular file (not a FIFO or a device it would read for ever),
-    followed through symlinks; one line naming it otherwise."""
+    followed through symlinks; one line naming it otherwise (`logs.files.check_path`, the check every log reader
+    makes)."""
+    check_path(p, "a simtrace folder, a console/DRoA export or a robomaker log saved to a file")
+
+
+def check_distinct(paths) -> None:
+    """Each log once: the same file or folder given twice, or a log inside a folder also given, would count its
+    episodes twice (fitted beside themselves, or held out against their own copies)."""
+    real = [os.path.realpath(p) for p in paths]
+    for i, a in enumerate(real):
+        for j, b in enumerate(real):
+            if i == j or not (b == a and j > i or b.startswith(a.rstrip(os.sep) + os.sep)):
+                continue
+            how = "is the same log as" if a == b else "lies inside"
+            raise ConfigError(f"{paths[j]}: {how} {paths[i]}, also given: its episodes would count twice; give "
+                              "each log once")
+
+
+def check_version(version) -> str:
+    """The model_metadata `version` of the logged model, as the car takes it: a number from 1 to MAX_VERSION."""
     try:
-        mode = os.stat(p).st_mode
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such file or folder; give a simtrace folder, a console/DRoA export or a "
-                          "robomaker log") from None
-    except OSError as exc:  # a symlink loop, a folder it may not enter
-        raise ConfigError(f"{p}: cannot be opened ({exc.strerror}); give a simtrace folder, a console/DRoA export "
-                          "or a robomaker log") from None
-    if not (stat.S_ISDIR(mode) or stat.S_ISREG(mode)):
-        raise ConfigError(f"{p}: not a file or a folder (a pipe or a device); give a simtrace folder, a console/DRoA "
-                          "export or a robomaker log saved to a file")
+        v = float(str(version).strip())
+    except ValueError:
+        v = math.nan
+    if not (1 <= v <= MAX_VERSION):
+        raise ConfigError(f"--version {version}: give the logged model's model_metadata.json version, 1 to "
+                          f"{MAX_VERSION} (3-4: effort control, 5 and on: velocity control)")
+    return str(version).strip()
 
 
 def _read(p):
@@ -85,19 +124,54 @@ def check_resamples(resamples: int) -> None:
 
 
 def calibrate(paths, simulator: str = DEFAULT_SIMULATOR, version="5", *, every: int | None = None, resamples: int = 3,
-              seed: int = 0) -> Fit:
+              seed: int = 0, say=None) -> Fit:
     """Fit `simulator`'s car for a `version` model to the logs at `paths`: every third episode is held out and
-    reported on (the `Fit` keeps those stretches in `held`). Logs too short to pin the car down, with
-    non-finite values, or damaged, and more than MAX_RESAMPLES resamples are refused before the fit."""
+    reported on (the `Fit` keeps those stretches in `held`). Logs too short to pin the car down, with non-finite
+    values, damaged, given twice or of one episode, a version that is no model's, and more than MAX_RESAMPLES
+    resamples are refused before the fit; `say(text)` hears when the fit (minutes) starts. The car it returns holds
+    only values training accepts (`plausible`)."""
     check_resamples(resamples)
+    version = check_version(version)
     st = load_stretches(paths, every, log_timing(car_params(simulator, version)))
+    names = ", ".join(str(p) for p in paths)
     if len(st) < MIN_STRETCHES:
-        names = ", ".join(str(p) for p in paths)
         raise ConfigError(f"{names}: only {len(st)} stretches of {HORIZON} driven steps to fit (at least "
                           f"{MIN_STRETCHES}, about {MIN_STRETCHES // 15 + 2} s of driving, pin the car down); give "
                           "longer logs")
-    fit_st, held_st = split(st)
-    return fit_with_spread(fit_st, held_st, simulator, version, resamples=resamples, seed=seed)
+    fit_st, held_st = split(st, source=names)
+    if say is not None:
+        say(f"fitting the {simulator} car (version {version}) to {len(fit_st)} stretches of "
+            f"{len(np.unique(fit_st.episode))} episodes of {names} ...")
+    fit = fit_with_spread(fit_st, held_st, simulator, version, resamples=resamples, seed=seed)
+    return plausible(fit, fit_st, held_st)
+
+
+def plausible(fit: Fit, fit_st: Stretches, held_st: Stretches) -> Fit:
+    """`fit` with every constant one a `[car]` table may hold (`spec.CAR_PLAUSIBLE`, what training accepts). A slide,
+    fade or saturation is searched as its inverse, so a fit that finds none of it lands on a huge value (a fade at
+    761 m/s): that is written as 0, none, and the held-out figures are measured again on the car written; one
+    warning says so. Any other constant out of range is one line, for the logs did not pin the car down."""
+    off, notes = {}, []
+    for name in FITTED:
+        value = getattr(fit.car, name)
+        why = implausible(name, value)
+        if why is None:
+            continue
+        if name in INVERSE.values() and value > 0:
+            off[name] = 0.0
+            notes.append(f"{name} {value:.4g}")
+            continue
+        raise ConfigError(f"the fit gives {name} = {value:.4g}, which training refuses ({why}): the logs do not pin "
+                          "the car down; give longer logs of harder driving")
+    if not off:
+        return fit
+    warnings.warn(f"the fit found no {', '.join(n for n in off)} in the logs ({', '.join(notes)}, past what a "
+                  "DeepRacer car has): written as 0, none", RacerlabWarning, stacklevel=3)
+    car = replace(fit.car, **off)
+    err = errors(held_st, car)
+    return replace(fit, car=car, spread={**fit.spread, **{n: math.nan for n in off}}, held_out=medians(err),
+                   floor=learned_floor(fit_st, held_st, car),
+                   held_out_interval=median_interval(err[:, -1], held_st.episode))
 
 
 def on_bounds(fit: Fit) -> list[str]:

@@ -11,10 +11,11 @@ import argparse
 import errno
 import importlib
 import sys
+import warnings
 from pathlib import Path
 
 from racerlab import __version__
-from racerlab.errors import RacerlabError
+from racerlab.errors import RacerlabError, RacerlabWarning
 
 DISK_ERRORS = {  # errors of the disk rather than of racerlab: one line, with what to do
     errno.ENOSPC: "free some disk space and run the command again",
@@ -25,7 +26,7 @@ DISK_ERRORS = {  # errors of the disk rather than of racerlab: one line, with wh
 
 # module names under racerlab.cli, in the order `racerlab --help` lists them
 COMMAND_MODULES = ["quickstart", "model", "evaluate", "tracks", "line", "calibrate", "report", "reward", "sim",
-                   "exchange", "console", "cluster"]
+                   "exchange", "console", "cluster", "league"]
 
 
 OUT_DIR = Path("racerlab-out")  # where commands with no model folder to write into put their files
@@ -58,6 +59,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """racerlab's warnings (a skipped file, dropped rows) as the one line they are; others as Python shows them."""
+    if issubclass(category, RacerlabWarning):
+        print(f"racerlab: warning: {message}", file=sys.stderr)
+    else:
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -65,7 +74,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warning
+            return int(args.func(args) or 0)
     except RacerlabError as exc:
         print(f"racerlab: error: {exc}", file=sys.stderr)
         return 2

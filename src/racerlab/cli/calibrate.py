@@ -42,20 +42,31 @@ def interval_line(fit) -> str:
             f"other episodes (logs of {3 * MIN_EPISODES} or more episodes say it)")
 
 
+def check_trainable(text: str) -> None:
+    """The `[car]` table as training reads it (`model`'s own check): what calibrate writes, train takes."""
+    import tomllib
+
+    from racerlab.model.config import CarSettings
+
+    CarSettings.from_mapping(tomllib.loads(text)["car"], where="the [car] table racerlab calibrate made")
+
+
 def run_calibrate(args) -> int:
     from racerlab.calibrate import calibrate, car_toml
     from racerlab.calibrate.out import check_out, table_text
     from racerlab.calibrate.plot import plot_fit
-    from racerlab.calibrate.run import check_log_path, check_resamples, on_bounds
+    from racerlab.calibrate.run import check_distinct, check_log_path, check_resamples, check_version, on_bounds
     from racerlab.logs import atomic_write_text
 
     out = check_out(args.out)  # all of it before the fit, which takes minutes
     check_resamples(args.resamples)
+    check_version(args.version)
     for p in args.logs:
         check_log_path(p)
+    check_distinct(args.logs)
     names = ", ".join(str(p) for p in args.logs)
-    print(f"fitting the {args.simulator} car (version {args.version}) to {names} ...", file=sys.stderr, flush=True)
-    fit = calibrate(args.logs, args.simulator, args.version, resamples=args.resamples)
+    fit = calibrate(args.logs, args.simulator, args.version, resamples=args.resamples,
+                    say=lambda text: print(text, file=sys.stderr, flush=True))
     print(f"{fit.fit_stretches} stretches fitted, {fit.held_out_stretches} held out")
     print("median front-point error on held-out episodes (m):")
     print("  after steps      " + "".join(f"{h:>8d}" for h in fit.held_out))
@@ -65,6 +76,7 @@ def run_calibrate(args) -> int:
           + "  (the fitted car corrected by a regression learned on the fit episodes)")
     print(interval_line(fit))
     text = car_toml(fit, names)
+    check_trainable(text)
     print(text, end="")
     for warning in on_bounds(fit):
         print(f"warning: {warning}", file=sys.stderr)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from racerlab.errors import RacerlabError
+
 # what each of `racerlab export`'s destinations writes
 EXPORT_FILES = ("--car writes <model>-car.tar.gz (model_metadata.json + agent/model.pb); --onnx writes "
                 "<model>-onnx.tar.gz (model_metadata.json + model.onnx); --tflite writes <model>-tflite.tar.gz, the "
@@ -23,8 +25,12 @@ def register(sub) -> None:
     dest.add_argument("--droa", action="store_true", help="DeepRacer-on-AWS's import .tar.gz")
     dest.add_argument("--drfc", type=Path, metavar="DIR", help="DRfC's model folder layout, written into DIR")
     p.add_argument("--checkpoint", default="best", help="best (default), last or an iteration number")
-    p.add_argument("-o", "--output", type=Path,
-                   help="archive path (default: <model>-car.tar.gz, -onnx, -tflite or -droa.tar.gz)")
+    p.add_argument("-o", "--output",  # a str: a trailing / says "a folder", which Path would drop
+                   help="archive path (default: <model>-car.tar.gz, -onnx, -tflite or -droa.tar.gz here; a folder: "
+                        "that name in it); never one of the model's files")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing file at -o that racerlab export did not write (its own earlier archives "
+                        "are replaced without it)")
     p.set_defaults(func=run_export)
 
     p = sub.add_parser("import", help="make a racerlab model from a console, DRoA, DRfC or car model",
@@ -60,20 +66,22 @@ def run_export(args) -> int:
     from racerlab.cli import require_path
 
     require_path(args.model, "model folder")
+    if args.drfc is not None and args.force:
+        raise RacerlabError("--force: --drfc writes only into a new or empty folder; give one")
     from racerlab.exchange import export_car, export_drfc, export_droa, export_onnx, export_tflite
 
     if args.car:
-        out = export_car(args.model, args.output, args.checkpoint)
+        out = export_car(args.model, args.output, args.checkpoint, args.force)
         print(f"wrote {out}: upload it in the car's web console (Models > Upload)")
     elif args.onnx:
-        out = export_onnx(args.model, args.output, args.checkpoint)
+        out = export_onnx(args.model, args.output, args.checkpoint, args.force)
         print(f"wrote {out}: model.onnx takes the car's inputs by their model.pb names (raw 0-255 NHWC images)")
     elif args.tflite:
-        out = export_tflite(args.model, args.output, args.checkpoint)
+        out = export_tflite(args.model, args.output, args.checkpoint, args.force)
         print(f"wrote {out}: on a community-OS car, extract it into /opt/aws/deepracer/artifacts/<name>/ to run this "
               "model.tflite, or upload it in the web console (the car then converts model.pb itself)")
     elif args.droa:
-        out = export_droa(args.model, args.output, args.checkpoint)
+        out = export_droa(args.model, args.output, args.checkpoint, args.force)
         print(f"wrote {out}: upload its contents to DRoA's import bucket and choose Import model")
     else:
         out = export_drfc(args.model, args.drfc, args.checkpoint)

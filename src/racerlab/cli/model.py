@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import shlex
+import shutil
 from pathlib import Path
 
 from racerlab.errors import ConfigError, RacerlabError
@@ -80,12 +82,18 @@ def register(sub) -> None:
 def run_init(args) -> int:
     from racerlab.model import init_model
 
-    check_line_margin(args.reward, args.line_margin)
+    check_line_margin(args.reward, args.line_margin, args.track)
+    new = not Path(args.model).exists()
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force, race=args.race,
                         preset=args.preset, teacher=not args.no_teacher)
-    write_template(folder, args.reward, args.line_margin)
+    try:
+        write_template(folder, args.reward, args.line_margin)
+    except RacerlabError as exc:  # the line cannot be drawn: no half-made folder is left to trip the next init
+        if new:
+            shutil.rmtree(folder.path, ignore_errors=True)
+        raise RacerlabError(str(exc).replace("(--margin)", "(--line-margin)")) from None
     print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     print(speed_note(args.max_speed))
@@ -113,9 +121,10 @@ def write_template(folder, reward: str, line_margin: float | None = None) -> Non
     folder.write_reward(reward_source(reward, line, metadata.actions.top_speed))
 
 
-def check_line_margin(reward: str, margin: float | None) -> None:
-    """`--line-margin` checked before a folder is made: only racing_line takes one, and no less than the off-track
-    rule allows (the cars share their wheels' geometry, so a new model's default car stands for all)."""
+def check_line_margin(reward: str, margin: float | None, track: str | None = None) -> None:
+    """`--line-margin` checked before a folder is made: only racing_line takes one, a number of metres from no less
+    than the off-track rule allows to no more than the narrowest place of `track` (default: a new model's) leaves
+    (the cars share their wheels' geometry, so a new model's default car stands for all)."""
     if margin is None:
         return
     from racerlab.reward.templates import NEEDS_LINE
@@ -124,7 +133,28 @@ def check_line_margin(reward: str, margin: float | None) -> None:
     if reward not in NEEDS_LINE:
         raise ConfigError(f"--line-margin {margin:g}: only --reward {' / '.join(NEEDS_LINE)} follows a line; drop "
                           "--line-margin or add --reward racing_line")
-    _check_margin(margin, car_params())
+    if not math.isfinite(margin):
+        raise ConfigError(f"--line-margin {margin}: not a distance; give metres between the wheels and the borders, "
+                          "e.g. 0.1")
+    car = car_params()
+    _check_margin(margin, car)
+    _check_room(margin, track, car)
+
+
+def _check_room(margin: float, track: str | None, car) -> None:
+    """The margin must leave the car room at the track's narrowest place: half the width, less the car's own
+    clearance (`line.car_clearance` at a margin of 0)."""
+    from racerlab import track as tracks
+    from racerlab.line import car_clearance, min_margin
+    from racerlab.model.config import TrainingConfig
+
+    name = track or TrainingConfig().track.names[0]
+    narrowest = float(tracks.load(name).widths.min())
+    most = 0.5 * narrowest - car_clearance(car, 0.0)
+    if margin > most:
+        raise ConfigError(f"--line-margin {margin:g}: {name} is {narrowest:.2f} m wide at its narrowest, which leaves "
+                          f"at most {most:.3f} m between the wheels and each border; choose {min_margin(car):.3f} to "
+                          f"{most:.3f} m")
 
 
 def _check_margin(margin: float, car) -> None:

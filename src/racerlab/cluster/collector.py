@@ -38,8 +38,9 @@ def split_episodes(target: int, workers: int) -> list[int]:
 def connect(address: str | None = None, num_cpus: int | None = None):
     """`ray.init` once per process: an existing cluster at `address` (or RAY_ADDRESS), else a local one.
 
-    Ray's nodes listen on every interface, so a local cluster is started with Ray's token authentication
-    (RAY_AUTH_MODE=token, Ray >= 2.52), unless RAY_AUTH_MODE says otherwise."""
+    A local cluster serves on 127.0.0.1 only (`loopback_only`) and is started with Ray's token authentication
+    (RAY_AUTH_MODE=token, Ray >= 2.52), unless RAY_AUTH_MODE says otherwise. A Ray this process is already
+    connected to is used as it is."""
     ray = import_ray(address)
     if _version(ray.__version__) < RAY_MIN:
         raise RacerlabError(f"ray {ray.__version__} is installed; racerlab needs ray >= "
@@ -54,25 +55,44 @@ def connect(address: str | None = None, num_cpus: int | None = None):
 
 
 def import_ray(address: str | None = None):
-    """Ray, imported after its authentication mode is chosen: Ray reads RAY_AUTH_MODE once, when it is imported,
-    and hands the environment to the node processes it starts, so a mode set after the import leaves the driver
-    without a token while the cluster asks for one. A local cluster (no `address`, no RAY_ADDRESS) gets token
-    authentication unless RAY_AUTH_MODE says otherwise; a Ray imported earlier in the process re-reads it."""
-    if not (address or os.environ.get("RAY_ADDRESS")) and "RAY_AUTH_MODE" not in os.environ:
-        os.environ["RAY_AUTH_MODE"] = "token"
-        if "ray" in sys.modules:
-            _reread_ray_config()
+    """Ray, imported after its authentication mode and addresses are chosen: Ray reads RAY_AUTH_MODE once, when it is
+    imported, and hands the environment to the node processes it starts, so a mode set after the import leaves the
+    driver without a token while the cluster asks for one. A local cluster (no `address`, no RAY_ADDRESS) serves on
+    loopback and gets token authentication unless RAY_AUTH_MODE says otherwise; a Ray imported earlier in the process
+    re-reads it. A Ray already connected is left alone: re-reading its configuration under a connection it made with
+    another mode takes the connection down (the driver then dies at its next call)."""
+    ray = sys.modules.get("ray")
+    if ray is not None and getattr(ray, "is_initialized", lambda: False)():
+        return ray
+    if not (address or os.environ.get("RAY_ADDRESS")):
+        loopback_only()
+        if "RAY_AUTH_MODE" not in os.environ:
+            os.environ["RAY_AUTH_MODE"] = "token"
+            if ray is not None:
+                _reread_ray_config(ray)
     import ray
 
     return ray
 
 
-def _reread_ray_config() -> None:
-    try:
-        from ray._raylet import Config  # what ray.init itself calls when it turns token authentication on
-    except ImportError:  # a Ray too old for token authentication: connect() refuses it next
-        return
-    Config.initialize("")
+def loopback_only() -> None:
+    """Make the local cluster this process starts (or joins on this machine) serve on 127.0.0.1 only. Ray turns a node
+    address of 127.0.0.1 into the machine's network address, and its GCS and raylets then listen on every interface,
+    unless clusters of several machines are off: RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 says that on every system (the
+    default on Windows and macOS). Ray reads it when it is imported and hands it to the processes it starts; a Ray
+    imported earlier gets its constant set too."""
+    os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
+    constants = sys.modules.get("ray._private.ray_constants")
+    if constants is not None:
+        constants.ENABLE_RAY_CLUSTER = False
+
+
+def _reread_ray_config(ray) -> None:
+    """What ray.init itself calls when it turns token authentication on, on the Ray that `import ray` gives (never
+    another one found by name)."""
+    config = getattr(getattr(ray, "_raylet", None), "Config", None)
+    if config is not None:  # a Ray too old for token authentication has none: connect() refuses it next
+        config.initialize("")
 
 
 def _version(text: str) -> tuple[int, ...]:

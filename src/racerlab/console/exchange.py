@@ -36,14 +36,15 @@ def _archive_name(name: str, kind: str) -> str:
 def _export(kind: str, model_dir: Path, out: Path, checkpoint: str) -> Path:
     from racerlab import exchange
 
+    # the console's exports folder holds its own archives only (older ones lack the export mark): replace them
     if kind == "car":
-        return exchange.export_car(model_dir, out, checkpoint)
+        return exchange.export_car(model_dir, out, checkpoint, force=True)
     if kind == "droa":
-        return exchange.export_droa(model_dir, out, checkpoint)
+        return exchange.export_droa(model_dir, out, checkpoint, force=True)
     if kind == "onnx":
-        return exchange.export_onnx(model_dir, out, checkpoint)
+        return exchange.export_onnx(model_dir, out, checkpoint, force=True)
     if kind == "tflite":
-        return exchange.export_tflite(model_dir, out, checkpoint)
+        return exchange.export_tflite(model_dir, out, checkpoint, force=True)
     with tempfile.TemporaryDirectory(prefix="racerlab-drfc-", dir=out.parent) as tmp:
         tree = exchange.export_drfc(model_dir, Path(tmp) / "tree", checkpoint)
         packed = shutil.make_archive(str(Path(tmp) / "packed"), "gztar", root_dir=tree)

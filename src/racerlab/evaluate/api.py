@@ -1,9 +1,10 @@
 """`evaluate(model_dir)`: a model folder's checkpoint driven under race rules, with its logs and result.
 
-Loads the checkpoint (best by default, as simapp's EVAL_CHECKPOINT), checks that it matches the
-folder's model_metadata.json, builds a one-car world on the chosen track (the model's training
-track by default; any track works for every sensor, since observations are computed from the
-track's geometry) and drives greedy actions under `RaceRules`. Writes, in a new
+Opens the checkpoint (best by default, as simapp's EVAL_CHECKPOINT) through `ModelFolder.open`, which
+refuses one that cannot be read, holds non-finite weights or does not match the folder's
+model_metadata.json; builds a one-car world on the chosen track (the model's training track by
+default; any track works for every sensor, since observations are computed from the track's
+geometry) and drives greedy actions under `RaceRules`. Writes, in a new
 `<model>/evaluation-<YYYYmmddHHMMSS>/` folder (the DRfC layout deepracer-utils reads, see
 `racerlab.logs`): `evaluation-simtrace/0-iteration.csv`, `EvalMetrics.json`, `summary.json` and,
 when asked, `evaluation.mp4`.
@@ -32,11 +33,12 @@ from racerlab.evaluate.results import (
 )
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import EvalRun, run_evaluation, run_head_to_model
-from racerlab.model import ModelFolder, TrainingState, nonfinite_tensors, parse_model_metadata, resolve_track
+from racerlab.model import ModelFolder, OpenModel, resolve_track
 from racerlab.spec import MAX_SPEED, RaceConfig
 
 HUD_MIN_TOP_SPEED = 0.5  # m/s: a slow model's speed bar still spans this much
 RACE_SEED = 0  # every race draws the same random stream (boxes, bots, randomisation): results repeat
+VIDEO_WIDTH_PX = 960  # the track picture's width in an evaluation's video
 
 SUMMARY_NAME = "summary.json"
 VIDEO_NAME = "evaluation.mp4"
@@ -96,62 +98,18 @@ class EvaluationResult:
         }
 
 
-# ---- loading a model ------------------------------------------------------------------------------
+# ---- the model's policy -------------------------------------------------------------------------------
+# A model is opened through `ModelFolder.open` (its checks: `racerlab.model.opened`); its policy comes from
+# `racerlab.agent.inference_policy`, as every other reader's does.
 
 
-@dataclass
-class LoadedModel:
-    folder: ModelFolder
-    metadata: object  # ModelMetadata
-    checkpoint: str
-    state: TrainingState
-    observation: str
-    look: str = "aws"  # training.toml's run.look: the camera's world
-
-
-def load_model(model_dir, checkpoint: str | int = "best") -> LoadedModel:
-    """The folder's files and the checkpoint's weights, refusing a checkpoint that does not fit."""
-    folder = ModelFolder(model_dir)
-    folder.require()
-    meta = folder.metadata()
-    cfg = folder.config()
-    info = folder.resolve_checkpoint(checkpoint)
-    ck = folder.load_state(info)
-    where = folder.checkpoint_path(info)
-    bad = nonfinite_tensors(ck.agent)
-    if bad:
-        older = [c.iteration for c in folder.checkpoints() if c.iteration != info.iteration]
-        hint = f"pick an older one with --checkpoint {older[-1]}" if older else "train it again"
-        raise RacerlabError(f"{where}: non-finite weights ({bad[0]}); the training diverged there: {hint}")
-    if ck.metadata is not None:
-        _check_same_model(ck.metadata, meta, where, folder.metadata_path)
-    return LoadedModel(folder, meta, info.name, ck, cfg.run.observation, cfg.run.look)
-
-
-def _check_same_model(ck_meta, meta, where: Path, meta_path: Path) -> None:
-    diffs = parse_model_metadata(ck_meta, f"{where} (its model_metadata)").differences(meta)
-    if diffs:
-        raise RacerlabError(f"{where} does not match {meta_path} (trained → now): {'; '.join(diffs)}; restore "
-                            "the model_metadata.json it was trained with or train again")
-
-
-def make_policy(model: LoadedModel, world, device: str = "cpu"):
+def make_policy(model: OpenModel, world, device: str = "cpu"):
     """Greedy actions of the checkpoint's agent (argmax for discrete, the mean for continuous, as AWS)."""
-    from racerlab.agent import make_agent
+    from racerlab.agent import inference_policy
 
     _check_features_width(model, world)
-    agent = make_agent(world.observation.space, model.metadata, model.folder.hyperparameters(), device=device,
-                       seed=RACE_SEED)  # greedy: the seed draws nothing, but every agent is built the same way
-    obs_name = getattr(world.observation, "name", None) or model.observation or "default"
-    try:
-        agent.load_state_dict(model.state.agent)
-    except (RuntimeError, ValueError, KeyError, TypeError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RacerlabError(f"{model.folder.checkpoints_dir / model.checkpoint}: its weights do not fit the network "
-                            f"built from {model.folder.metadata_path} and the '{obs_name}' observation "
-                            f"({first}); evaluate with the settings it was trained with or train again") from None
-
-    return agent.policy
+    return inference_policy(world.observation.space, model.metadata, model.state.agent, where=model.path,
+                            hyperparameters=model.hyperparameters, device=device)
 
 
 def _input_width(policy_state: dict) -> int | None:
@@ -165,7 +123,7 @@ def _input_width(policy_state: dict) -> int | None:
     return None
 
 
-def _check_features_width(model: LoadedModel, world) -> None:
+def _check_features_width(model: OpenModel, world) -> None:
     """A features model reads a vector whose length depends on the race it was trained in: boxes and bot cars add
     the nearest objects ahead (`FEATURE_OBJECTS` (x, y) pairs), a time trial and a head-to-model race do not.
     Racing it in the other kind is refused with that cause and the race that fits, before the network is built."""
@@ -173,27 +131,27 @@ def _check_features_width(model: LoadedModel, world) -> None:
 
     if getattr(world.observation, "name", None) != "features":
         return
-    policy = (model.state.agent or {}).get("policy")
+    policy = model.state.agent.get("policy")
     saved = _input_width(policy) if isinstance(policy, dict) else None
     now = int(world.observation.space.shape[0])
     if saved is None or saved == now or abs(saved - now) != 2 * FEATURE_OBJECTS:
         return  # the same width, or another mismatch the loader names
-    trained = model.folder.config().race.type
+    trained = model.config.race.type
     had, has = ("had", "has none (a time trial or a head-to-model race)") if saved > now else ("had no", "has some")
     raise RacerlabError(
-        f"{model.folder.checkpoints_dir / model.checkpoint}: this features model reads {saved} numbers and this race "
+        f"{model.path}: this features model reads {saved} numbers and this race "
         f"gives it {now}: the features vector ends with the nearest {FEATURE_OBJECTS} boxes or bot cars ahead when a "
         f"race has them; its training race ({trained}, {model.folder.config_path}) {had} boxes or bot cars and this "
         f"race {has}; race it in the kind of race it trained in (`--race-type {trained}`) or train a model for "
         "this kind of race")
 
 
-def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate"):
+def race_config(model: OpenModel, race=None, where: str = "racerlab evaluate"):
     """The race an evaluation drives: the model's training.toml [race]; a `RaceConfig` replaces it, a dict of
     [race] keys overrides those keys of it (`where` names the source in a bad key's one-line error)."""
     if isinstance(race, RaceConfig):
         return race
-    base = model.folder.config().race
+    base = model.config.race
     if not race:
         return base
     table = race_table(base)
@@ -202,18 +160,18 @@ def race_config(model: LoadedModel, race=None, where: str = "racerlab evaluate")
     return RaceConfig.from_mapping({**table, **race}, where=where)
 
 
-def car_config(model: LoadedModel, car=None):
+def car_config(model: OpenModel, car=None):
     """The car an evaluation drives: `car` (a `CarParams`, a simulator name or a `[car]` dict, see
     `racerlab.sim.car_for`) or, by default, the model's training.toml [car], without step jitter (an evaluation
     repeats exactly unless the table sets `step_jitter`)."""
     from racerlab.sim import car_for
 
     if car is None:
-        return model.folder.config().car.params(model.metadata.version, training=False)
+        return model.config.car.params(model.metadata.version, training=False)
     return car_for(car, model.metadata)
 
 
-def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = RACE_SEED, reward=None, race=None,
+def make_world(model: OpenModel, track, rules: RaceRules, seed: int = RACE_SEED, reward=None, race=None,
                randomise=None, car=None):
     """The race world. The model folder's reward_function.py is never imported (racing someone's model must
     not run their code): the reward column is 0, as AWS's evaluation logs it, unless `reward` (a callable or
@@ -230,13 +188,13 @@ def make_world(model: LoadedModel, track, rules: RaceRules, seed: int = RACE_SEE
 
 
 def run_pair(models, track, rules: RaceRules, *, video: bool = False, on_lap=None, device: str = "cpu",
-             where: str = "racerlab evaluate", car=None):
+             where: str = "racerlab evaluate", car=None, seed: int = RACE_SEED):
     """Two loaded models (or one model twice) in one head-to-model world, a car each, under `rules`: the
     worlds (one per car, sharing the simulator) and each car's `EvalRun`."""
     from racerlab.sim import StartRules, World
 
     first = World(track, 2, models[0].metadata, None, models[0].observation, start=StartRules(reverse=rules.reverse),
-                  max_episode_steps=rules.max_episode_steps, seed=RACE_SEED,
+                  max_episode_steps=rules.max_episode_steps, seed=seed,
                   race=RaceConfig(type="head_to_model", where=where), car=car_config(models[0], car),
                   look=models[0].look)
     worlds = [first, World(None, 2, models[1].metadata, None, models[1].observation, sim=first.sim,
@@ -275,17 +233,31 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
     """
     rules = rules or RaceRules(trials=trials, continuous=continuous, off_track_penalty=off_track_penalty,
                                collision_penalty=collision_penalty, max_resets=max_resets, reverse=reverse)
-    model = load_model(model_dir, checkpoint)
+    model = ModelFolder(model_dir).open(checkpoint)
     track_obj = resolve_track(model.folder, track)
+    return evaluate_loaded(model, track_obj, rules, ranking_laps=ranking_laps, video=video, write=write, device=device,
+                           progress=progress, on_lap=on_lap, reward=reward, race=race, randomise=randomise, car=car)
+
+
+def evaluate_loaded(model: OpenModel, track, rules: RaceRules, *, ranking_laps: int = DEFAULT_RANKING_LAPS,
+                    video: bool = False, write: bool = True, device: str = "cpu", progress: bool = False, on_lap=None,
+                    reward=None, race=None, randomise=None, car=None, seed: int = RACE_SEED,
+                    out_dir: Path | None = None, video_width: int = VIDEO_WIDTH_PX,
+                    video_title: str | None = None, video_every: int = 1) -> EvaluationResult:
+    """`evaluate` of a model already open (`ModelFolder.open`, or a race server's stored model) on a `Track`: the
+    same race, result and files. `seed` seeds the world (boxes and bots drawn at random, randomisation);
+    `out_dir` (created) receives the evaluation's files instead of a new `<model>/evaluation-<stamp>/`;
+    `video_width` is the track picture's width in the video (pixels), `video_title` its title (default: the
+    model's folder name and the track), `video_every` k draws every k-th step (`video.render_video`)."""
     if race_config(model, race).head_to_model:  # the model races a copy of itself; car 0's run is its result
         if randomise is not None or reward is not None:
             raise RacerlabError("racerlab evaluate: a head_to_model evaluation races the model against itself "
                                 "without randomise or reward; drop those options or evaluate another race type")
-        worlds, runs = run_pair([model, model], track_obj, rules, video=video, device=device, car=car,
+        worlds, runs = run_pair([model, model], track, rules, video=video, device=device, car=car, seed=seed,
                                 on_lap=(lambda k, lap: on_lap(lap) if k == 0 else None) if on_lap else None)
         world, run = worlds[0], runs[0]
     else:
-        world = make_world(model, track_obj, rules, reward=reward, race=race, randomise=randomise, car=car)
+        world = make_world(model, track, rules, seed=seed, reward=reward, race=race, randomise=randomise, car=car)
         policy = make_policy(model, world, device)
         image_of = None
         if video:
@@ -293,13 +265,13 @@ def evaluate(model_dir, track=None, trials: int = RaceRules.trials, continuous: 
 
             image_of = camera_image
         run = run_evaluation(world, policy, rules, keep_frames=video, image_of=image_of, on_lap=on_lap)
-    result = EvaluationResult(model.folder.path.resolve().name, model.folder.path, model.checkpoint, track_obj.name,
+    result = EvaluationResult(model.name, model.folder.path, model.checkpoint.name, track.name,
                               rules, run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                               wall_seconds=run.wall_seconds, run=run, race=race_table(world.sim.race),
                               randomise=world.randomise.changed() if world.randomise else None,
                               car=world.sim.car_params.name)
     if write:
-        _write(result, world, video, progress)
+        _write(result, world, video, progress, out_dir, (video_width, video_title, video_every))
     return result
 
 
@@ -308,8 +280,15 @@ def race_table(race: RaceConfig) -> dict:
     return race.table()
 
 
-def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None:
-    out = logs.new_evaluation_dir(result.model_dir)
+def _write(result: EvaluationResult, world, video: bool, progress: bool, out: Path | None = None,
+           look: tuple = (VIDEO_WIDTH_PX, None, 1)) -> None:
+    """The evaluation's files in `out` (default: a new evaluation folder of the model); `look` is the video's
+    (track width in pixels, title or None, every k-th step)."""
+    video_width, video_title, video_every = look
+    if out is None:
+        out = logs.new_evaluation_dir(result.model_dir)
+    else:
+        out.mkdir(parents=True, exist_ok=True)
     result.out_dir = out
     run = result.run
     result.files["simtrace"] = logs.write_simtrace(logs.eval_simtrace_path(out), run.trace)
@@ -326,8 +305,10 @@ def _write(result: EvaluationResult, world, video: bool, progress: bool) -> None
         sim = world.sim
         track = sim.track_reversed if result.rules.reverse else sim.track
         t0 = time.perf_counter()
-        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=f"{result.model} on {result.track}",
-                                             max_speed=_top_speed(world.metadata), progress=progress)
+        title = video_title if video_title is not None else f"{result.model} on {result.track}"
+        result.files["video"] = render_video(out / VIDEO_NAME, track, run, title=title,
+                                             max_speed=_top_speed(world.metadata), progress=progress,
+                                             width_px=video_width, frame_every=video_every)
         result.wall_seconds += time.perf_counter() - t0
         _write_summary(result)
 

@@ -23,9 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from racerlab.errors import TrackError
-from racerlab.evaluate.api import car_config, load_model, make_policy
+from racerlab.evaluate.api import car_config, make_policy
 from racerlab.evaluate.rules import RaceRules
 from racerlab.evaluate.runner import run_evaluation
+from racerlab.model import ModelFolder
 from racerlab.spec import STEPS_PER_SECOND
 from racerlab.track.core import Track, load_file
 from racerlab.track.layouts import held_out_tracks, training_tracks  # noqa: F401 - set selection, here too
@@ -166,7 +167,7 @@ def evaluate_tracks(model_dir, tracks, trials: int = 1, checkpoint: str | int = 
     from racerlab.sim import StartRules, World
 
     t0 = time.perf_counter()
-    model = load_model(model_dir, checkpoint)
+    model = ModelFolder(model_dir).open(checkpoint)
     loaded = _load_closed([t for t in tracks if not isinstance(t, Track)]) if tracks else []
     objs = [t for t in tracks if isinstance(t, Track)] + loaded
     rules = RaceRules(trials=trials, continuous=False, max_resets=0,
@@ -186,7 +187,7 @@ def evaluate_tracks(model_dir, tracks, trials: int = 1, checkpoint: str | int = 
             results[k].append(outcome)
             if on_track is not None:
                 on_track(outcome, k == 1)
-    return TracksResult(model.folder.path.resolve().name, model.checkpoint, results[0],
+    return TracksResult(model.name, model.checkpoint.name, results[0],
                         results[1] if randomise is not None else [], time.perf_counter() - t0, objs)
 
 

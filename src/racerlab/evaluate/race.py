@@ -18,11 +18,11 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.api import EvaluationResult, _write, evaluate, load_model, run_pair
+from racerlab.evaluate.api import EvaluationResult, _write, evaluate, run_pair
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, race_result, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
-from racerlab.model import resolve_track
+from racerlab.model import ModelFolder, resolve_track
 
 
 class RaceCancelled(RacerlabError):
@@ -133,13 +133,13 @@ def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = Non
         if on_lap is not None:
             on_lap(k, lap)
 
-    models = [load_model(m, checkpoint) for m in dirs]
+    models = [ModelFolder(m).open(checkpoint) for m in dirs]
     track_obj = resolve_track(models[0].folder, track)
     worlds, runs = run_pair(models, track_obj, rules, video=video, on_lap=lap_end, device=device,
                             where="racerlab race --head-to-model", car=car)
     results = []
     for m, w, run in zip(models, worlds, runs, strict=True):
-        res = EvaluationResult(m.folder.path.resolve().name, m.folder.path, m.checkpoint, track_obj.name, rules,
+        res = EvaluationResult(m.name, m.folder.path, m.checkpoint.name, track_obj.name, rules,
                                run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                                wall_seconds=run.wall_seconds, run=run, race={"type": "head_to_model"},
                                car=w.sim.car_params.name)

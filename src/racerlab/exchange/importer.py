@@ -45,11 +45,16 @@ def wanted(name: str) -> bool:
     return name in KEPT or name in MARKERS or bool(WEIGHTS_RE.match(name))
 
 
-def _member_limit(name: str) -> int:
+def member_limit(name: str) -> int | None:
+    """The most bytes a member of this base name may unpack to, None for a member the importer does not read (it is
+    never written): a model's weights up to MAX_ARCHIVE_BYTES, its text files up to MAX_TEXT_BYTES."""
+    if not wanted(name):
+        return None
     return MAX_ARCHIVE_BYTES if WEIGHTS_RE.match(name) else MAX_TEXT_BYTES
 
 
-def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool, size: int = 0, sparse: bool = False) -> None:
+def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool, size: int = 0, sparse: bool = False,
+                  keep=member_limit) -> None:
     p = PurePosixPath(name.replace("\\", "/"))
     if p.is_absolute() or name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name) or ".." in p.parts:
         raise ConfigError(f"{archive}: member {name!r} would be written outside the model folder (absolute path or "
@@ -60,38 +65,40 @@ def _check_member(archive: Path, name: str, is_file: bool, is_dir: bool, size: i
     if sparse:
         raise ConfigError(f"{archive}: member {name!r} is a sparse file (its {size} bytes would be written in "
                           "full); refusing to extract it. Re-create the archive without --sparse")
-    if is_file and wanted(p.name) and size > _member_limit(p.name):
+    limit = keep(p.name) if is_file else None
+    if limit is not None and size > limit:
         raise ConfigError(f"{archive}: member {name!r} unpacks to {size} bytes, more than a DeepRacer model's "
-                          f"{p.name} (<= {_member_limit(p.name)} bytes); refusing to extract it")
+                          f"{p.name} (<= {limit} bytes); refusing to extract it")
 
 
-def safe_extract(archive: Path, dest: Path) -> None:
+def safe_extract(archive: Path, dest: Path, keep=member_limit) -> None:
     """Extract the files the importer reads from a .tar(.gz) or .zip into `dest`, after checking every member
     (no absolute paths, no '..', no links, devices or sparse files, bounded member count, member sizes and
-    total size); a bad member refuses the whole archive before any write. Other members are never written."""
+    total size); a bad member refuses the whole archive before any write. Other members are never written.
+    `keep(base name)` says which members are extracted and their size limit (`member_limit`: the importer's)."""
     try:
         if zipfile.is_zipfile(archive):
             with zipfile.ZipFile(archive) as z:
                 infos = z.infolist()
                 _check_count(archive, len(infos))
                 for i in infos:
-                    _check_member(archive, i.filename, not i.is_dir(), i.is_dir(), i.file_size)
-                keep = [i for i in infos if not i.is_dir() and wanted(PurePosixPath(i.filename).name)]
-                _check_size(archive, sum(i.file_size for i in keep))
-                z.extractall(dest, members=keep)
+                    _check_member(archive, i.filename, not i.is_dir(), i.is_dir(), i.file_size, keep=keep)
+                kept = [i for i in infos if not i.is_dir() and keep(PurePosixPath(i.filename).name) is not None]
+                _check_size(archive, sum(i.file_size for i in kept))
+                z.extractall(dest, members=kept)
             return
         with tarfile.open(archive) as tar:
             members = []
             for m in tar:
                 members.append(m)
                 _check_count(archive, len(members))
-                _check_member(archive, m.name, m.isfile(), m.isdir(), m.size, m.issparse())
-            keep = [m for m in members if m.isfile() and wanted(PurePosixPath(m.name).name)]
-            _check_size(archive, sum(m.size for m in keep))
+                _check_member(archive, m.name, m.isfile(), m.isdir(), m.size, m.issparse(), keep=keep)
+            kept = [m for m in members if m.isfile() and keep(PurePosixPath(m.name).name) is not None]
+            _check_size(archive, sum(m.size for m in kept))
             if hasattr(tarfile, "data_filter"):
-                tar.extractall(dest, members=keep, filter="data")
+                tar.extractall(dest, members=kept, filter="data")
             else:  # pragma: no cover - Python < 3.11.4; the members were checked above
-                tar.extractall(dest, members=keep)
+                tar.extractall(dest, members=kept)
     except (tarfile.TarError, zipfile.BadZipFile, EOFError, OSError) as exc:
         if isinstance(exc, OSError) and exc.errno is not None:
             raise RacerlabError(f"{dest}: cannot unpack {archive.name} ({exc.strerror}); free some disk space "

@@ -1,13 +1,15 @@
-"""The racerlab side of an exchange: read a model folder's networks, write an imported model folder.
+"""The racerlab side of an exchange: an opened model's networks for the AWS sensors, write an imported model folder.
 
 This is the only module of `racerlab.exchange` that knows racerlab's model-folder modules (metadata,
-hyperparameters, folder, training config) and the training checkpoint format.
+hyperparameters, folder, training config) and the training checkpoint format. Models are read through
+`ModelFolder.open`, the door every reader takes, and their networks come from `racerlab.agent.inference_policy`.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from typing import TYPE_CHECKING
 
 from racerlab.errors import ConfigError, RacerlabError
 from racerlab.model import (
@@ -15,6 +17,7 @@ from racerlab.model import (
     Hyperparameters,
     ModelFolder,
     ModelMetadata,
+    OpenModel,
     TrainingConfig,
     TrainingState,
     load_model_metadata,
@@ -24,8 +27,11 @@ from racerlab.model import (
 from racerlab.model.config import TrackSettings
 from racerlab.reward import EXAMPLE_REWARD
 
-__all__ = ["CheckpointInfo", "Hyperparameters", "LocalModel", "ModelFolder", "ModelMetadata", "aws_shapes",
-           "load_local_model", "load_model_metadata", "parse_model_metadata", "write_imported_model"]
+if TYPE_CHECKING:
+    from racerlab.agent import InferencePolicy
+
+__all__ = ["CheckpointInfo", "Hyperparameters", "ModelFolder", "ModelMetadata", "OpenModel", "aws_shapes", "car_policy",
+           "load_model_metadata", "open_for_export", "parse_model_metadata", "write_imported_model"]
 
 IMPORTED_DIR = "imported"
 
@@ -55,45 +61,23 @@ def aws_shapes(metadata: ModelMetadata) -> dict[str, tuple[int, ...]]:
     return shapes
 
 
-@dataclass
-class LocalModel:
-    """A racerlab model's files and the networks of one checkpoint, on the CPU in eval mode."""
-
-    folder: ModelFolder
-    metadata: ModelMetadata
-    hyperparameters: Hyperparameters
-    checkpoint: CheckpointInfo
-    shapes: dict[str, tuple[int, ...]]
-    networks: dict  # "policy", "value" (clipped PPO) or "actor" (SAC) -> nn.Module
-
-    @property
-    def name(self) -> str:
-        return self.folder.path.resolve().name
-
-
-def load_local_model(model_dir, checkpoint: str | int = "best") -> LocalModel:
-    from racerlab.agent import build_networks, inference_networks
-
+def open_for_export(model_dir, checkpoint: str | int | CheckpointInfo = "best") -> tuple[OpenModel, InferencePolicy]:
+    """The model at `checkpoint` through the door every reader takes (`ModelFolder.open`) and its networks for the
+    AWS sensors' inputs (`car_policy`), each refusing what it must with `errors.ModelRefused`. A sensor the car
+    does not have is said first, before any checkpoint is read (a features model may have none yet)."""
     folder = ModelFolder(model_dir)
     folder.require()
-    meta = folder.metadata()
-    shapes = aws_shapes(meta)
-    info = folder.resolve_checkpoint(checkpoint)
-    agent = folder.load_state(info).agent
-    where = folder.checkpoint_path(info)
-    nets = build_networks(shapes, meta)
-    names = inference_networks(meta)
-    networks = {}
-    for name, net in zip(names, nets, strict=False):
-        try:
-            net.load_state_dict(agent[name])
-        except (KeyError, RuntimeError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise RacerlabError(f"{where}: its {name} weights do not fit the AWS {meta.neural_network} network for "
-                                f"sensors {list(meta.sensor)} ({first}); export a model trained on AWS sensors "
-                                "(training.toml [run] observation left empty)") from None
-        networks[name] = net.eval()
-    return LocalModel(folder, meta, folder.hyperparameters(), info, shapes, networks)
+    aws_shapes(folder.metadata())
+    model = folder.open(checkpoint)
+    return model, car_policy(model)
+
+
+def car_policy(model: OpenModel) -> InferencePolicy:
+    """An opened model's networks for the AWS sensors' inputs (`aws_shapes`), on the CPU in eval mode: what every
+    export converts. Weights trained for other inputs (training.toml [run] observation) are refused there."""
+    from racerlab.agent import inference_policy  # torch: loaded only where weights are
+
+    return inference_policy(aws_shapes(model.metadata), model.metadata, model.state.agent, where=model.path)
 
 
 def parse_hyperparameters_text(text: str, source: str) -> Hyperparameters | None:
@@ -110,7 +94,9 @@ def write_imported_model(dst, metadata: ModelMetadata, networks: dict, hyperpara
 
     `originals` (file name -> bytes) are kept unexecuted under `imported/`; reward_function.py of the new
     folder is racerlab's example reward with a header pointing at the imported one. The checkpoint is
-    marked `cloned`, so `racerlab train` continues from these weights with fresh counters.
+    marked `cloned`, so `racerlab train` continues from these weights with fresh counters. Once written, the folder
+    is opened through the door every reader takes (`ModelFolder.open`, `car_policy`), so that an import is never a
+    model that evaluation or export would refuse.
     """
     from racerlab.agent import PPO
 
@@ -138,6 +124,7 @@ def write_imported_model(dst, metadata: ModelMetadata, networks: dict, hyperpara
     info = folder.save_state(TrainingState(agent.state_dict(), metadata.to_json(), train_steps=0, cloned=True))
     folder.update_index(info, float("nan"), None, None)
     folder.write_lineage({"imported": note})
+    car_policy(folder.open())
     return folder
 
 

@@ -212,14 +212,14 @@ def push(model_dir, url: str, checkpoint: str | int = "best", profile=None, regi
          progress=print) -> dict[str, int]:
     """Export `model_dir` in DRfC's layout and upload it under `url` (s3://bucket/prefix)."""
     from racerlab.exchange.export import write_virtual_tree
-    from racerlab.exchange.local import load_local_model
+    from racerlab.exchange.local import open_for_export
 
     target = S3Url.parse(url)
-    model = load_local_model(model_dir, checkpoint)
+    model, policy = open_for_export(model_dir, checkpoint)
     s3 = client(profile, region, endpoint_url)
     with scratch_dir("s3-push") as tmp:
         try:
-            write_virtual_tree(model, tmp)
+            write_virtual_tree(model, policy, tmp)
             return upload_tree(s3, tmp, target, progress)
         except _errors() as exc:
             raise _describe(exc, url) from None

@@ -11,8 +11,11 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import tempfile
 from pathlib import Path
 
+from racerlab.errors import ConfigError
+from racerlab.logs.files import kind_of
 from racerlab.logs.scratch import sweep
 
 TEMP_MARK = ".tmp-"
@@ -82,6 +85,30 @@ def atomic_write_text(path: str | os.PathLike, text: str, fsync: bool = True) ->
 def atomic_write_json(path: str | os.PathLike, obj, indent: int | None = None, fsync: bool = True) -> Path:
     """Write `obj` as JSON to `path` atomically (NaN and inf are refused: they are not JSON)."""
     return atomic_write_text(path, json.dumps(obj, indent=indent, allow_nan=False) + "\n", fsync)
+
+
+def check_output(out: str | os.PathLike, flag: str, give: str) -> Path:
+    """The file a command will write atomically at `out` (the value of its `flag`), resolved through links, once it
+    is known that the write can happen and replaces at most a regular file you may write; one line naming `flag`,
+    the problem and the fix (`give`: what to pass instead) otherwise. Nothing is written. What a command may
+    replace besides (its own earlier output, a file it merges into) is the command's to check."""
+    if str(out) in ("", "."):
+        raise ConfigError(f"{flag} {str(out)!r}: no file name; give {give}")
+    path = Path(os.path.realpath(out))
+    if not path.parent.is_dir():
+        raise ConfigError(f"{flag} {out}: the folder {path.parent} does not exist; create it or choose another file")
+    try:  # what the atomic write will do: a new file in that folder
+        tempfile.TemporaryFile(dir=path.parent).close()
+    except OSError as exc:
+        raise ConfigError(f"{flag} {out}: cannot write in {path.parent} ({exc.strerror}); choose a file in a writable "
+                          "folder") from None
+    if path.exists():
+        if not path.is_file():
+            what = "a folder" if path.is_dir() else kind_of(path.stat().st_mode)
+            raise ConfigError(f"{flag} {out}: not a regular file ({what}); give {give}")
+        if not os.access(path, os.W_OK):
+            raise ConfigError(f"{flag} {out}: the file is read-only; make it writable or choose another file")
+    return path
 
 
 def remove_stale_temps(folder: str | os.PathLike) -> list[Path]:

@@ -33,7 +33,9 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
+from racerlab.errors import RacerlabWarning
 from racerlab.logs.cache import SegmentCache, cache_folder, source_key
+from racerlab.logs.files import regular_files
 from racerlab.logs.metrics import LogFileError, read_metrics_document, read_training_archive
 from racerlab.logs.read import (
     MEMORY,
@@ -77,7 +79,7 @@ def load(path: str | os.PathLike, kind: str = "auto", *, cache: bool = True,
     store = open_store(path)
     try:
         sources = classify(store.files(), single=getattr(store, "single", None) is not None)
-        kind, chosen = _choose(sources, kind, path)
+        kind, chosen = _choose(sources, kind, path, getattr(store, "skipped", None))
         tables, info = _tables(store, chosen, kind, path, cache, cache_dir, threads)
     finally:
         if hasattr(store, "close"):
@@ -102,23 +104,29 @@ def drop_absurd_rows(df: pd.DataFrame, path) -> pd.DataFrame:
     first = df.loc[bad].iloc[0]
     warnings.warn(f"{path}: dropped {n} simtrace row(s) with x or y not finite or beyond {MAX_COORDINATE_M:g} m "
                   f"(first: episode {first.get('episode')}, step {first.get('steps')}, x={first['x']:g}, "
-                  f"y={first['y']:g}); the file is damaged there", stacklevel=3)
+                  f"y={first['y']:g}); the file is damaged there", RacerlabWarning, stacklevel=3)
     attrs = dict(df.attrs)
     out = df.loc[~bad].reset_index(drop=True)
     out.attrs.update(attrs)
     return out
 
 
-def _choose(sources: list[Source], kind: str, path) -> tuple[str, list[Source]]:
+def _choose(sources: list[Source], kind: str, path, skipped=None) -> tuple[str, list[Source]]:
+    """(kind, its sources); the entries of a folder that were no regular files (`skipped`) are named once, in the
+    warning beside what was found or in the one line saying nothing was."""
     kinds = [kind] if kind != "auto" else list(KINDS)
     for k in kinds:
         of_kind = [s for s in sources if s.kind == k]
         csvs = [s for s in of_kind if s.fmt == CSV]
         if csvs or of_kind:
+            if skipped is not None:
+                skipped.warn()
             return k, csvs or of_kind  # a CSV and a robomaker log hold the same steps: prefer the CSV
     what = "step logs" if kind == "auto" else f"{kind} step logs"
+    left = f"; {skipped}" if skipped is not None and skipped.found else ""
     raise LogFileError(f"{path}: found no {what} (looked for training-simtrace/<n>-iteration.csv, "
-                       "evaluation-*/evaluation-simtrace/<n>-iteration.csv and *.log files with SIM_TRACE_LOG lines)")
+                       f"evaluation-*/evaluation-simtrace/<n>-iteration.csv and *.log files with SIM_TRACE_LOG lines)"
+                       f"{left}")
 
 
 def _tables(store: Store, sources: list[Source], kind: str, path, cache: bool, cache_dir, threads: bool):
@@ -249,7 +257,7 @@ def _metrics_files(path: Path, kind: str) -> list[tuple[Path, str]]:
         found = sorted(path.glob("metrics/TrainingMetrics*.json")) or sorted(path.glob("TrainingMetrics*.json"))
     else:
         found = sorted(path.glob("evaluation-*/EvalMetrics.json")) or sorted(path.glob("EvalMetrics.json"))
-    return [(f, _metrics_label(f, kind)) for f in found]
+    return [(f, _metrics_label(f, kind)) for f in regular_files(found, path)]
 
 
 def _metrics_label(f: Path, kind: str) -> str:

@@ -19,11 +19,10 @@ import gzip
 import json
 import math
 import os
-import zlib
 from pathlib import Path
 
-from racerlab.errors import RacerlabError
 from racerlab.logs.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from racerlab.logs.files import MAX_LOG_BYTES, LogFileError, gunzip, open_regular, read_bytes
 
 TRAINING_METRICS_KEYS = ("reward_score", "metric_time", "start_time", "elapsed_time_in_milliseconds",
                          "episode", "trial", "phase", "completion_percentage", "episode_status")
@@ -69,16 +68,12 @@ def _finite(x) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
-class LogFileError(RacerlabError, ValueError):
-    """A log or metrics file that cannot be read (the message names the file and, where known, the line)."""
-
-
 def read_metrics_document(path: str | os.PathLike) -> dict:
     """An AWS metrics JSON file (`{"metrics": [...], ...}`); anything else is a one-line `LogFileError`."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        doc = json.loads(read_bytes(path).decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise LogFileError(f"{path}: not valid JSON ({e}); delete or repair it to continue") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("metrics"), list):
         raise LogFileError(f"{path}: expected an object with a 'metrics' list")
@@ -175,19 +170,9 @@ def read_training_archive(path: str | os.PathLike, current: list[dict]) -> list[
     archive = training_archive_path(path)
     if not archive.is_file():
         return []
-    data, out = archive.read_bytes(), []
-    while data:
-        d = zlib.decompressobj(16 + zlib.MAX_WBITS)
-        try:
-            chunk = d.decompress(data)
-        except zlib.error:
-            break
-        if not d.eof:
-            break
-        out.append(chunk)
-        data = d.unused_data
+    text = gunzip(read_bytes(archive), str(archive), torn_ends=True)
     seen = {(m["episode"], m["trial"], m["phase"]) for m in current}
-    entries = (json.loads(line) for line in b"".join(out).decode("utf-8").splitlines() if line)
+    entries = (json.loads(line) for line in text.decode("utf-8").splitlines() if line)
     return [e for e in entries if (e["episode"], e["trial"], e["phase"]) not in seen]
 
 
@@ -259,7 +244,7 @@ def read_metrics_jsonl(path: str | os.PathLike) -> list[dict]:
     path = Path(path)
     if not path.is_file():
         return []
-    *whole, last = path.read_bytes().split(b"\n")
+    *whole, last = read_bytes(path).split(b"\n")
     out = _parse_lines(whole, path, strict=True)
     return out + _parse_lines([last], path, strict=False)  # without its newline: complete, or a write cut off
 
@@ -269,10 +254,10 @@ def follow_metrics_jsonl(path: str | os.PathLike, offset: int = 0) -> tuple[list
     the offset after the last complete line (a line still being written is read next time; a line that does not
     parse is skipped). A missing file gives ([], offset)."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             f.seek(offset)
-            data = f.read()
-    except OSError:
+            data = f.read(MAX_LOG_BYTES)
+    except (OSError, LogFileError):
         return [], offset
     end = data.rfind(b"\n") + 1
     return _parse_lines(data[:end].split(b"\n"), Path(path), strict=False), offset + end
@@ -281,11 +266,11 @@ def follow_metrics_jsonl(path: str | os.PathLike, offset: int = 0) -> tuple[list
 def last_metrics_entry(path: str | os.PathLike, tail_bytes: int = 64 * 1024) -> dict | None:
     """The last complete entry of a `metrics.jsonl`, reading only its last `tail_bytes` (None when there is none)."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             f.seek(0, os.SEEK_END)
             f.seek(max(f.tell() - tail_bytes, 0))
             lines = f.read().split(b"\n")
-    except OSError:
+    except (OSError, LogFileError):
         return None
     for line in reversed(lines):
         found = _parse_lines([line], Path(path), strict=False)

@@ -16,12 +16,10 @@ Garbled input raises `LogFileError` with one line naming the file and the line.
 
 from __future__ import annotations
 
-import gzip
 import json
 import math
 import os
 import re
-import zlib
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -29,7 +27,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from racerlab.logs.metrics import LogFileError
+from racerlab.logs.files import LogFileError, gunzip, read_bytes
 
 CSV_TO_FRAME = {"X": "x", "Y": "y", "steer": "steering_angle", "throttle": "speed", "all_wheels_on_track": "on_track"}
 RAW_COLUMNS = ("episode", "steps", "x", "y", "yaw", "steering_angle", "speed", "action", "reward", "done",
@@ -139,12 +137,8 @@ def _action_column(col) -> pa.Array:
 
 
 def decompress(data: bytes, name: str) -> bytes:
-    if name.endswith(".gz"):
-        try:
-            return gzip.decompress(data)
-        except (OSError, EOFError, zlib.error) as e:
-            raise LogFileError(f"{name}: not a readable gzip file ({e})") from None
-    return data
+    """A log's bytes as text: gunzipped (bounded, `logs.files.gunzip`) when `name` ends in `.gz`."""
+    return gunzip(data, name) if name.endswith(".gz") else data
 
 
 def split_header(data: bytes, name: str) -> tuple[list[str], bytes]:
@@ -205,8 +199,7 @@ def read_simtrace_files(paths: list[str], names_for_messages: list[str], threads
 
 
 def _read_path(path: str, name: str) -> bytes:
-    with open(path, "rb") as f:
-        return decompress(f.read(), name)
+    return decompress(read_bytes(path, name), name)
 
 
 def _read_each(names: list[str], plain_text, threads: bool) -> tuple[pa.Table, np.ndarray]:

@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 import tarfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
-from racerlab.logs.metrics import LogFileError
+from racerlab.logs import files
+from racerlab.logs.files import LogFileError, SkippedFiles, check_path, kind_of, read_bytes
 
 TRAINING, EVALUATION, LEADERBOARD = "training", "evaluation", "leaderboard"
 CSV, LOG = "csv", "log"
@@ -77,25 +79,43 @@ class DirStore(Store):
         self.root = Path(root)
         self.single = single  # one file only (the path given was a file)
         self.label = str(self.root / single) if single else str(self.root)
+        self.skipped = SkippedFiles(self.root)
 
     def files(self) -> dict[str, tuple[int, int]]:
+        """Regular files only (links followed): pipes, devices, sockets and broken links are left out and kept in
+        `skipped` (`logs.files.SkippedFiles`), for the reader to name."""
         if self.single:
-            st = (self.root / self.single).stat()
+            st = check_path(self.root / self.single)
             return {self.single: (st.st_size, st.st_mtime_ns)}
         out = {}
+        skipped = self.skipped = SkippedFiles(self.root)
         for dirpath, dirnames, filenames in os.walk(self.root):
             dirnames[:] = sorted(d for d in dirnames if d not in SKIP_DIRS and not d.startswith("."))
             rel_dir = os.path.relpath(dirpath, self.root)
             for name in filenames:
                 if name.startswith("."):
                     continue
-                st = os.stat(os.path.join(dirpath, name))
                 rel = name if rel_dir == "." else PurePosixPath(Path(rel_dir).as_posix(), name).as_posix()
-                out[rel] = (st.st_size, st.st_mtime_ns)
+                st = _regular_stat(os.path.join(dirpath, name))
+                if isinstance(st, str):
+                    skipped.add(rel, st)
+                else:
+                    out[rel] = (st.st_size, st.st_mtime_ns)
         return out
 
     def read(self, rel: str) -> bytes:
-        return (self.root / rel).read_bytes()
+        return read_bytes(self.root / rel, self.describe(rel))
+
+
+def _regular_stat(path: str) -> os.stat_result | str:
+    """The stat of a regular file (links followed), or what the entry is instead."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "a broken link"
+    except OSError as exc:
+        return f"not readable ({exc.strerror})"
+    return kind_of(st.st_mode) or st
 
 
 class TarStore(Store):
@@ -118,8 +138,7 @@ class TarStore(Store):
 
     def read(self, rel: str) -> bytes:
         with self._lock:
-            f = self._tar.extractfile(self._members[rel])
-            return f.read() if f is not None else b""
+            return self._read_member(self._members[rel])
 
     def read_many(self, rels: list[str]) -> dict[str, bytes]:
         """Members in archive order: one pass over a compressed tar instead of a seek per member."""
@@ -127,9 +146,17 @@ class TarStore(Store):
         out = {}
         with self._lock:
             for m in sorted((self._members[r] for r in wanted), key=lambda m: m.offset):
-                f = self._tar.extractfile(m)
-                out[self._clean(m.name)] = f.read() if f is not None else b""
+                out[self._clean(m.name)] = self._read_member(m)
         return out
+
+    def _read_member(self, m: tarfile.TarInfo) -> bytes:
+        """A member's bytes, no more than `logs.files.MAX_LOG_BYTES` (its header may claim any size)."""
+        if m.size > files.MAX_LOG_BYTES:
+            raise LogFileError(f"{self.describe(self._clean(m.name))}: {m.size / 2**30:.1f} GiB, more than racerlab "
+                               f"reads from one log file ({files.MAX_LOG_BYTES / 2**30:g} GiB); extract the archive "
+                               "and give the folder of the training's per-iteration files")
+        f = self._tar.extractfile(m)
+        return f.read() if f is not None else b""
 
     def describe(self, rel: str) -> str:
         return f"{self.root}:{rel}"
@@ -141,10 +168,8 @@ class TarStore(Store):
 def open_store(path: str | os.PathLike) -> Store:
     """A store for a folder, a `.tar(.gz)` archive, or a single log/CSV file."""
     path = Path(path)
-    if path.is_dir():
+    if stat.S_ISDIR(check_path(path).st_mode):
         return DirStore(path)
-    if not path.exists():
-        raise LogFileError(f"{path}: no such file or folder")
     if tarfile.is_tarfile(path):
         return TarStore(path)
     return DirStore(path.parent, single=path.name)

@@ -55,6 +55,7 @@ class TrainingState:
     # "laptime": the fastest mean evaluation lap so far, which the best checkpoint (the newest within one step's tie
     # of it: `train.evaluation.laptime_tie_ms`) is measured from (None: older racerlab, or another metric)
     best_floor: float | None = None
+    best_rule: str | None = None  # the [evaluation] best_model_metric best_name and best_metric are by (None: older)
     best_lap_time: float = math.nan
     best_lap_iteration: int | None = None  # the iteration whose evaluation drove best_lap_time
     rollbacks: int = 0
@@ -100,8 +101,8 @@ class TrainingState:
     def cloned_as(self, metadata: dict) -> TrainingState:
         """This state as the first checkpoint of a clone with `metadata`: the weights and counters stay, the best
         checkpoint, rollbacks and round-robin state start afresh."""
-        return replace(self, cloned=True, best_name=None, best_metric=None, best_floor=None, rollbacks=0, collection={},
-                       metadata=metadata, saved_at=0.0)
+        return replace(self, cloned=True, best_name=None, best_metric=None, best_floor=None, best_rule=None,
+                       rollbacks=0, collection={}, metadata=metadata, saved_at=0.0)
 
 
 def nonfinite_tensors(state, prefix: str = "") -> list[str]:

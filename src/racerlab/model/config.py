@@ -6,6 +6,7 @@ Sections and defaults live in `DEFAULTS`; unknown sections or keys and wrong typ
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -377,14 +378,27 @@ def _validate_randomise(r: RandomiseSettings, s: str) -> None:
     _check(r.speed_scale > 0 and r.top_speed >= 0, s, "randomise.speed_scale must be > 0 and top_speed >= 0")
 
 
+# [teacher]'s plausible values: (low, high, what the key means); absurd ones were an OverflowError (minutes = inf),
+# a 17.5 TiB allocation (max_steps = 1e9: a camera frame is 19.2 kB) or a fit that never ends (passes = 1e9)
+TEACHER_RANGES = {
+    "iterations": (0, 10000, "iterations the model's own teacher trains"),
+    "minutes": (0, 1440, "minutes the model's own teacher trains: a day at most"),
+    "mix": (0, 1, "the teacher's share of round k is mix ** k"),
+    "noise": (0, 2, "the spread of the student's exploring actions, which span [-1, 1]"),
+    "passes": (0.001, 100, "fit rows per new step"),
+    "batch_size": (1, 65536, "rows per fit step"),
+    "lr": (1e-08, 1, "the fit's learning rate"),
+    "max_steps": (1, 1000000, "steps in the data set; a million camera frames take 19 GB"),
+}
+
+
 def _validate_teacher(t: TeacherSettings, s: str) -> None:
-    _check(t.minutes >= 0 and t.noise >= 0 and t.iterations >= 0, s,
-           "teacher.iterations, teacher.minutes and teacher.noise must be >= 0")
-    _check(0 <= t.mix <= 1, s, f"teacher.mix must be in [0, 1] (the teacher's share of round k is mix ** k), "
-           f"got {t.mix:g}")
-    _check(t.passes > 0 and t.lr > 0, s, "teacher.passes and teacher.lr must be > 0")
-    _check(t.batch_size >= 1 and t.max_steps >= t.batch_size, s, "teacher.batch_size must be >= 1 and "
-           "teacher.max_steps at least teacher.batch_size")
+    for key, (low, high, meaning) in TEACHER_RANGES.items():
+        value = getattr(t, key)
+        _check(math.isfinite(value) and low <= value <= high, s,
+               f"teacher.{key} = {value!r} is outside its plausible range {low!r}..{high!r} ({meaning})")
+    _check(t.max_steps >= t.batch_size, s, "teacher.batch_size must be >= 1 and teacher.max_steps at least "
+           "teacher.batch_size")
     _check(t.precision in PRECISIONS, s, f"teacher.precision is {t.precision!r}; use one of {', '.join(PRECISIONS)}")
 
 

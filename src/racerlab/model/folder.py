@@ -56,6 +56,11 @@ class ModelFolder:
         return self.path / "checkpoints"
 
     @property
+    def dagger_dir(self) -> Path:
+        """A taught model's DAgger data set and fit, kept beside its checkpoints (racerlab.train.dagger_store)."""
+        return self.checkpoints_dir / "dagger"
+
+    @property
     def checkpoints_json(self) -> Path:
         return self.checkpoints_dir / "deepracer_checkpoints.json"
 

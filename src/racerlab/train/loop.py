@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from racerlab.errors import ConfigError, RacerlabError
-from racerlab.model import TrainingState, check_compatible, nonfinite_tensors, parse_model_metadata
+from racerlab.errors import ConfigError, ModelRefused, RacerlabError
+from racerlab.model import TrainingState
 from racerlab.train.evaluation import eval_metric, laptime_tie_ms, pick_best, run_greedy_episodes
 from racerlab.train.health import Health, RateSetting
 from racerlab.train.parts import RunParts, trainer_parts
@@ -71,6 +71,22 @@ class TrainResult:
     notes: list[str] = field(default_factory=list)  # what the run said besides the iteration lines
 
 
+MIN_LAP_MS = 1000.0  # no lap is under a second: a smaller "lap time" kept as the best was another rule's metric
+
+
+def best_rule_of(ck: TrainingState, now: str) -> str | None:
+    """The best_model_metric that picked the checkpoint's best (None: not known, taken as `now`'s). Checkpoints
+    before it was recorded tell it apart only where the units do: a lap-time floor is the laptime rule's, and a
+    best under a second is no lap time."""
+    if ck.best_rule:
+        return ck.best_rule
+    if ck.best_floor is not None:
+        return "laptime"
+    if now == "laptime" and ck.best_metric is not None and ck.best_metric < MIN_LAP_MS:
+        return "progress or reward"
+    return None
+
+
 class AgentLearner:
     """The default learner (`train.seams.Learner`): the agent itself, PPO's update or SAC's replay memory, its rate
     hyperparameters.json's lr."""
@@ -90,6 +106,12 @@ class AgentLearner:
 
     def load_state_dict(self, state: dict) -> None:
         self.agent.load_state_dict(state)
+
+    def keep(self, iteration: int) -> None:
+        """Nothing: the agent's whole state (replay memory aside) is in the checkpoint."""
+
+    def resume(self, iteration: int) -> None:
+        """Nothing: the checkpoint's agent state is loaded by the trainer."""
 
     @property
     def lr(self) -> float:
@@ -168,6 +190,7 @@ class Trainer:
     # ---- checkpoints -------------------------------------------------------------------------
     def _checkpoint_state(self) -> TrainingState:
         return replace(self.state, agent=self.agent.state_dict(), metadata=self.metadata.to_json(),
+                       best_rule=self.cfg.evaluation.best_model_metric,
                        hyperparameters=self.hp.to_json(), observation=self.eval_world.observation.name,
                        rollbacks=self.health.rollbacks, collection=self.collector.state(), saved_at=time.time())
 
@@ -176,22 +199,34 @@ class Trainer:
         if not cps:
             info = self.folder.save_state(self._checkpoint_state())
             self.folder.update_index(info, float("nan"), None, None)
+            self.learner.resume(0)  # what a learner kept for checkpoints removed since is dropped
             self.health.last_good = self.learner.state_dict()
             return False
         info, ck = self._newest_readable(cps)
-        check_compatible(parse_model_metadata(ck.metadata, f"{info.name} (checkpoint)"), self.metadata,
-                         str(self.folder.metadata_path))
         self._check_observation(ck, info)
         self.agent.load_state_dict(ck.agent)
         self._apply_edits(ck, info)
         self.state = replace(ck, agent={}, cloned=False,
                              train_steps=info.steps if ck.train_steps is None else ck.train_steps)
         self.health.rollbacks = ck.rollbacks
+        self._follow_best_rule(ck)
         self.collector.restore(ck.collection)
         self.folder.drop_after(ck.iteration)
         self.logs.truncate(ck.iteration, ck.episodes)
+        self.learner.resume(ck.iteration)
         self.health.last_good = self.learner.state_dict()
         return not ck.cloned
+
+    def _follow_best_rule(self, ck: TrainingState) -> None:
+        """A best_model_metric changed since the checkpoint: the best metric kept (and the laptime rule's fastest
+        lap) were the old rule's, in its own unit (a progress of 100.0 read as a lap time of 0.1 s froze the best
+        checkpoint), so the new rule starts afresh at the next evaluation; until then the best checkpoint stays."""
+        now, was = self.cfg.evaluation.best_model_metric, best_rule_of(ck, self.cfg.evaluation.best_model_metric)
+        if was is None or was == now:
+            return
+        self.state.best_metric = self.state.best_floor = None
+        self.note(f"{self.cfg.source}: evaluation.best_model_metric is {now}, and the best checkpoint so far "
+                  f"({ck.best_name}) was picked by {was}: the next evaluation starts the pick by {now}")
 
     def _check_observation(self, ck: TrainingState, info):
         trained, now = ck.observation, self.eval_world.observation.name
@@ -219,18 +254,15 @@ class Trainer:
         self.progress.note(text)
 
     def _newest_readable(self, cps):
-        """The newest checkpoint that loads; a damaged newer file is reported and skipped."""
+        """The newest checkpoint the door lets through (`ModelFolder.open`); a newer one that cannot be read or holds
+        non-finite weights is reported and skipped for an older one, one trained with other metadata stops the run."""
         for info in reversed(cps):
             try:
-                ck = self.folder.load_state(info)
-            except RacerlabError as exc:
-                self.note(f"skipping {info.name}: {exc}")
-                continue
-            bad = nonfinite_tensors(ck.agent)
-            if not bad:
-                return info, ck
-            self.note(f"skipping {self.folder.checkpoint_path(info)}: non-finite weights ({bad[0]}"
-                       f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}); resuming from an older checkpoint")
+                return info, self.folder.open(info).state
+            except ModelRefused as exc:
+                if exc.reason not in (ModelRefused.UNREADABLE, ModelRefused.NONFINITE):
+                    raise
+                self.note(f"skipping {exc.path}: {exc.problem}; resuming from an older checkpoint")
         raise RacerlabError(f"{self.folder.checkpoints_dir}: no readable checkpoint with finite weights; remove the "
                             "folder's checkpoints/ to start over")
 
@@ -299,6 +331,7 @@ class Trainer:
         value = self._record_best(evals, s.info, t_start)
         self.logs.write_iteration(s.iteration, ro, evals, s.episodes - len(ro.episodes))
         state = self._checkpoint_state()
+        self.learner.keep(s.iteration)  # before the checkpoint: a checkpoint never lacks what its learner kept
         saved = self.folder.save_state(state)
         best = next((c for c in self.folder.checkpoints() if c.name == s.best_name), None)
         self.folder.update_index(saved, value, best, s.best_metric)

@@ -4,8 +4,8 @@ learner must offer.
 This machine's implementations are `train.worlds.LocalCollection` and `train.records.TrainingLogs`; the cluster's
 are `cluster.training.ClusterCollection` and `cluster.training.WorkerLogs`; a taught model's are
 `train.distill.PairedCollection` and `train.distill.DaggerLearner`. The default learner is the agent itself
-(`train.loop.AgentLearner`: PPO's update, SAC's replay memory). A test checks that each has every method with the
-signature given here.
+(`train.loop.AgentLearner`: PPO's update, SAC's replay memory, all of it in the checkpoint). A test checks that each
+has every method with the signature given here.
 """
 
 from __future__ import annotations
@@ -84,3 +84,11 @@ class Learner(Protocol):
 
     def load_state_dict(self, state: dict) -> None:
         """Go back to a `state_dict()` snapshot."""
+
+    def keep(self, iteration: int) -> None:
+        """Called with each iteration's checkpoint, before it is written: keep on disk what the learner needs beyond
+        the agent's weights (which the checkpoint holds) to resume; DAgger keeps its data set and its optimiser."""
+
+    def resume(self, iteration: int) -> None:
+        """Called when the run resumes from the checkpoint of `iteration` (0 for a fresh start): take back what
+        `keep` kept up to it and forget what it kept after it."""

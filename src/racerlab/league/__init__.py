@@ -1,0 +1,35 @@
+"""`racerlab league`: a race server for many racers that is fair, cheap and says why.
+
+    >>> from racerlab.league import League
+    >>> league, password = League.create("club")           # the store and its first admin (`league init`)
+    >>> admin = league.local_admin()
+    >>> league.create_race(admin, "may-cup", {"track": "reInvent2019_track", "laps": 3, "timing": "best_lap"})
+    >>> ana = league.accept_invite(league.invite(admin, "ana").code, "a long password")
+    >>> league.submit(ana, "may-cup", "ana-model.tar.gz").status        # 'queued'
+    >>> pool = start_workers("club", workers=2)            # evaluations in local processes
+    >>> league.standings(admin, "may-cup").rows
+
+Parts: `store` (database, migrations, the league folder), `tables` (the SQLAlchemy models), `people` (roles,
+passwords, invites, tokens, throttling), `rules` (a race's frozen rules and their hash), `races` (race options,
+times), `service` (`League`: the API the web pages and the command line call), `submissions` (its submission,
+result and standings calls), `convert` (uploads to safetensors in a locked-down child), `queue` (claims, leases,
+retries), `evaluation` (a stored model raced under the rules: a pure function), `worker` (local worker processes),
+`scoring` (timing methods, the leaderboard order), `audit` (the append-only log), `views` (what calls return).
+See docs/league.md.
+"""
+
+from racerlab.league.people import ROLES, Actor
+from racerlab.league.races import RaceOptions
+from racerlab.league.rules import Rules
+from racerlab.league.service import League
+from racerlab.league.store import LeagueError, Store
+
+__all__ = ["ROLES", "Actor", "League", "LeagueError", "RaceOptions", "Rules", "Store", "start_workers"]
+
+
+def start_workers(folder, url: str | None = None, workers: int = 1, **options):
+    """Start `workers` local evaluation processes on the league in `folder` (see `racerlab.league.worker.WorkerPool`);
+    call `.stop()` on the answer to end them."""
+    from racerlab.league.worker import WorkerPool
+
+    return WorkerPool(folder, url, workers, **options).start()
