@@ -66,9 +66,12 @@ def test_an_error_inside_a_worker_on_a_fresh_install_is_one_line(tmp_path):
     (model / "reward_function.py").write_text("def reward_function(params):\n    return params['no_such_key']\n")
     out = _racerlab(["train", "m", "--workers", "2", "--iterations", "1"], tmp_path, home)
     assert out.returncode == 2, out.stdout[-2000:] + out.stderr[-3000:]
-    err = out.stderr.strip().splitlines()[-1]
-    assert err.startswith("racerlab: error: ") and "reward_function.py:2" in err and "KeyError" in err
-    assert "Traceback" not in out.stderr
+    # the error line, then (as every reward error) the params the reward was called with on the line below
+    lines = out.stderr.strip().splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("racerlab: error: "))
+    assert "reward_function.py:2" in lines[at] and "KeyError" in lines[at], lines[at:]
+    assert len(lines) - at <= 2 and (at + 1 == len(lines) or lines[at + 1].startswith("  params: ")), lines[at:]
+    assert "Traceback" not in out.stderr and "ray" not in lines[at].lower()
 
 
 def _descendants(pid: int) -> set[int]:

@@ -21,8 +21,7 @@ from racerlab.agent.ppo import PPO
 from racerlab.agent.sac import SAC
 from racerlab.errors import ModelRefused
 from racerlab.model import Hyperparameters, ModelMetadata
-
-WEIGHTS_ONLY_KEY = "weights_only"  # marks an agent state that holds the networks' weights alone (inference_policy)
+from racerlab.model.checkpoint import WEIGHTS_ONLY_KEY
 
 
 @dataclass(frozen=True, eq=False)

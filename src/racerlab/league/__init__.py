@@ -18,13 +18,20 @@ retries), `evaluation` (a stored model raced under the rules: a pure function), 
 See docs/league.md.
 """
 
-from racerlab.league.people import ROLES, Actor
-from racerlab.league.races import RaceOptions
-from racerlab.league.rules import Rules
-from racerlab.league.service import League
-from racerlab.league.store import LeagueError, Store
+import importlib
+
+# each name from the module that holds it, on first use: `racerlab --help` and `racerlab league race create` read
+# the rules' choices (`league.rules`) without importing the service and, through it, the simulator and torch
+_WHERE = {"ROLES": "people", "Actor": "people", "RaceOptions": "races", "Rules": "rules", "League": "service",
+          "LeagueError": "store", "Store": "store"}
 
 __all__ = ["ROLES", "Actor", "League", "LeagueError", "RaceOptions", "Rules", "Store", "start_workers"]
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'racerlab.league' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"racerlab.league.{_WHERE[name]}"), name)
 
 
 def start_workers(folder, url: str | None = None, workers: int = 1, **options):

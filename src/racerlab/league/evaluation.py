@@ -49,8 +49,8 @@ def open_stored(model_dir: Path):
     from safetensors. It went through the door (`ModelFolder.open`) when the submission was converted."""
     from safetensors.torch import load_file
 
-    from racerlab.agent.build import WEIGHTS_ONLY_KEY
     from racerlab.model import CheckpointInfo, ModelFolder, OpenModel, TrainingState
+    from racerlab.model.checkpoint import WEIGHTS_ONLY_KEY
 
     folder = ModelFolder(model_dir)
     meta = folder.metadata()

@@ -19,6 +19,9 @@ from racerlab.errors import ModelRefused
 
 CHECKPOINT_FORMAT = "racerlab.checkpoint/1"
 CHECKPOINT_RE = re.compile(r"^(\d+)_Step-(\d+)\.pt$")
+# in an agent state, marks one that holds the networks' weights alone (a race server's stored model): a reader of
+# greedy actions takes the rest from a freshly built agent (`racerlab.agent.inference_policy`)
+WEIGHTS_ONLY_KEY = "weights_only"
 
 
 @dataclass(frozen=True)
