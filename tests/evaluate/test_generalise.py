@@ -67,6 +67,11 @@ def test_share_of_tracks_lapped_and_the_drop_under_randomisation(tmp_path, monke
     out = res.to_json()
     assert out["share_completed"] == 1.0 and out["drop_under_randomisation"] == 1.0
     assert "a drop of 100%" in res.report()
+    # the picture: one panel per track, the path of the lap drawn (a lap of Oval_track ends where it started)
+    oval = res.tracks[0].path
+    assert len(oval) == round(res.tracks[0].best_lap_time * 15) and np.hypot(*(oval[-1] - oval[0])) < 0.2
+    picture = generalise.save_picture(res, tmp_path / "pic" / "tracks.png", randomised=True)
+    assert picture.stat().st_size > 10_000
 
 
 def test_cli_generalisation_writes_json_and_refuses_an_empty_randomise_table(tmp_path, track_dir, capsys):
@@ -74,10 +79,12 @@ def test_cli_generalisation_writes_json_and_refuses_an_empty_randomise_table(tmp
     write_checkpoint(folder)
     out = tmp_path / "gen.json"
     assert main(["evaluate", str(folder.path), "--tracks-from", str(track_dir), "--count", "2", "--trials", "1",
-                 "--json", str(out)]) == 0
+                 "--json", str(out), "--no-limits"]) == 0
     data = json.loads(out.read_text())
     assert data["tracks"] == 2 and 0.0 <= data["share_completed"] <= 1.0 and data["randomised_share_completed"] is None
+    assert all(row["limit"] is None for row in data["per_track"])
     assert "laps completed on" in capsys.readouterr().out
+    assert (folder.path / "generalisation" / "tracks.png").is_file()
     assert main(["evaluate", str(folder.path), "--tracks-from", str(track_dir), "--randomise"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "[randomise] sets no option" in err[0]
@@ -106,3 +113,32 @@ def test_race_under_the_models_randomise_table_says_so(tmp_path, capsys):
     assert "randomised (latency_steps 1)" in capsys.readouterr().out
     summary = json.loads(next(folder.path.glob("evaluation-*/summary.json")).read_text())
     assert summary["randomise"] == {"latency_steps": 1}
+
+
+def test_each_track_reports_its_mean_lap_over_its_limit():
+    a = generalise.TrackOutcome("a", 2, 3, 100.0, 6.0, [6.0, 6.6], limit=5.0)
+    b = generalise.TrackOutcome("b", 0, 3, 54.0, None, [], limit=7.0)
+    assert a.mean_lap_time == pytest.approx(6.3) and a.ratio == pytest.approx(1.26) and b.ratio is None
+    res = generalise.TracksResult("m", "best", [a, b])
+    assert res.mean_ratio(res.tracks) == pytest.approx(1.26)  # over the tracks lapped
+    text = res.report()
+    assert "mean lap 1.260x the limit" in text and "1.260x" in text.splitlines()[2] and "54 %" in text
+    assert res.to_json()["per_track"][0]["ratio_to_limit"] == 1.26
+
+
+def test_a_limit_is_the_models_cars_within_its_actions_and_solved_once(tmp_path, monkeypatch, aws_track):
+    from racerlab import line
+    from racerlab.model.metadata import ContinuousActions
+    from racerlab.spec import car_params
+
+    monkeypatch.setenv("RACERLAB_CACHE_DIR", str(tmp_path))
+    oval = aws_track("Oval_track")
+    car = car_params("droa", "5")
+    fast = generalise.model_limit(car, ContinuousActions(-30, 30, 1.0, 4.0))(oval)
+    slow = generalise.model_limit(car, ContinuousActions(-30, 30, 0.5, 2.0))(oval)
+    assert fast == pytest.approx(line.theoretical_limit(oval, car=car).lap_time)
+    # a lap goes round the oval's convex inner border (17.63 m) no more than 0.231 m inside it (the off-track
+    # rule): at least 17.63 - 2 pi 0.231 = 16.1 m, at 2 m/s x 1.0135 (the wheels' ground factor) 7.9 s or more
+    assert slow > fast and slow >= 16.1 / (2.0 * 1.0135)
+    monkeypatch.setattr(line, "theoretical_limit", lambda *a, **k: pytest.fail("solved again"))
+    assert generalise.model_limit(car, ContinuousActions(-30, 30, 1.0, 4.0))(oval) == fast  # from the cache

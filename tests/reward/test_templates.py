@@ -152,3 +152,29 @@ def test_init_takes_the_racers_line_margin_and_refuses_one_past_the_off_track_ru
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--line-margin 0.1: only --reward racing_line follows a line" in err[0]
     assert not (tmp_path / "c").exists()
+
+
+def _pace_params(waypoints, prev, heading_deg, speed, offset, left, offtrack=False):
+    return {"waypoints": waypoints, "closest_waypoints": [prev, prev + 1], "heading": heading_deg, "speed": speed,
+            "distance_from_center": offset, "is_left_of_center": left, "is_offtrack": offtrack}
+
+
+def test_pace_pays_ground_gained_along_any_track():
+    fn = _load(reward_source("pace"))
+    straight = [(float(x), 0.0) for x in range(10)]
+    # 2 m/s straight along the track: half the 4 m/s unit; 60 degrees off: cos 60 = 0.5 of it; off track: the floor
+    assert fn(_pace_params(straight, 3, 0.0, 2.0, 0.0, True)) == pytest.approx(0.5)
+    assert fn(_pace_params(straight, 3, 60.0, 2.0, 0.3, False)) == pytest.approx(0.25)
+    assert fn(_pace_params(straight, 3, 0.0, 4.0, 0.0, True, offtrack=True)) == 1e-3
+    assert fn(_pace_params(straight, 3, 180.0, 2.0, 0.0, True)) == 1e-3  # driving backwards earns nothing
+    # a left-hand circle of radius 2 m (its closing point repeats the first): 0.5 m inside, the centre line's progress
+    # grows 1 / (1 - 0.5 / 2) = 4/3 as fast as the speed; 0.5 m outside 1 / 1.25 = 0.8 as fast
+    u = np.linspace(0, 2 * np.pi, 73)
+    circle = [(2 * math.cos(a), 2 * math.sin(a)) for a in u]
+    def along(k):  # the direction of segment k -> k + 1, degrees
+        return math.degrees(u[k] + np.pi / 2 + np.pi / 72)
+
+    assert fn(_pace_params(circle, 10, along(10), 3.0, 0.5, True)) == pytest.approx(0.75 * 4 / 3, rel=2e-3)
+    assert fn(_pace_params(circle, 10, along(10), 3.0, 0.5, False)) == pytest.approx(0.75 * 0.8, rel=2e-3)
+    # the loop's last segment: the point after it is the second (the closing point repeats the first)
+    assert fn(_pace_params(circle, 71, along(71), 3.0, 0.5, True)) == pytest.approx(0.75 * 4 / 3, rel=2e-3)

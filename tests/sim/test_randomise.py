@@ -53,6 +53,23 @@ def test_latency_restarts_with_each_episode():
     assert _applied(w)[0][0] == pytest.approx(-0.2 * 30.0)
 
 
+def test_a_varying_latency_is_drawn_per_episode_from_none_to_the_most():
+    n = 600
+    w = _world(cars=n, latency_steps=2, latency_varies=True)
+    commands = [0.1, 0.2, 0.3, 0.4]
+    for a in commands:
+        w.step(np.tile([a, 0.0], (n, 1)))
+    # step t (0: the prepare step) applies the command of step t - delay, 0.1 (t - delay + 1) x 30 degrees: at step 3
+    # 12, 9 or 6 degrees, about a third each
+    delays = np.rint(4 - _applied(w)[0] / 3.0).astype(int)
+    assert set(delays) == {0, 1, 2} and all(abs(np.mean(delays == k) - 1 / 3) < 0.07 for k in range(3))
+    steady = delays.copy()
+    w.step(np.tile([0.5, 0.0], (n, 1)))  # the same delay for the rest of the episode
+    assert np.array_equal(np.rint(5 - _applied(w)[0] / 3.0).astype(int), steady)
+    with pytest.raises(ConfigError, match="latency_varies draws each episode's latency from 0 to latency_steps"):
+        parse_training_config({"randomise": {"latency_varies": True}}, "m/training.toml")
+
+
 def test_without_latency_the_action_is_applied_at_once():
     w = _world(top_speed=2.0)  # active (the actuation runs) but the same as the action space: no change
     w.step(np.array([[0.1, 0.0]]))

@@ -105,6 +105,12 @@ def register(sub) -> None:
                         "never trained on and print the share it completes")
     p.add_argument("--count", type=int, default=20, help="tracks taken from --tracks-from (default 20)")
     p.add_argument("--json", type=Path, metavar="FILE", help="with --tracks-from: also write the result as JSON")
+    p.add_argument("--picture", type=Path, metavar="FILE",
+                   help="with --tracks-from: the picture of the tracks lapped and missed (default "
+                        "MODEL/generalisation/tracks.png; under --randomise also tracks_randomised.png beside it)")
+    p.add_argument("--no-limits", action="store_true",
+                   help="with --tracks-from: leave out each track's theoretical limit (solved once per track and "
+                        "car, 2-12 s each, then cached) and the laps' ratio to it")
     p.add_argument("--randomise", action="store_true",
                    help="drive under the [randomise] settings of the model's training.toml; with --tracks-from "
                         "the tracks are driven with and without it and the drop in lap completion is printed")
@@ -170,7 +176,7 @@ def _settings(args):
 
 
 def run_generalisation(args) -> int:
-    from racerlab.evaluate.generalise import evaluate_tracks, held_out_tracks
+    from racerlab.evaluate.generalise import evaluate_tracks, held_out_tracks, save_picture
     from racerlab.logs import atomic_write_json, finite_json
     from racerlab.model import ModelFolder
 
@@ -183,11 +189,17 @@ def run_generalisation(args) -> int:
               f"{outcome.best_progress:.0f} %", file=sys.stderr, flush=True)
 
     res = evaluate_tracks(args.model, paths, trials=args.trials, checkpoint=args.checkpoint, device=args.device,
-                          plain=plain, randomise=randomised, on_track=done)
+                          plain=plain, randomise=randomised, on_track=done, limits=not args.no_limits)
     print(res.report())
+    picture = args.picture or Path(args.model) / "generalisation" / "tracks.png"
+    written = [save_picture(res, picture)]
+    if randomised is not None:
+        written.append(save_picture(res, picture.with_name(f"{picture.stem}_randomised{picture.suffix}"),
+                                    randomised=True))
     if args.json:
         atomic_write_json(args.json, finite_json(res.to_json()), indent=2)
-        print(f"written to {args.json}")
+        written.append(args.json)
+    print(f"written to {', '.join(str(p) for p in written)}")
     return 0
 
 

@@ -45,7 +45,15 @@ def register(sub) -> None:
                         "example)")
     p.add_argument("--preset", choices=list(PRESETS),
                    help="training preset: generalise (8 generated tracks, new ones every 5 iterations; a lidar "
-                        "model sees the borders as walls)")
+                        "model sees the borders as walls; with --tracks-from the tracks of a folder instead, the "
+                        "pace reward and, for a camera model, a longer teacher and randomised training)")
+    p.add_argument("--tracks-from", type=Path, metavar="DIR",
+                   help="with --preset generalise: train on every track layout of DIR (AWS .npy files, e.g. from "
+                        "`racerlab tracks fetch --all`) except --held-out ones, which training.toml's header names")
+    p.add_argument("--held-out", type=int, default=20, metavar="N",
+                   help="with --tracks-from: layouts kept out of training, for `racerlab evaluate --tracks-from` "
+                        "(default 20)")
+    p.add_argument("--held-out-seed", type=int, default=0, help="with --tracks-from: which layouts are held out")
     p.add_argument("--no-teacher", action="store_true",
                    help="a camera model learns by PPO alone (default: it first trains a features teacher in its "
                         "folder and learns the teacher's actions, near the limit in minutes on a CPU)")
@@ -87,14 +95,16 @@ def run_init(args) -> int:
     folder = init_model(args.model, track=args.track, sensor=args.sensor, action_space=args.action_space,
                         algorithm=args.algorithm, max_speed=args.max_speed, num_cars=args.cars,
                         best_model_metric=args.best_model_metric, force=args.force, race=args.race,
-                        preset=args.preset, teacher=not args.no_teacher)
+                        preset=args.preset, teacher=not args.no_teacher, tracks_from=args.tracks_from,
+                        held_out=args.held_out, held_out_seed=args.held_out_seed)
     try:
         write_template(folder, args.reward, args.line_margin)
     except RacerlabError as exc:  # the line cannot be drawn: no half-made folder is left to trip the next init
         if new:
             shutil.rmtree(folder.path, ignore_errors=True)
         raise RacerlabError(str(exc).replace("(--margin)", "(--line-margin)")) from None
-    print(f"created {folder.path}: reward_function.py ({args.reward}), model_metadata.json, hyperparameters.json, "
+    reward = "pace" if args.tracks_from is not None and args.reward == "example" else args.reward
+    print(f"created {folder.path}: reward_function.py ({reward}), model_metadata.json, hyperparameters.json, "
           "training.toml")
     print(speed_note(args.max_speed))
     if args.sensor == "features":

@@ -40,6 +40,27 @@ class TrackSettings:
     generated_min_width: float = 0.76
     generated_max_width: float = 1.07
     generated_min_radius: float = 0.5
+    # named tracks a few at a time: with at_once = K > 0 and more names than K, the training cars drive K of the
+    # names at once (draw d: names[(d K + j) mod N], j < K, every name in turn), the next K every regenerate_every
+    # iterations; worlds of camera models cost memory and seconds to build (a camera world's raster ~170 MB, ~5 s)
+    at_once: int = 0
+
+    @property
+    def rotates(self) -> bool:
+        """True when the named tracks are driven `at_once` at a time (fewer than there are names)."""
+        return not self.generated and 0 < self.at_once < len(self.names)
+
+    @property
+    def driven(self) -> int:
+        """How many named tracks the training cars drive at once."""
+        return self.at_once if self.rotates else len(self.names)
+
+    def names_of_draw(self, draw: int) -> tuple[str, ...]:
+        """The named tracks of draw `draw`: all of them, or K = `at_once` in turn (names[(draw K + j) mod N])."""
+        if not self.rotates:
+            return self.names
+        n, k = len(self.names), self.at_once
+        return tuple(self.names[(draw * k + j) % n] for j in range(k))
 
 
 @dataclass(frozen=True)
@@ -98,6 +119,7 @@ class RandomiseSettings:
     pose_shift_m: float = 0.0  # sideways camera offset drawn from [-d, d] metres per episode
     lidar_noise_m: float = 0.0  # extra Gaussian noise on every lidar range, metres, fresh every scan
     latency_steps: int = 0  # the action chosen at step t is applied at step t + latency_steps (0, 1 or 2)
+    latency_varies: bool = False  # each episode draws its latency from 0..latency_steps instead (uniform)
     steering_gain: float = 0.0  # steering multiplied by a gain drawn from [1 - g, 1 + g] per episode
     throttle_gain: float = 0.0  # speed multiplied by a gain drawn from [1 - g, 1 + g] per episode
     speed_scale: float = 1.0  # the car's max-speed setting: applied speed = speed / action top x top_speed x scale
@@ -328,8 +350,8 @@ def _validate(c: TrainingConfig) -> None:
     _check(0 <= c.track.round_robin_advance < 1, s, "track.round_robin_advance must be in [0, 1)")
     _check(0 <= c.track.start_offset < 1, s, "track.start_offset must be in [0, 1)")
     _check(c.run.num_cars >= 1, s, "run.num_cars must be >= 1")
-    _check(c.run.num_cars >= max(len(c.track.names), c.track.generated), s,
-           "run.num_cars must be at least the number of tracks")
+    _check(c.run.num_cars >= max(c.track.driven, c.track.generated), s,
+           "run.num_cars must be at least the number of tracks driven at once (track.names, or track.at_once)")
     _validate_generated(c.track, s)
     _validate_randomise(c.randomise, s)
     _validate_teacher(c.teacher, s)
@@ -359,6 +381,7 @@ def _validate(c: TrainingConfig) -> None:
 
 def _validate_generated(t: TrackSettings, s: str) -> None:
     _check(t.generated >= 0 and t.regenerate_every >= 0, s, "track.generated and track.regenerate_every must be >= 0")
+    _check(t.at_once >= 0, s, "track.at_once must be >= 0 (0 = every named track at once)")
     _check(0 < t.generated_min_length <= t.generated_max_length <= 200, s,
            "track.generated_min_length <= generated_max_length must be in (0, 200] m")
     _check(0.3 <= t.generated_min_width <= t.generated_max_width <= 2.0, s,
@@ -372,6 +395,8 @@ def _validate_randomise(r: RandomiseSettings, s: str) -> None:
     for name in ("exposure", "gamma", "steering_gain", "throttle_gain"):
         _check(0 <= getattr(r, name) < 1, s, f"randomise.{name} must be in [0, 1): a range around 1")
     _check(r.latency_steps in (0, 1, 2), s, "randomise.latency_steps must be 0, 1 or 2")
+    _check(r.latency_steps > 0 or not r.latency_varies, s, "randomise.latency_varies draws each episode's latency "
+           "from 0 to latency_steps: set latency_steps to 1 or 2, or remove latency_varies")
     _check(r.speed_scale > 0 and r.top_speed >= 0, s, "randomise.speed_scale must be > 0 and top_speed >= 0")
 
 

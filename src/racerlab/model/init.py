@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 from racerlab.errors import RacerlabError
 from racerlab.model.config import TrackSettings, TrainingConfig
@@ -52,6 +53,82 @@ PRESETS = {
 }
 
 
+# `--preset generalise --tracks-from DIR`: the generalist recipe (docs/learner.md, "A camera model for any
+# track"). The training set is every layout of DIR outside a held-out set; the reward follows no line.
+GENERALIST_REWARD = "pace"
+GENERALIST_TRACK = "reInvent2019_track"  # trained on and evaluated after each round, when DIR has it
+# a camera model's part: its features teacher drives every training track at once and trains longer; the camera
+# student drives `at_once` tracks at a time (a camera world's raster is ~170 MB and ~5 s to build), two cars each,
+# under randomised light, camera pose, exposure, noise and actuation
+GENERALIST_CAMERA = {
+    "teacher": {"minutes": 12.0, "iterations": 200},
+    "track": {"at_once": 14, "regenerate_every": 3},
+    "run": {"num_cars": 28},
+    "randomise": {"camera_noise": 4.0, "blur": 1.0, "exposure": 0.25, "gamma": 0.25, "lighting": True,
+                  "pose_yaw_deg": 2.0, "pose_pitch_deg": 2.0, "pose_shift_m": 0.02, "latency_steps": 1,
+                  "latency_varies": True, "steering_gain": 0.1, "throttle_gain": 0.1},
+}
+
+
+@dataclass(frozen=True)
+class TrainingSet:
+    """The tracks a generalist trains on and the ones held out from it, drawn from one folder (`training_set`)."""
+
+    folder: Path
+    names: tuple[str, ...]  # trained on; the first is the in-training evaluation's track
+    held_out: tuple[str, ...]  # never trained on: no file of their layouts is in `names`
+    seed: int
+
+    def header(self) -> str:
+        return (f"# training set: {len(self.names)} layouts of {self.folder}; held out (never trained on, seed "
+                f"{self.seed}): {', '.join(self.held_out)}\n")
+
+
+def training_set(folder, held_out: int = 20, seed: int = 0, track: str | None = None) -> TrainingSet:
+    """`held_out` layouts of `folder` drawn at random (seeded) and kept out, and one track of every other closed
+    layout to train on (`track.layouts`); `track` (default GENERALIST_TRACK where `folder` has it) is trained on,
+    first, and never held out."""
+    from racerlab import track as tracks
+    from racerlab.track.layouts import folder_layouts, held_out_tracks, layout_shape, same_layout, training_tracks
+
+    folder = Path(folder)
+    layouts = folder_layouts(folder)
+    first = track or (GENERALIST_TRACK if GENERALIST_TRACK in layouts else None)
+    held = held_out_tracks(folder, held_out, exclude=(first,) if first else (), seed=seed)
+    train = training_tracks(folder, held)
+    if first:
+        shape = layout_shape(tracks.load(str(layouts.get(first, first))))
+        train = [p for p in train if not same_layout(layout_shape(tracks.load(str(p))), shape)]
+        names = (_track_name(layouts.get(first, first)), *(_track_name(p) for p in train))
+    else:
+        names = tuple(_track_name(p) for p in train)
+    if not names:
+        raise RacerlabError(f"{folder}: all its {held_out} closed layouts held out, none left to train on; lower "
+                            "--held-out or add tracks")
+    return TrainingSet(folder, names, tuple(p.stem for p in held), seed)
+
+
+def _track_name(path) -> str:
+    """A track as training.toml names it: its name where that finds this very file, else its path."""
+    from racerlab.track.registry import catalogue
+
+    p = Path(path)
+    if p.suffix and p.is_file():
+        found = catalogue().get(p.stem)
+        return p.stem if found is not None and found.resolve() == p.resolve() else str(p.resolve())
+    return str(path)
+
+
+def apply_generalist(cfg: TrainingConfig, sensor: str, tset: TrainingSet) -> TrainingConfig:
+    """The generalist's training.toml: its training set, and for a camera model GENERALIST_CAMERA."""
+    cfg = replace(cfg, track=replace(cfg.track, names=tset.names, generated=0))
+    if sensor != "camera":
+        return replace(cfg, run=replace(cfg.run, num_cars=max(cfg.run.num_cars, len(tset.names))))
+    for section, values in GENERALIST_CAMERA.items():
+        cfg = replace(cfg, **{section: replace(getattr(cfg, section), **values)})
+    return cfg
+
+
 def apply_preset(cfg: TrainingConfig, preset: str | None, sensor: str) -> TrainingConfig:
     if not preset:
         return cfg
@@ -68,7 +145,14 @@ def apply_preset(cfg: TrainingConfig, preset: str | None, sensor: str) -> Traini
 def init_model(path, track: str | None = None, sensor: str = "features", action_space: str = "discrete",
                algorithm: str = "clipped_ppo", max_speed: float = 1.0, num_cars: int | None = None,
                best_model_metric: str | None = None, force: bool = False, race: str = "time_trial",
-               preset: str | None = None, teacher: bool = True) -> ModelFolder:
+               preset: str | None = None, teacher: bool = True, tracks_from=None, held_out: int = 20,
+               held_out_seed: int = 0) -> ModelFolder:
+    """A new model folder. With `preset="generalise"` and `tracks_from` (a folder of AWS tracks) the model trains on
+    every layout of that folder outside `held_out` ones drawn with `held_out_seed` (`training_set`; training.toml's
+    header names the held-out tracks), with the `pace` reward and, for a camera model, GENERALIST_CAMERA."""
+    if tracks_from is not None and preset != "generalise":
+        raise RacerlabError(f"--tracks-from {tracks_from}: a training set of many tracks goes with --preset "
+                            "generalise; add it, or give one track with --track")
     folder = ModelFolder(path)
     existing = [p for p in folder.model_files if p.exists()]
     if existing and not force:
@@ -93,20 +177,33 @@ def init_model(path, track: str | None = None, sensor: str = "features", action_
     if sensor == "camera" and algorithm == "clipped_ppo" and teacher:
         # learns a features teacher's actions first (racerlab.train.distill): near the limit in minutes, not hours
         cfg = replace(cfg, teacher=replace(cfg.teacher, model=OWN_TEACHER))
+    cfg = apply_preset(_with_race(cfg, race), preset, sensor)
+    reward, header = EXAMPLE_REWARDS[race].read_text(), _TOML_HEADER
+    if tracks_from is not None:
+        from racerlab.reward import reward_source
+
+        tset = training_set(tracks_from, held_out, held_out_seed, track)
+        cfg = apply_generalist(cfg, sensor, tset)
+        reward, header = reward_source(GENERALIST_REWARD), tset.header() + _TOML_HEADER
+        # an iteration starts one episode per car at most as many as it collects: every car drives in each
+        hp = hp.replace(num_episodes_between_training=max(hp.num_episodes_between_training, cfg.run.num_cars))
+    folder.write_reward(reward)
+    folder.write_metadata(meta)
+    folder.write_hyperparameters(hp)
+    folder.write_config(cfg, header)
+    return folder
+
+
+def _with_race(cfg: TrainingConfig, race: str) -> TrainingConfig:
     if race not in EXAMPLE_REWARDS:
         raise RacerlabError(f"race must be one of {', '.join(EXAMPLE_REWARDS)}, got {race!r}")
     if race == "object_avoidance":
-        cfg = replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
-    elif race == "head_to_bot":
-        cfg = replace(cfg, race=RaceConfig(type=race, number_of_bot_cars=HEAD_TO_BOT_CARS))
-    elif race == "head_to_model":  # self-play: the cars race in pairs, each the other's object
-        cfg = replace(cfg, race=RaceConfig(type=race))
-    cfg = apply_preset(cfg, preset, sensor)
-    folder.write_reward(EXAMPLE_REWARDS[race].read_text())
-    folder.write_metadata(meta)
-    folder.write_hyperparameters(hp)
-    folder.write_config(cfg, _TOML_HEADER)
-    return folder
+        return replace(cfg, race=RaceConfig(type=race, object_positions=OBJECT_AVOIDANCE_POSITIONS))
+    if race == "head_to_bot":
+        return replace(cfg, race=RaceConfig(type=race, number_of_bot_cars=HEAD_TO_BOT_CARS))
+    if race == "head_to_model":  # self-play: the cars race in pairs, each the other's object
+        return replace(cfg, race=RaceConfig(type=race))
+    return cfg
 
 
 _TOML_HEADER = """\

@@ -26,6 +26,7 @@ TEMPLATES = {
     "centre_line": DATA / "rewards" / "centre_line.py",
     "progress": DATA / "rewards" / "progress.py",
     "racing_line": DATA / "rewards" / "racing_line.py",
+    "pace": DATA / "rewards" / "pace.py",  # ground gained along any track per step: the generalist's teacher's
 }
 NEEDS_LINE = ("racing_line",)
 # The racing_line template's margin between the wheels and the borders, m. Negative: the wheels hang over the

@@ -5,10 +5,12 @@ two classes here apply them to a batch of cars, drawing from one seeded generato
 
 - `Actuation` (World.step): the car's speed mapping (speeds relative to the action space's top speed,
   scaled to `top_speed` × `speed_scale`), per-episode steering and throttle gains, and a delay of 0-2
-  steps between the action chosen and the action applied;
+  steps between the action chosen and the action applied (with `latency_varies`, each episode's own
+  delay drawn from 0 to `latency_steps`);
 - `RandomisedObservation` (World.observe): per-episode camera pose (yaw and sideways offset move the
-  rendered viewpoint; pitch shifts the image rows), blur, exposure and gamma, per-frame pixel noise, and
-  lidar range noise. `lighting` is the camera's own per-episode look (`camera:dr`, set by the World).
+  rendered viewpoint; pitch shifts the image rows), blur, exposure and gamma, per-frame pixel noise (each
+  frame a random cyclic shift of one of NOISE_FIELDS unit-noise fields drawn once), and lidar range noise.
+  `lighting` is the camera's own per-episode look (`camera:dr`, set by the World).
 
 A car's episode starts when its step counter is 0: that is when its per-episode values are drawn. With
 every option at its default the World builds neither, and the plain path runs unchanged.
@@ -19,7 +21,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
+from numba import njit
 
 from racerlab.model.config import RandomiseSettings
 from racerlab.sim import _kernels as K
@@ -56,6 +58,7 @@ class Actuation:
         self.speed_factor = top / action_top_speed * settings.speed_scale
         self.gain = np.ones((num_cars, 2))  # steering, throttle
         self.history = np.zeros((num_cars, settings.latency_steps + 1, 2))  # newest first
+        self.delay = np.full(num_cars, settings.latency_steps, dtype=np.int64)  # each car's latency, steps
 
     def __call__(self, steer: np.ndarray, speed: np.ndarray, steps: np.ndarray, active=None):
         """Applied (steering, speed) for the cars in `active` (all by default); `steps` is each car's step
@@ -66,12 +69,14 @@ class Actuation:
         if fresh.size:
             self.gain[fresh, 0] = _gains(self.rng, fresh.size, self.s.steering_gain)
             self.gain[fresh, 1] = _gains(self.rng, fresh.size, self.s.throttle_gain)
+            if self.s.latency_varies:
+                self.delay[fresh] = self.rng.integers(0, self.s.latency_steps + 1, size=fresh.size)
             self.history[fresh] = cmd[np.searchsorted(idx, fresh)][:, None, :]
         hist = self.history[idx]
         hist[:, 1:] = hist[:, :-1]
         hist[:, 0] = cmd
         self.history[idx] = hist
-        applied = hist[:, -1] * self.gain[idx]
+        applied = hist[np.arange(idx.size), self.delay[idx]] * self.gain[idx]
         out_steer, out_speed = steer.copy(), speed.copy()
         out_steer[idx], out_speed[idx] = applied[:, 0], applied[:, 1]
         return out_steer, out_speed
@@ -98,6 +103,7 @@ class RandomisedObservation:
             for cam in self.cameras:
                 cam.pose_offset = self.pose
         self.image = any(getattr(settings, k) for k in IMAGE_OPTIONS)
+        self.fields = None  # unit-noise fields of this observation's camera frames (`perturb_images`)
 
     @property
     def space(self):
@@ -130,8 +136,10 @@ class RandomisedObservation:
     def _perturb(self, key, value: np.ndarray, idx: np.ndarray) -> None:
         base = (key or "").split(":")[0]
         if base in CAMERA_KEYS and self.image:
+            if self.s.camera_noise and self.fields is None:
+                self.fields = self.rng.standard_normal((NOISE_FIELDS, *value.shape[1:]), dtype=np.float32)
             value[idx] = perturb_images(value[idx], self.sigma[idx], self.gain[idx], self.gamma[idx],
-                                        self.row_shift[idx], self.s.camera_noise, self.rng)
+                                        self.row_shift[idx], self.s.camera_noise, self.rng, self.fields)
         elif base == "lidar" and self.s.lidar_noise_m:
             # the 64-ray lidar's ranges; the sector lidars' readings are thresholds of them, left alone
             space = self.inner.space[key] if hasattr(self.inner.space, "spaces") else self.inner.space
@@ -150,27 +158,102 @@ def _focal_px() -> float:
     return (IMAGE_W / 2) / math.tan(CAMERA_HFOV_RAD / 2)
 
 
-def perturb_images(frames: np.ndarray, sigma, gain, gamma, row_shift, noise: float, rng) -> np.ndarray:
+NOISE_FIELDS = 16  # per-pixel noise comes from this many fields of unit noise, drawn once per observation
+
+
+def perturb_images(frames: np.ndarray, sigma, gain, gamma, row_shift, noise: float, rng,
+                   fields: np.ndarray | None = None) -> np.ndarray:
     """(B, H, W, C) uint8 frames → perturbed copy: rows shifted (pitch), Gaussian blur of `sigma` pixels,
-    v → 255·(gain·v/255)^gamma, then Gaussian noise of `noise` grey levels; rounded and clipped to uint8."""
-    out = frames.astype(np.float32)
-    for i in range(out.shape[0]):
-        img = out[i]
-        if row_shift[i]:
-            img = _shift_rows(img, int(row_shift[i]))
-        if sigma[i] > 0:
-            img = gaussian_filter1d(gaussian_filter1d(img, sigma[i], axis=0, mode="nearest"), sigma[i], axis=1,
-                                    mode="nearest")
-        if gain[i] != 1 or gamma[i] != 1:
-            img = 255.0 * np.clip(gain[i] * img / 255.0, 0.0, 1.0) ** gamma[i]
-        out[i] = img
+    v → 255·(gain·v/255)^gamma, then Gaussian noise of `noise` grey levels; rounded and clipped to uint8.
+
+    One compiled pass per frame (`_perturb`): the blur is scipy's (`gaussian_filter1d`, truncated at 4 sigma,
+    edges repeated), the tone curve a 257-entry table read with linear interpolation (exact at whole greys), the
+    noise each frame's own cyclic shift of one of `fields` (unit-noise fields, (F, H, W, C) float32; NOISE_FIELDS
+    drawn from `rng` when None). On a busy 2-core machine this took 0.13 ms a frame where NumPy and scipy per
+    image took 1.8 ms."""
+    frames = np.ascontiguousarray(frames)
+    b, h, w, c = frames.shape
+    sigma, gain, gamma = (np.broadcast_to(np.asarray(x, dtype=np.float64), (b,)) for x in (sigma, gain, gamma))
+    shift = np.broadcast_to(np.asarray(row_shift, dtype=np.int64), (b,))
+    radius = max(int(4.0 * float(sigma.max()) + 0.5), 0) if b else 0
+    weights = np.zeros((b, 2 * radius + 1))
+    for i in range(b):
+        weights[i] = _gaussian_weights(float(sigma[i]), radius)
+    grey = np.arange(257, dtype=np.float64)
+    tone = 255.0 * np.clip(gain[:, None] * np.minimum(grey, 255.0)[None, :] / 255.0, 0.0, 1.0) ** gamma[:, None]
+    if noise and fields is None:
+        fields = rng.standard_normal((NOISE_FIELDS, h, w, c), dtype=np.float32)
     if noise:
-        out += rng.normal(0.0, noise, out.shape).astype(np.float32)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+        pick = rng.integers(0, len(fields), size=b)
+        offset = np.stack([rng.integers(0, h, size=b), rng.integers(0, w, size=b)], axis=1)
+    else:
+        fields, pick, offset = np.zeros((1, 1, 1, 1), np.float32), np.zeros(b, np.int64), np.zeros((b, 2), np.int64)
+    out = np.empty_like(frames)
+    _perturb(frames, shift, weights, np.ascontiguousarray(sigma), tone, float(noise), fields, pick, offset, out)
+    return out
 
 
-def _shift_rows(img: np.ndarray, k: int) -> np.ndarray:
-    """Rows moved up by k (down for k < 0); the rows uncovered repeat the edge row."""
-    h = img.shape[0]
-    src = np.clip(np.arange(h) + k, 0, h - 1)
-    return img[src]
+def _gaussian_weights(sigma: float, radius: int) -> np.ndarray:
+    """scipy's 1-D Gaussian kernel of `sigma` (truncated at 4 sigma), centred in 2 * radius + 1 taps."""
+    out = np.zeros(2 * radius + 1)
+    if sigma <= 0:
+        out[radius] = 1.0
+        return out
+    r = int(4.0 * sigma + 0.5)
+    x = np.arange(-r, r + 1)
+    k = np.exp(-0.5 * (x / sigma) ** 2)
+    out[radius - r:radius + r + 1] = k / k.sum()
+    return out
+
+
+@njit(cache=True)
+def _perturb(frames, shift, weights, sigma, tone, noise, fields, pick, offset, out):  # pragma: no cover - compiled
+    b, h, w, c = frames.shape
+    rows = np.empty((h, w), np.float64)
+    cols = np.empty((h, w), np.float64)
+    for i in range(b):
+        for ch in range(c):
+            for y in range(h):
+                src = min(max(y + shift[i], 0), h - 1)
+                for x in range(w):
+                    rows[y, x] = frames[i, src, x, ch]
+            if sigma[i] > 0.0:
+                _blur(rows, cols, weights[i], int(4.0 * sigma[i] + 0.5))
+            _tone(rows, tone[i], noise, fields[pick[i], :, :, ch], offset[i, 0], offset[i, 1], out[i, :, :, ch])
+
+
+@njit(cache=True, fastmath=True)
+def _blur(img, tmp, weights, r):  # pragma: no cover - compiled
+    """`img` blurred in place by the `weights` within r taps of their centre, down the columns (into `tmp`) and
+    then along the rows; edges repeated."""
+    h, w = img.shape
+    c = (weights.shape[0] - 1) // 2
+    for y in range(h):
+        for x in range(w):
+            acc = 0.0
+            for k in range(-r, r + 1):
+                acc += weights[c + k] * img[min(max(y + k, 0), h - 1), x]
+            tmp[y, x] = acc
+    for y in range(h):
+        for x in range(w):
+            acc = 0.0
+            for k in range(-r, r + 1):
+                acc += weights[c + k] * tmp[y, min(max(x + k, 0), w - 1)]
+            img[y, x] = acc
+
+
+@njit(cache=True)
+def _tone(img, tone, noise, field, dy, dx, out):  # pragma: no cover - compiled
+    """The tone table read at each grey (linear between whole greys), the noise field added from (dy, dx) on,
+    rounded and clipped into `out`."""
+    h, w = img.shape
+    for y in range(h):
+        fy = y + dy - h if y + dy >= h else y + dy
+        for x in range(w):
+            v = min(max(img[y, x], 0.0), 255.0)
+            j = min(int(v), 255)
+            t = tone[j] + (v - j) * (tone[j + 1] - tone[j])
+            if noise > 0.0:
+                fx = x + dx - w if x + dx >= w else x + dx
+                t += noise * field[fy, fx]
+            out[y, x] = min(max(int(np.rint(t)), 0), 255)

@@ -329,16 +329,22 @@ def _teacher_header(model: ModelFolder) -> str:
 
 
 def create_teacher(model: ModelFolder, cfg, path: Path) -> ModelFolder:
-    """A features model beside the student: the same actions, track, car, start rules and reward, AWS-default
-    hyperparameters, the best checkpoint picked by lap time, no teacher and no randomisation of its own."""
+    """A features model beside the student: the same actions, tracks (all of them at once), car, start rules and
+    reward, AWS-default hyperparameters with an episode per car in each iteration, the best checkpoint picked by lap
+    time, no teacher and no randomisation of its own."""
     teacher = ModelFolder(path)
     meta = model.metadata()
     teacher.write_metadata(replace(meta, sensor=("FEATURES",), neural_network="MLP", training_algorithm="clipped_ppo",
                                    lidar_config={}))
-    teacher.write_hyperparameters(Hyperparameters())
+    # a features step is cheap: the default 32 cars at least, and every named track at once (no `at_once`)
+    cars = max(cfg.run.num_cars, RunSettings().num_cars, 0 if cfg.track.generated else len(cfg.track.names))
+    hp = Hyperparameters()
+    # an iteration starts one episode per car at most as many as it collects: each car (and track) drives in each
+    teacher.write_hyperparameters(hp.replace(num_episodes_between_training=max(hp.num_episodes_between_training,
+                                                                               cars)))
     teacher.write_reward(model.reward_path.read_text(encoding="utf-8"))
-    cars = max(cfg.run.num_cars, RunSettings().num_cars)  # a features step is cheap: the default 32 cars at least
     tcfg = replace(cfg, teacher=TeacherSettings(), randomise=RandomiseSettings(), workers=(),
+                   track=replace(cfg.track, at_once=0),
                    run=replace(cfg.run, observation="", threads=0, num_cars=cars),
                    evaluation=replace(cfg.evaluation, best_model_metric="laptime"),
                    stop=replace(cfg.stop, minutes=0.0, episodes=0, iterations=0))

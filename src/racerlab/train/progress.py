@@ -10,6 +10,7 @@ import textwrap
 import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
 
 from racerlab.logs import BEST_CHECKPOINT_RULES, BEST_LAP_NAME
 
@@ -99,7 +100,7 @@ class Progress:
     def start(self, trainer, resumed: bool) -> None:
         cfg, meta = trainer.cfg, trainer.metadata
         what = f"resuming at iteration {trainer.state.iteration}" if resumed else "starting"
-        tracks = ", ".join(cfg.track.names)
+        tracks = _tracks_said(cfg.track)
         if cfg.track.generated:  # names then hold the evaluation track only
             again = f", redrawn every {cfg.track.regenerate_every} iterations" if cfg.track.regenerate_every else ""
             tracks = f"{cfg.track.generated} generated circuits{again} (evaluated on {tracks})"
@@ -136,3 +137,12 @@ class Progress:
         self._print(f"stopped: {r.stopped or 'done'}. {r.iterations} iterations, {r.episodes} episodes, "
                     f"{r.env_steps} env steps in {_fmt_time(r.wall_seconds)}\n{BEST_LAP_NAME} {best}; {first}\n"
                     f"best checkpoint {r.best_checkpoint}" + (f", picked by {rule}" if rule else ""), "bold green")
+
+
+def _tracks_said(t) -> str:
+    """The named tracks in a few words: all of them up to 4, else the count and the first (the evaluation's)."""
+    names = [Path(str(n)).stem if "/" in str(n) else str(n) for n in t.names]
+    said = ", ".join(names) if len(names) <= 4 else f"{len(names)} tracks ({names[0]}, {names[1]}, ...)"
+    if t.rotates and t.regenerate_every:
+        said += f", {t.at_once} at a time, the next every {t.regenerate_every} iterations"
+    return said

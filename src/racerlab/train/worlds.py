@@ -87,9 +87,10 @@ class WorldBuilder:
         return [2 * (pairs // tracks + (1 if k < pairs % tracks else 0)) for k in range(tracks)]
 
     def training_worlds(self, draw: int = 0) -> list[World]:
-        """One world per training track (generated draw `draw`, or the named tracks) with its share of the cars."""
+        """One world per training track (generated draw `draw`, or the named tracks: all, or draw `draw`'s
+        `track.at_once` of them) with its share of the cars."""
         cfg = self.cfg
-        tracks = generated_tracks(cfg.track, cfg.run.seed, draw) or cfg.track.names
+        tracks = generated_tracks(cfg.track, cfg.run.seed, draw) or cfg.track.names_of_draw(draw)
         seed = cfg.run.seed + DRAW_SEED_STRIDE * draw
         return [self.world(t, c, seed + k, cfg.randomise)
                 for k, (t, c) in enumerate(zip(tracks, self.car_counts(len(tracks)), strict=True))]
@@ -108,9 +109,9 @@ class WorldBuilder:
 
 
 class LocalCollection:
-    """The trainer's collection on this machine: the training worlds, with new generated tracks every
-    `track.regenerate_every` iterations (the draw follows the iteration number, so a resumed run drives the
-    tracks it would have driven).
+    """The trainer's collection on this machine: the training worlds, with new generated tracks (or the next
+    `track.at_once` named ones) every `track.regenerate_every` iterations (the draw follows the iteration number,
+    so a resumed run drives the tracks it would have driven).
 
     A collection is what `Trainer` collects through (the cluster passes its own): `collect(agent, target,
     max_steps, first_episode_number=, deadline=, tick=) -> Rollout`, `before_iteration(iteration)`, `state()`
@@ -127,7 +128,7 @@ class LocalCollection:
     def before_iteration(self, iteration: int) -> None:
         track = self.builder.cfg.track
         every = track.regenerate_every
-        if not track.generated or not every or iteration // every == self.draw:
+        if not (track.generated or track.rotates) or not every or iteration // every == self.draw:
             return
         self.draw = iteration // every
         next_uid = self.collector.next_uid
