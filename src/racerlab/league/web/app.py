@@ -36,6 +36,8 @@ from racerlab.console.security import is_loopback
 from racerlab.errors import RacerlabError
 from racerlab.league import League
 from racerlab.league.store import LeagueError
+from racerlab.league.web.auth import TokenCache
+from racerlab.league.web.live import Boards
 
 STATIC = resources.files("racerlab.league.web") / "static"
 UPLOAD_LIMIT = 256 * 1024 * 1024  # an AWS model archive is 20-100 MB; a racerlab camera model a few MB
@@ -68,6 +70,8 @@ def create_app(folder, url: str | None = None, *, host: str = "127.0.0.1", tls: 
     app.state.secure = bool(tls) or (public is not None and public.scheme == "https")
     app.state.public_url = public_url.rstrip("/") if public_url else None
     app.state.upload_limit = int(upload_limit)
+    app.state.boards = Boards(lg)
+    app.state.tokens = TokenCache()
     app.state.uploads = Path(lg.store.folder) / "uploads"
     app.add_middleware(Guard, loopback=is_loopback(host), upload_limit=int(upload_limit), tls=app.state.secure,
                        also=public.netloc if public else None)

@@ -10,6 +10,10 @@
 - A script sends `Authorization: Bearer rla_...` (an API token from `POST /api/login` or `/api/invites/accept`);
   a bearer request needs no CSRF token (no browser adds that header by itself). A wrong bearer token is a 401,
   never a fall-back to the cookie.
+- A token is looked up in the store at most every `TokenCache.TTL_S` per server process (a crowd's polls would
+  otherwise each take the store's write lock); logging out, revoking a token, a password change or an account
+  change made through this server forget the cached ones at once, one made elsewhere (the command line) within the
+  TTL. The service checks the account itself again in every call that reads.
 - `signed_in` is the dependency every route but the login forms and the static files starts with; `needs(action)`
   adds the role check of a page that reads nothing from the service (a form for staff). The service checks the
   role again in each call.
@@ -20,6 +24,8 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
+import threading
+import time
 from dataclasses import dataclass
 
 from fastapi import Request
@@ -46,18 +52,51 @@ class Caller:
     session: str = ""
 
 
+class TokenCache:
+    """Actors of recently seen tokens (by the token's hash), for `TTL_S` seconds."""
+
+    TTL_S = 5.0
+    MAX = 20_000
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._held: dict[str, tuple[Actor, float]] = {}
+
+    def actor(self, league, token: str, kind: str) -> Actor:
+        key, now = f"{kind}:{people.digest(token)}", time.monotonic()
+        with self._lock:
+            hit = self._held.get(key)
+        if hit is not None and now - hit[1] < self.TTL_S:
+            return hit[0]
+        actor = league.actor_for_token(token, kind)  # 401 for an unknown, revoked or expired one
+        with self._lock:
+            if len(self._held) >= self.MAX:
+                self._held.clear()
+            self._held[key] = (actor, now)
+        return actor
+
+    def forget(self, token: str | None = None) -> None:
+        """Forget one token (logging out) or all of them (a revoked token, a changed password or account)."""
+        with self._lock:
+            if token is None:
+                self._held.clear()
+            else:
+                for kind in people.TOKEN_PREFIX:
+                    self._held.pop(f"{kind}:{people.digest(token)}", None)
+
+
 def _identify(request: Request) -> Caller:
-    league = request.app.state.league
+    league, cache = request.app.state.league, request.app.state.tokens
     header = request.headers.get("authorization", "")
     if header:
         scheme, _, token = header.partition(" ")
         if scheme.lower() != "bearer" or not token.strip():
             raise LeagueError("Authorization: send 'Bearer <token>' (racerlab league login stores one)", 401)
-        return Caller(league.actor_for_token(token.strip(), "api"), "bearer")
+        return Caller(cache.actor(league, token.strip(), "api"), "bearer")
     token = request.cookies.get(SESSION_COOKIE, "")
     if token:
         try:
-            return Caller(league.actor_for_token(token, "session"), "session", token)
+            return Caller(cache.actor(league, token, "session"), "session", token)
         except LeagueError:
             pass  # an expired or revoked session: a stranger, who is sent to the login page
     return Caller(None)
