@@ -10,7 +10,9 @@
   length over the limit is answered 413 at once, and the body is counted while it streams (a chunked body that
   passes the limit is cut off with 413);
 - every answer gets the security headers (a strict Content-Security-Policy: scripts and styles from this server
-  only, no frames; nosniff; no referrer; no-store for anything but the static files; HSTS under TLS).
+  only, no frames; nosniff; no referrer; no-store for anything but the static files; HSTS under TLS);
+- after a state-changing request the shared live boards (`live.Boards`) look at the store again at their next read
+  (a racer's upload shows in their own poll at once).
 
 Then `_check_routes` refuses to build an app with a route that neither starts with `auth.signed_in` (or
 `auth.needs`) nor is one of the few public ones (`PUBLIC`): a route added without a check does not start.
@@ -126,6 +128,9 @@ class Guard:
             if not started:
                 await _plain(413, f"the request is larger than the limit of {limit} bytes", scope)(
                     scope, receive, guarded_send)
+        finally:
+            if scope["method"] not in SAFE_METHODS and "app" in scope:
+                scope["app"].state.boards.touch()  # a change made here: the live boards look at once
 
     def _refusal(self, scope, headers: Headers) -> tuple[int, str] | None:
         host = headers.get("host", "")

@@ -4,14 +4,18 @@ On race day a hundred racers keep the race's page open and scripts poll its stan
 each of them would cost a core. `Boards` shares the work:
 
 - the race's version (`League.race_version`: it changes with every status and result of the race) is read at most
-  every `POLL_S` per race, whoever asks;
-- the standings are computed once per version and handed to every asker (they are the same for everyone);
-- a racer's own submissions in the race are read again when the version moved and they had one under way or their
-  leaderboard row changed, and at least every `MINE_TTL_S` (queue places and ETAs move with other races' work).
+  every `POLL_S` per race, whoever asks, and at once after a submission, requeue or race change made through this
+  server (`touch`);
+- the standings and the race's limits are read once per version and handed to every asker (they are the same for
+  everyone); the race's state (upcoming, open, closed) is worked out from its times at each hand-out, since it
+  moves with the clock, not the version;
+- a racer's own submissions in the race are read again when the version moved, and at least every `MINE_TTL_S`
+  (queue places and ETAs move with other races' work).
 
-Each asker's role is checked before anything is handed out (`people.require_role`), and the account itself is
-looked up in the service at least every `REFRESH_S` on a stream, so a disabled account's stream ends within it (an
-`error` event says why). `board_events` sends a `board` event when the version moved (at most one every
+Who asks is checked before anything is handed out: the route's token (`auth.TokenCache`) and the role
+(`people.require_role`). A stream asks again at every look (`auth.recheck`), so logging out, a revoked token or a
+disabled account ends it within `POLL_S` when done through this server, within the token TTL when done elsewhere
+(an `error` event says why). `board_events` sends a `board` event when the version moved (at most one every
 `MIN_GAP_S`) and every `REFRESH_S` anyway (the event doubles as a keep-alive). Nothing runs for a browser that is
 not connected.
 """
@@ -28,8 +32,10 @@ from starlette.concurrency import run_in_threadpool
 
 from racerlab.league import people
 from racerlab.league.people import Actor
+from racerlab.league.races import race_state
 from racerlab.league.store import LeagueError
-from racerlab.league.views import FINAL
+from racerlab.league.tables import utcnow
+from racerlab.league.web.auth import recheck
 
 POLL_S = 0.5
 MIN_GAP_S = 1.0
@@ -52,8 +58,16 @@ class Boards:
         self._lock = threading.Lock()
         self._versions: dict[str, tuple[int, float]] = {}
         self._standings: dict[str, dict] = {}
-        self._meta: dict[str, tuple[int, dict]] = {}
+        self._races: dict[str, tuple[int, dict]] = {}
         self._mine: OrderedDict[tuple[int, str], tuple[int, float, list]] = OrderedDict()
+
+    def touch(self, race: str | None = None) -> None:
+        """A change made through this server: the next look at the race (every race: None) asks the store."""
+        with self._lock:
+            if race is None:
+                self._versions.clear()
+            else:
+                self._versions.pop(race, None)
 
     def version(self, actor: Actor, race: str) -> int:
         people.require_role(actor, "race.view")
@@ -68,40 +82,41 @@ class Boards:
         return version
 
     def standings(self, actor: Actor, race: str) -> dict:
-        """The race's standings as JSON (`Standings.to_json()`), computed once per version."""
+        """The race's standings as JSON (`Standings.to_json()`), read once per version."""
         version = self.version(actor, race)
         people.require_role(actor, "standings.view")
         with self._lock:
             hit = self._standings.get(race)
-        if hit is not None and hit["version"] >= version:
-            return hit
-        fresh = self.league.standings(actor, race).to_json()
-        with self._lock:
-            held = self._standings.get(race)
-            if held is None or held["version"] <= fresh["version"]:
-                self._standings[race] = fresh
-        return fresh
+        if hit is None or hit["version"] < version:
+            hit = self.league.standings(actor, race).to_json()
+            with self._lock:
+                held = self._standings.get(race)
+                if held is None or held["version"] <= hit["version"]:
+                    self._standings[race] = hit
+        return {**hit, "state": self.meta(actor, race)["state"]}
 
     def meta(self, actor: Actor, race: str) -> dict:
-        """What every racer's page shows of the race itself: its state and submission limit (per version)."""
+        """What every racer's page shows of the race itself: its state (now) and submission limit."""
         version = self.version(actor, race)
         with self._lock:
-            hit = self._meta.get(race)
-        if hit is not None and hit[0] >= version:
-            return hit[1]
-        view = self.league.race(actor, race)
-        out = {"name": view.name, "state": view.state, "max_submissions": view.max_submissions}
-        with self._lock:
-            self._meta[race] = (view.version, out)
-        return out
+            hit = self._races.get(race)
+        if hit is None or hit[0] < version:
+            view = self.league.race(actor, race)
+            hit = (view.version, {"name": view.name, "max_submissions": view.max_submissions,
+                                  "opens_at": view.opens_at, "closes_at": view.closes_at})
+            with self._lock:
+                self._races[race] = hit
+        held = hit[1]
+        return {"name": held["name"], "state": race_state(held["opens_at"], held["closes_at"], utcnow()),
+                "max_submissions": held["max_submissions"]}
 
-    def mine(self, actor: Actor, race: str, force: bool = False) -> list[dict]:
+    def mine(self, actor: Actor, race: str) -> list[dict]:
         """The actor's own submissions in the race as JSON (newest first), read again when the version moved or
         after `mine_ttl_s`."""
         version, now, key = self.version(actor, race), time.monotonic(), (actor.id, race)
         with self._lock:
             hit = self._mine.get(key)
-        if not force and hit is not None and hit[0] == version and now - hit[1] < self.mine_ttl_s:
+        if hit is not None and hit[0] == version and now - hit[1] < self.mine_ttl_s:
             return hit[2]
         subs = [s.to_json() for s in self.league.submissions(actor, race)]
         with self._lock:
@@ -112,27 +127,13 @@ class Boards:
         return subs
 
 
-def _row(standings: dict, alias: str) -> dict | None:
-    return next((r for r in standings["rows"] if r["alias"] == alias), None)
-
-
-def board(boards: Boards, actor: Actor, race: str, previous: dict | None = None, check: bool = False) -> dict:
-    """What a race page shows live: the race, its standings, the caller's own submissions in it. `previous` is the
-    board sent last (the own list is read again only when it had one under way or the caller's row changed);
-    `check` looks the account up in the service first."""
-    if check:
-        boards.league.race_version(actor, race)  # a disabled or changed account: LeagueError, the stream ends
+def board(boards: Boards, actor: Actor, race: str) -> dict:
+    """What a race page shows live: the race, its standings, the caller's own submissions in it."""
     standings = boards.standings(actor, race)
-    row = _row(standings, actor.alias)
-    if previous is not None and not check and row == _row(previous["standings"], actor.alias) and all(
-            s["status"] in FINAL for s in previous["mine"]):
-        mine = previous["mine"]  # nothing of theirs under way and their row as it was: their list is too
-    else:
-        mine = [{k: v for k, v in s.items() if k in MINE_KEYS}
-                for s in boards.mine(actor, race, force=previous is not None)]
-    meta = boards.meta(actor, race)
+    row = next((r for r in standings["rows"] if r["alias"] == actor.alias), None)
+    mine = [{k: v for k, v in s.items() if k in MINE_KEYS} for s in boards.mine(actor, race)]
     used = row["submissions"] if row else 0
-    return {"race": {**meta, "version": standings["version"], "submissions_used": used},
+    return {"race": {**boards.meta(actor, race), "version": standings["version"], "submissions_used": used},
             "standings": standings, "mine": mine}
 
 
@@ -142,11 +143,12 @@ async def board_events(request, actor: Actor, race: str, poll_s: float = POLL_S,
     last, sent = None, 0.0
     while not await request.is_disconnected():
         try:
+            await run_in_threadpool(recheck, request, actor)
             version = await run_in_threadpool(boards.version, actor, race)
             now = time.monotonic()
-            due = now - sent >= refresh_s
-            if due or (last is not None and version != last["race"]["version"] and now - sent >= gap_s):
-                last = await run_in_threadpool(board, boards, actor, race, last, due and last is not None)
+            moved = last is not None and version != last["race"]["version"] and now - sent >= gap_s
+            if moved or now - sent >= refresh_s:
+                last = await run_in_threadpool(board, boards, actor, race)
                 sent = time.monotonic()
                 yield sse("board", last)
         except LeagueError as exc:
