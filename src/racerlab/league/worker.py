@@ -9,7 +9,9 @@ runs out, and the submission is evaluated again from the start, once; then it fa
 
 `WorkerPool(folder, url, n).start()` runs n workers as fresh processes (spawned, so that the evaluation's
 environment is set before torch loads: `evaluation.PIN_ENV`) and a thread that restarts a worker that died,
-after handing its claim back to the queue. The web server calls it for `racerlab league serve DIR --workers N`.
+after handing its claim back to the queue. A pool's worker whose parent is gone (a server killed with -9) stops
+as if asked to, within half a second and a lap, instead of evaluating on beside the restarted server's workers.
+The web server calls it for `racerlab league serve DIR --workers N`.
 """
 
 from __future__ import annotations
@@ -172,11 +174,22 @@ def _work(folder, url, worker, stop, lease_s, poll_s, max_jobs) -> int:
     return done
 
 
-def _spawned(folder, url, worker, stop, lease_s, poll_s) -> None:
+def _spawned(folder, url, worker, stop, lease_s, poll_s, parent: int | None = None) -> None:
+    if parent is not None:
+        threading.Thread(target=_stop_when_orphaned, args=(parent, stop), daemon=True, name="league-parent").start()
     try:
         worker_main(folder, url, worker, stop, lease_s, poll_s)
     except KeyboardInterrupt:
         pass
+
+
+def _stop_when_orphaned(parent: int, stop, every_s: float = 0.5) -> None:
+    """A pool's worker stops with its server, even one killed with -9 (nothing then sets `stop` for it): the
+    evaluation under way goes back to the queue at its next lap, uncounted, for the restarted server's workers."""
+    while not stop.wait(every_s):
+        if os.getppid() != parent:
+            stop.set()
+            return
 
 
 class WorkerPool:
@@ -206,7 +219,8 @@ class WorkerPool:
     def _spawn(self) -> None:
         worker = f"{socket.gethostname()[:40]}:pool{os.getpid()}:{secrets.token_hex(3)}"
         p = self.ctx.Process(target=_spawned, args=(self.folder, self.url, worker, self.stop_event, self.lease_s,
-                                                    self.poll_s), daemon=True, name=f"racerlab-league-{worker}")
+                                                    self.poll_s, os.getpid()), daemon=True,
+                             name=f"racerlab-league-{worker}")
         p.start()
         self.procs[worker] = p
 
