@@ -9,8 +9,9 @@ each of them would cost a core. `Boards` shares the work:
 - the standings and the race's limits are read once per version and handed to every asker (they are the same for
   everyone); the race's state (upcoming, open, closed) is worked out from its times at each hand-out, since it
   moves with the clock, not the version;
-- a racer's own submissions in the race are read again when the version moved, and at least every `MINE_TTL_S`
-  (queue places and ETAs move with other races' work).
+- a racer's own submissions in the race are read again when their row on the leaderboard changed, after a change
+  made through this server, and at least every `MINE_TTL_S` (a status that does not show in the row, queue places
+  and ETAs): reading them at every move of the race would cost a hundred reads a second on race day.
 
 Who asks is checked before anything is handed out: the route's token (`auth.TokenCache`) and the role
 (`people.require_role`). A stream asks again at every look (`auth.recheck`), so logging out, a revoked token or a
@@ -59,15 +60,18 @@ class Boards:
         self._versions: dict[str, tuple[int, float]] = {}
         self._standings: dict[str, dict] = {}
         self._races: dict[str, tuple[int, dict]] = {}
-        self._mine: OrderedDict[tuple[int, str], tuple[int, float, list]] = OrderedDict()
+        self._mine: OrderedDict[tuple[int, str], tuple[dict | None, float, list]] = OrderedDict()
 
     def touch(self, race: str | None = None) -> None:
         """A change made through this server: the next look at the race (every race: None) asks the store."""
         with self._lock:
             if race is None:
                 self._versions.clear()
+                self._mine.clear()
             else:
                 self._versions.pop(race, None)
+                for key in [k for k in self._mine if k[1] == race]:
+                    del self._mine[key]
 
     def version(self, actor: Actor, race: str) -> int:
         people.require_role(actor, "race.view")
@@ -111,26 +115,31 @@ class Boards:
                 "max_submissions": held["max_submissions"]}
 
     def mine(self, actor: Actor, race: str) -> list[dict]:
-        """The actor's own submissions in the race as JSON (newest first), read again when the version moved or
-        after `mine_ttl_s`."""
-        version, now, key = self.version(actor, race), time.monotonic(), (actor.id, race)
+        """The actor's own submissions in the race as JSON (newest first): read again when their leaderboard row
+        changed, after a change made through this server (`touch`), and at least every `mine_ttl_s` (statuses
+        that do not show in the row, queue places and ETAs)."""
+        row, now, key = own_row(self.standings(actor, race), actor.alias), time.monotonic(), (actor.id, race)
         with self._lock:
             hit = self._mine.get(key)
-        if hit is not None and hit[0] == version and now - hit[1] < self.mine_ttl_s:
+        if hit is not None and hit[0] == row and now - hit[1] < self.mine_ttl_s:
             return hit[2]
         subs = [s.to_json() for s in self.league.submissions(actor, race)]
         with self._lock:
-            self._mine[key] = (version, now, subs)
+            self._mine[key] = (row, now, subs)
             self._mine.move_to_end(key)
             while len(self._mine) > MAX_MINE:
                 self._mine.popitem(last=False)
         return subs
 
 
+def own_row(standings: dict, alias: str) -> dict | None:
+    return next((r for r in standings["rows"] if r["alias"] == alias), None)
+
+
 def board(boards: Boards, actor: Actor, race: str) -> dict:
     """What a race page shows live: the race, its standings, the caller's own submissions in it."""
     standings = boards.standings(actor, race)
-    row = next((r for r in standings["rows"] if r["alias"] == actor.alias), None)
+    row = own_row(standings, actor.alias)
     mine = [{k: v for k, v in s.items() if k in MINE_KEYS} for s in boards.mine(actor, race)]
     used = row["submissions"] if row else 0
     return {"race": {**boards.meta(actor, race), "version": standings["version"], "submissions_used": used},
