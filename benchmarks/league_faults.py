@@ -61,8 +61,8 @@ def new_league(root: Path, name: str, racers: int) -> tuple[Path, list[str]]:
     return folder, tokens
 
 
-def results(folder: Path) -> dict[str, list]:
-    """model hash -> [(status, score, laps) of each of its submissions]."""
+def results(folder: Path) -> dict[tuple[str, str], list]:
+    """(racer, model hash) -> [(status, score, laps) of each of its submissions]."""
     from racerlab.league import League
 
     league = League.open(folder)
@@ -70,7 +70,7 @@ def results(folder: Path) -> dict[str, list]:
         admin, out = league.local_admin(), {}
         for sub in league.submissions(admin, RACE, everyone=True):
             full = league.submission(admin, sub.id)
-            out.setdefault(full.model_hash, []).append((full.status, full.score_ms, full.laps))
+            out.setdefault((full.alias, full.model_hash), []).append((full.status, full.score_ms, full.laps))
         return out
     finally:
         league.close()
@@ -263,17 +263,30 @@ def _status(folder: Path, sid: int) -> str:
 
 
 # ---- the check -----------------------------------------------------------------------------------------------
-def check(reference: dict, seen: dict, folder: Path) -> dict:
-    _rows, results = stored(folder)
+def check(reference: dict, seen: dict, folder: Path, racers: int) -> dict:
+    """Each racer's model once, its result the undisturbed one's (by model: two perturbations can be one model);
+    each submission one result but the 'failed' ones a retry cleared; the SQLite file sound."""
+    from racerlab.league import League
+
+    rows, _results = stored(folder)
+    league = League.open(folder)
+    try:
+        final = {}
+        for e in league.audit(league.local_admin(), 0, 100_000):
+            if e.action == "submission.result" and e.detail.get("status") != "failed":
+                final[e.subject] = final.get(e.subject, 0) + 1
+    finally:
+        league.close()
     with sqlite3.connect(folder / "league.db") as db:
         integrity = db.execute("PRAGMA integrity_check").fetchone()[0]
         foreign = len(db.execute("PRAGMA foreign_key_check").fetchall())
-    one = {h: v[0] for h, v in seen.items() if len(v) == 1}
-    return {"models": len(reference), "identical": sum(one.get(h) == ref[0] for h, ref in reference.items()),
-            "different": sum(h in one and one[h] != ref[0] for h, ref in reference.items()),
-            "not_final": sum(v[0][0] not in FINAL for v in seen.values()),
-            "lost": sum(h not in seen for h in reference), "doubled": sum(len(v) > 1 for v in seen.values()),
-            "results_not_one": sum(n != 1 for n in results.values()),
+    by_model = {h: v[0] for (_alias, h), v in reference.items()}
+    first = {key: v[0] for key, v in seen.items()}
+    return {"racers": racers, "identical": sum(first[k] == by_model.get(k[1]) for k in first),
+            "different": sum(first[k] != by_model.get(k[1]) for k in first),
+            "not_final": sum(v[0] not in FINAL for v in first.values()),
+            "lost": racers - len(seen), "doubled": sum(len(v) > 1 for v in seen.values()),
+            "final_results_not_one": sum(final.get(f"submission:{sid}", 0) != 1 for sid in rows),
             "integrity": integrity, "foreign_key_errors": foreign}
 
 
@@ -296,8 +309,9 @@ def main() -> int:
     seen, tally = disturbed(root, models, args, random.Random(args.seed))
     folder = tally.pop("folder")
     emit(benchmark="league_faults", submissions=len(models), workers=args.workers, kills=args.kills,
-         max_gap_s=args.max_gap, seed=args.seed, **tally, check=check(reference, seen, folder),
-         reference_statuses=_count(v[0][0] for v in reference.values()), seconds=round(time.perf_counter() - t0),
+         max_gap_s=args.max_gap, seed=args.seed, **tally, check=check(reference, seen, folder, len(models)),
+         reference_statuses=_count(v[0][0] for v in reference.values()), distinct_models=len(reference),
+         seconds=round(time.perf_counter() - t0),
          load_before=load_before, load_after=loadavg())
     if not args.keep:
         shutil.rmtree(root, ignore_errors=True)
