@@ -1,8 +1,10 @@
 """League fixtures: a league folder with its admin, small features models (distinct weights per seed), tracks.
 
-`RACERLAB_TEST_LEAGUE_DB=postgresql` runs every league test on a real PostgreSQL server that the session starts
-on 127.0.0.1 (Debian's `postgresql` binaries: initdb, pg_ctl), a fresh database per test; the default is SQLite
-in the league folder.
+The database: the store's, queue's and service's tests (`BOTH_DATABASES`) run twice, on SQLite in the league folder
+and on a real PostgreSQL server that the session starts on 127.0.0.1 (Debian's `postgresql` binaries: initdb,
+pg_ctl, found on PATH or in /usr/lib/postgresql/*/bin), a fresh database per test; the web, CLI and browser tests,
+which reach the database only through that service, run on SQLite. `RACERLAB_TEST_LEAGUE_DB=postgresql` runs
+every league test on PostgreSQL alone, `=sqlite` every one on SQLite alone (no PostgreSQL needed).
 """
 
 from __future__ import annotations
@@ -85,7 +87,8 @@ def postgres():
     """A PostgreSQL server on 127.0.0.1 for this session: yields a function that makes a fresh database URL."""
     initdb, pg_ctl = _pg_bin("initdb"), _pg_bin("pg_ctl")
     if not (initdb and pg_ctl):
-        pytest.fail("RACERLAB_TEST_LEAGUE_DB=postgresql needs PostgreSQL's initdb and pg_ctl (apt install postgresql)")
+        pytest.fail("the league's PostgreSQL tests need PostgreSQL's initdb and pg_ctl: apt install postgresql "
+                    "(.ci/run does), or run RACERLAB_TEST_LEAGUE_DB=sqlite pytest to leave them out")
     root = Path(tempfile.mkdtemp(prefix="racerlab-test-pg-"))  # outside pytest's folders, which only root may enter
     root.chmod(0o755)
     if os.geteuid() == 0:
@@ -116,12 +119,30 @@ def postgres():
     shutil.rmtree(root, ignore_errors=True)
 
 
+BOTH_DATABASES = {"test_store", "test_queue", "test_people", "test_races", "test_submissions", "test_results",
+                  "test_migrations", "test_hostile"}
+DATABASES = ("sqlite", "postgresql")
+
+
+def pytest_generate_tests(metafunc):
+    """Each test of a `BOTH_DATABASES` module that opens a league runs once per database (ids `[sqlite]`,
+    `[postgresql]`), unless RACERLAB_TEST_LEAGUE_DB names one or the test is marked `one_database` (its cost is
+    evaluations, which read and write the same rows as the tests beside it)."""
+    chosen = os.environ.get("RACERLAB_TEST_LEAGUE_DB", "")
+    if chosen and chosen not in DATABASES:
+        raise pytest.UsageError(f"RACERLAB_TEST_LEAGUE_DB={chosen}: use sqlite or postgresql")
+    if "db_url" not in metafunc.fixturenames:
+        return
+    module = metafunc.module.__name__.rsplit(".", 1)[-1]
+    both = module in BOTH_DATABASES and metafunc.definition.get_closest_marker("one_database") is None
+    kinds = [chosen] if chosen else list(DATABASES if both else DATABASES[:1])
+    metafunc.parametrize("db_kind", kinds, scope="function")
+
+
 @pytest.fixture
-def db_url(request):
+def db_url(request, db_kind):
     """The database URL a test's league uses: None (SQLite in the folder) or a fresh PostgreSQL database."""
-    if os.environ.get("RACERLAB_TEST_LEAGUE_DB", "sqlite") == "postgresql":
-        return request.getfixturevalue("postgres")()
-    return None
+    return request.getfixturevalue("postgres")() if db_kind == "postgresql" else None
 
 
 @pytest.fixture

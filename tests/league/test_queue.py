@@ -99,6 +99,7 @@ def test_a_worker_killed_during_an_evaluation_loses_nothing_and_counts_once(leag
     assert league.race(ana, wide_race).submissions_used == 1  # the retry used no second submission
 
 
+@pytest.mark.one_database  # evaluation-heavy; the database part is the same as the tests' above
 def test_a_restarted_server_evaluates_what_was_queued(league, admin, wide_race, wide, tmp_path):
     subs = [_submit(league, admin, wide_race, tmp_path, k, wide) for k in range(2)]
     league.close()  # the server is gone; the queue is in the database
@@ -119,6 +120,7 @@ def _one_job(folder, worker):
     worker_main(folder, None, worker, max_jobs=1, poll_s=0.1)
 
 
+@pytest.mark.one_database  # evaluation-heavy; the database part is the same as the tests' above
 def test_two_worker_processes_drive_the_same_laps_bit_for_bit(league, admin, wide_race, wide, tmp_path):
     import pandas as pd
 

@@ -56,6 +56,7 @@ def test_the_result_carries_its_laps_files_and_hashes(league, admin, raced):
                                                                  (f"submission:{b.id}", "ranked")]
 
 
+@pytest.mark.one_database  # evaluation-heavy; the database part is the same as the tests' above
 def test_the_logs_read_as_any_evaluation(league, raced, tmp_path):
     from deepracer.logs import DeepRacerLog
 
@@ -93,6 +94,7 @@ def test_standings_as_csv_and_json(league, admin, raced):
         rows[0]["time_s"])
 
 
+@pytest.mark.one_database  # evaluation-heavy; the database part is the same as the tests' above
 def test_a_replay_reproduces_the_laps_bit_for_bit_and_sees_a_change(league, admin, raced):
     ana, _, (a, _) = raced
     report = league.replay(ana, a.id)

@@ -241,6 +241,31 @@ def test_serve_with_workers_evaluates_what_the_command_line_submits(league, admi
     assert not any(_alive(pid) for pid in pids)
 
 
+def test_a_server_killed_with_9_leaves_no_worker_behind(league, admin):
+    """SIGKILL gives the server no time to stop its workers: they see their parent gone and stop themselves."""
+    import signal
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(["python", "-m", "racerlab", "league", "serve", str(league.store.folder), "--port",
+                             str(port), "--workers", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    try:
+        end = time.monotonic() + 120
+        while len(pids := [w.pid for w in _workers_seen(league)]) < 2 and time.monotonic() < end:
+            time.sleep(0.5)
+        assert len(pids) == 2, "the server's workers did not start"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(30)
+    end = time.monotonic() + 30
+    while any(_alive(pid) for pid in pids) and time.monotonic() < end:
+        time.sleep(0.2)
+    assert not any(_alive(pid) for pid in pids)
+    assert {w.state for w in _workers_seen(league)} == {"stopped"}
+
+
 def _workers_seen(league):
     from sqlalchemy import select
 

@@ -44,6 +44,7 @@ CHECKPOINT_RE = re.compile(r"^\d+_Step-\d+\.pt$")
 RACERLAB_TEXT = ("training.toml",)
 NAME_RE = re.compile(r"[^A-Za-z0-9._ -]+")
 ERROR_NAME = "error.txt"
+MAX_WEIGHT = 1e6  # a trained network's weights are of order 1; past this its outputs saturate or overflow
 
 
 @dataclass(frozen=True)
@@ -150,7 +151,7 @@ def read_converted(folder: Path, name: str) -> Converted:
 
 def model_hash(folder: Path, metadata: dict, info: dict) -> str:
     """SHA-256 over the metadata, the observation and look, and every tensor (name, dtype, shape, bytes); a
-    non-finite weight is refused here too."""
+    non-finite or absurd (> MAX_WEIGHT) weight is refused here too."""
     import numpy as np
     from safetensors import safe_open
 
@@ -164,6 +165,10 @@ def model_hash(folder: Path, metadata: dict, info: dict) -> str:
             if arr.dtype.kind == "f" and not np.isfinite(arr).all():
                 raise LeagueError(f"the model's weights hold NaN or infinity ({key}); submit a checkpoint from "
                                   "before the training diverged")
+            if arr.dtype.kind == "f" and arr.size and float(np.abs(arr).max()) > MAX_WEIGHT:
+                raise LeagueError(f"the model's weights reach {float(np.abs(arr).max()):.3g} ({key}), beyond any "
+                                  f"trained network's (<= {MAX_WEIGHT:g}); submit a checkpoint from before the "
+                                  "training diverged")
             h.update(f"\0{key}\0{arr.dtype.str}\0{arr.shape}\0".encode())
             h.update(arr.tobytes())
     return h.hexdigest()

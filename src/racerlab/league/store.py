@@ -106,13 +106,22 @@ def _alembic_config(connection):
     return cfg
 
 
-def head_revision() -> str:
+def _scripts():
     from alembic.config import Config
     from alembic.script import ScriptDirectory
 
     cfg = Config()
     cfg.set_main_option("script_location", str(MIGRATIONS))
-    return ScriptDirectory.from_config(cfg).get_current_head()
+    return ScriptDirectory.from_config(cfg)
+
+
+def head_revision() -> str:
+    return _scripts().get_current_head()
+
+
+def known_revision(revision: str) -> bool:
+    """Whether this racerlab's migrations hold `revision` (a later release's store holds one it does not)."""
+    return any(r.revision == revision for r in _scripts().walk_revisions())
 
 
 class Store:
@@ -163,6 +172,9 @@ class Store:
         if current is None:
             raise LeagueError(f"{_safe_url(store.url)}: holds no league; create one with `racerlab league init`")
         if current != head_revision():
+            if not known_revision(current):
+                raise LeagueError(f"{_safe_url(store.url)}: the store is at schema {current}, written by a later "
+                                  f"racerlab (this one knows up to {head_revision()}); upgrade racerlab to open it")
             if not upgrade:
                 raise LeagueError(f"{_safe_url(store.url)}: the store is at schema {current}, this racerlab "
                                   f"needs {head_revision()}; open it with upgrade")

@@ -9,7 +9,9 @@ runs out, and the submission is evaluated again from the start, once; then it fa
 
 `WorkerPool(folder, url, n).start()` runs n workers as fresh processes (spawned, so that the evaluation's
 environment is set before torch loads: `evaluation.PIN_ENV`) and a thread that restarts a worker that died,
-after handing its claim back to the queue. The web server calls it for `racerlab league serve DIR --workers N`.
+after handing its claim back to the queue. A pool's worker whose parent is gone (a server killed with -9) stops
+as if asked to (at its next poll or lap) instead of evaluating on beside the restarted server's workers.
+The web server calls it for `racerlab league serve DIR --workers N`.
 """
 
 from __future__ import annotations
@@ -172,11 +174,35 @@ def _work(folder, url, worker, stop, lease_s, poll_s, max_jobs) -> int:
     return done
 
 
-def _spawned(folder, url, worker, stop, lease_s, poll_s) -> None:
+def _spawned(folder, url, worker, stop, lease_s, poll_s, parent: int | None = None) -> None:
     try:
-        worker_main(folder, url, worker, stop, lease_s, poll_s)
+        worker_main(folder, url, worker, _PoolStop(stop, parent), lease_s, poll_s)
     except KeyboardInterrupt:
         pass
+
+
+class _PoolStop:
+    """A pool worker's stop: the pool's event is set, or the worker's parent is gone (a server killed with -9,
+    which sets nothing). It looks at the event and never waits on it: a process killed while waiting on a
+    multiprocessing Event stays counted as a sleeper, and the pool's `set()` would then wait for it for ever."""
+
+    def __init__(self, event, parent: int | None):
+        self.event, self.parent, self.local = event, parent, threading.Event()
+
+    def is_set(self) -> bool:
+        if not self.local.is_set() and (self.event.is_set() or (self.parent is not None
+                                                                 and os.getppid() != self.parent)):
+            self.local.set()
+        return self.local.is_set()
+
+    def set(self) -> None:
+        self.local.set()
+
+    def wait(self, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while not self.is_set() and time.monotonic() < end:
+            self.local.wait(min(0.1, max(0.0, end - time.monotonic())))
+        return self.is_set()
 
 
 class WorkerPool:
@@ -206,7 +232,8 @@ class WorkerPool:
     def _spawn(self) -> None:
         worker = f"{socket.gethostname()[:40]}:pool{os.getpid()}:{secrets.token_hex(3)}"
         p = self.ctx.Process(target=_spawned, args=(self.folder, self.url, worker, self.stop_event, self.lease_s,
-                                                    self.poll_s), daemon=True, name=f"racerlab-league-{worker}")
+                                                    self.poll_s, os.getpid()), daemon=True,
+                             name=f"racerlab-league-{worker}")
         p.start()
         self.procs[worker] = p
 

@@ -99,6 +99,7 @@ def _people(app: FastAPI) -> None:
         who = request.state.caller
         token = who.session or request.headers.get("authorization", "").partition(" ")[2].strip()
         request.app.state.league.end_session(token)
+        request.app.state.tokens.forget(token)
         return {"ok": True}
 
     @app.get("/api/tokens")
@@ -114,6 +115,7 @@ def _people(app: FastAPI) -> None:
     @app.delete("/api/tokens/{token_id}")
     def revoke(request: Request, token_id: int, actor: User):
         request.app.state.league.revoke_token(actor, token_id)
+        request.app.state.tokens.forget()
         return {"ok": True}
 
 
@@ -158,7 +160,7 @@ def _standings(app: FastAPI) -> None:
             return csv_response(league.standings_csv(actor, name), name)
         if format != "json":
             raise LeagueError(f"format {format!r}: json or csv")
-        return league.standings(actor, name).to_json()
+        return request.app.state.boards.standings(actor, name)  # computed once per change of the race
 
     @app.get("/api/races/{name}/standings.csv")
     def standings_csv(request: Request, name: str, actor: User):
@@ -204,6 +206,8 @@ def _submissions(app: FastAPI) -> None:
 
     @app.get("/api/submissions")
     def submissions(request: Request, actor: User, race: str | None = None, everyone: bool = False):
+        if race is not None and not everyone:  # a racer's poll of one race: shared with their board
+            return {"submissions": request.app.state.boards.mine(actor, race)}
         subs = request.app.state.league.submissions(actor, race, everyone=everyone)
         return {"submissions": [s.to_json() for s in subs]}
 
@@ -255,6 +259,7 @@ def _staff(app: FastAPI) -> None:
         active = flag(body, "active", None) if "active" in body else None
         role = text(body, "role") if "role" in body else None
         await run_in_threadpool(lambda: request.app.state.league.set_user(actor, alias, active=active, role=role))
+        request.app.state.tokens.forget()
         return {"ok": True}
 
     @app.get("/api/audit")

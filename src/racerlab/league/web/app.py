@@ -10,7 +10,9 @@
   length over the limit is answered 413 at once, and the body is counted while it streams (a chunked body that
   passes the limit is cut off with 413);
 - every answer gets the security headers (a strict Content-Security-Policy: scripts and styles from this server
-  only, no frames; nosniff; no referrer; no-store for anything but the static files; HSTS under TLS).
+  only, no frames; nosniff; no referrer; no-store for anything but the static files; HSTS under TLS);
+- after a state-changing request the shared live boards (`live.Boards`) look at the store again at their next read
+  (a racer's upload shows in their own poll at once).
 
 Then `_check_routes` refuses to build an app with a route that neither starts with `auth.signed_in` (or
 `auth.needs`) nor is one of the few public ones (`PUBLIC`): a route added without a check does not start.
@@ -36,6 +38,8 @@ from racerlab.console.security import is_loopback
 from racerlab.errors import RacerlabError
 from racerlab.league import League
 from racerlab.league.store import LeagueError
+from racerlab.league.web.auth import TokenCache
+from racerlab.league.web.live import Boards
 
 STATIC = resources.files("racerlab.league.web") / "static"
 UPLOAD_LIMIT = 256 * 1024 * 1024  # an AWS model archive is 20-100 MB; a racerlab camera model a few MB
@@ -68,6 +72,8 @@ def create_app(folder, url: str | None = None, *, host: str = "127.0.0.1", tls: 
     app.state.secure = bool(tls) or (public is not None and public.scheme == "https")
     app.state.public_url = public_url.rstrip("/") if public_url else None
     app.state.upload_limit = int(upload_limit)
+    app.state.boards = Boards(lg)
+    app.state.tokens = TokenCache()
     app.state.uploads = Path(lg.store.folder) / "uploads"
     app.add_middleware(Guard, loopback=is_loopback(host), upload_limit=int(upload_limit), tls=app.state.secure,
                        also=public.netloc if public else None)
@@ -122,6 +128,9 @@ class Guard:
             if not started:
                 await _plain(413, f"the request is larger than the limit of {limit} bytes", scope)(
                     scope, receive, guarded_send)
+        finally:
+            if scope["method"] not in SAFE_METHODS and "app" in scope:
+                scope["app"].state.boards.touch()  # a change made here: the live boards look at once
 
     def _refusal(self, scope, headers: Headers) -> tuple[int, str] | None:
         host = headers.get("host", "")

@@ -10,6 +10,12 @@
 - A script sends `Authorization: Bearer rla_...` (an API token from `POST /api/login` or `/api/invites/accept`);
   a bearer request needs no CSRF token (no browser adds that header by itself). A wrong bearer token is a 401,
   never a fall-back to the cookie.
+- A token is looked up in the store at most every `TokenCache.TTL_S` (5 s) per server process (a crowd's polls
+  would otherwise each take the store's write lock). Logging out, revoking a token, a password change or an
+  account change made through this server forget the cached tokens before it answers (a lookup that was under way
+  meanwhile is not kept); one made elsewhere (the command line, another server on the same database) takes effect
+  within the TTL. Every service call checks the account itself again (active, same role); the shared board reads
+  (`live.Boards`) check the role of the cached account.
 - `signed_in` is the dependency every route but the login forms and the static files starts with; `needs(action)`
   adds the role check of a page that reads nothing from the service (a form for staff). The service checks the
   role again in each call.
@@ -20,6 +26,8 @@ from __future__ import annotations
 import hashlib
 import hmac
 import secrets
+import threading
+import time
 from dataclasses import dataclass
 
 from fastapi import Request
@@ -46,21 +54,64 @@ class Caller:
     session: str = ""
 
 
+class TokenCache:
+    """Actors of recently seen tokens (by the token's hash), for `TTL_S` seconds."""
+
+    TTL_S = 5.0
+    MAX = 20_000
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._held: dict[str, tuple[Actor, float]] = {}
+        self._generation = 0  # moves with every forget: a lookup that began before one is not kept
+
+    def actor(self, league, token: str, kind: str) -> Actor:
+        key, now = f"{kind}:{people.digest(token)}", time.monotonic()
+        with self._lock:
+            hit, generation = self._held.get(key), self._generation
+        if hit is not None and now - hit[1] < self.TTL_S:
+            return hit[0]
+        actor = league.actor_for_token(token, kind)  # 401 for an unknown, revoked or expired one
+        with self._lock:
+            if generation == self._generation:
+                if len(self._held) >= self.MAX:
+                    self._held.clear()
+                self._held[key] = (actor, now)
+        return actor
+
+    def forget(self, token: str | None = None) -> None:
+        """Forget one token (logging out) or all of them (a revoked token, a changed password or account)."""
+        with self._lock:
+            self._generation += 1
+            if token is None:
+                self._held.clear()
+            else:
+                for kind in people.TOKEN_PREFIX:
+                    self._held.pop(f"{kind}:{people.digest(token)}", None)
+
+
 def _identify(request: Request) -> Caller:
-    league = request.app.state.league
+    league, cache = request.app.state.league, request.app.state.tokens
     header = request.headers.get("authorization", "")
     if header:
         scheme, _, token = header.partition(" ")
         if scheme.lower() != "bearer" or not token.strip():
             raise LeagueError("Authorization: send 'Bearer <token>' (racerlab league login stores one)", 401)
-        return Caller(league.actor_for_token(token.strip(), "api"), "bearer")
+        return Caller(cache.actor(league, token.strip(), "api"), "bearer")
     token = request.cookies.get(SESSION_COOKIE, "")
     if token:
         try:
-            return Caller(league.actor_for_token(token, "session"), "session", token)
+            return Caller(cache.actor(league, token, "session"), "session", token)
         except LeagueError:
             pass  # an expired or revoked session: a stranger, who is sent to the login page
     return Caller(None)
+
+
+def recheck(request: Request, actor: Actor) -> None:
+    """A long request (a live board's stream) asks again who it comes from: 401 once its token was revoked or
+    logged out, or the account disabled or changed (through this server: at once; elsewhere: within the TTL)."""
+    if _identify(request).actor != actor:
+        raise LeagueError("the session ended or the account changed; log in again", 401)
 
 
 async def caller(request: Request) -> Caller:

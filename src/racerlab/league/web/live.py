@@ -1,25 +1,48 @@
-"""A race's live board as server-sent events: the standings and the caller's own submissions in that race.
+"""A race's live board as server-sent events, and what the many browsers of one race share in this process.
 
-`board_events` looks at the race's version (`League.race_version`: it changes with every status and result of the
-race) every `POLL_S` and sends a `board` event when it moved, and every `REFRESH_S` anyway (queue places and ETAs
-move with other races' work; the event doubles as a keep-alive). Each look goes through the service with the
-caller's account, so a disabled account's stream ends at the next look (an `error` event says why). Nothing runs
-for a browser that is not connected.
+On race day a hundred racers keep the race's page open and scripts poll its standings; asking the database for
+each of them would cost a core. `Boards` shares the work:
+
+- the race's version (`League.race_version`: it changes with every status and result of the race) is read at most
+  every `POLL_S` per race, whoever asks, and at once after a submission, requeue or race change made through this
+  server (`touch`);
+- the standings and the race's limits are read once per version and handed to every asker (they are the same for
+  everyone); the race's state (upcoming, open, closed) is worked out from its times at each hand-out, since it
+  moves with the clock, not the version;
+- a racer's own submissions in the race are read again when their row on the leaderboard changed, after a change
+  made through this server, and at least every `MINE_TTL_S` (a status that does not show in the row, queue places
+  and ETAs): reading them at every move of the race would cost a hundred reads a second on race day.
+
+Who asks is checked before anything is handed out: the route's token (`auth.TokenCache`) and the role
+(`people.require_role`). A stream asks again at every look (`auth.recheck`), so logging out, a revoked token or a
+disabled account ends it within `POLL_S` when done through this server, within the token TTL when done elsewhere
+(an `error` event says why). `board_events` sends a `board` event when the version moved (at most one every
+`MIN_GAP_S`) and every `REFRESH_S` anyway (the event doubles as a keep-alive). Nothing runs for a browser that is
+not connected.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import threading
 import time
+from collections import OrderedDict
 
 from starlette.concurrency import run_in_threadpool
 
+from racerlab.league import people
 from racerlab.league.people import Actor
+from racerlab.league.races import race_state
 from racerlab.league.store import LeagueError
+from racerlab.league.tables import utcnow
+from racerlab.league.web.auth import recheck
 
 POLL_S = 0.5
+MIN_GAP_S = 1.0
 REFRESH_S = 10.0
+MINE_TTL_S = 5.0
+MAX_MINE = 4096  # racers' lists kept (each a few kB)
 MINE_KEYS = ("id", "number", "model_name", "model_hash", "checkpoint", "created_at", "status", "status_text",
              "reason", "position", "eta_s", "score_ms", "laps_completed", "laps_driven", "off_track", "note")
 
@@ -28,26 +51,115 @@ def sse(event: str, data) -> str:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'), allow_nan=False)}\n\n"
 
 
-def board(league, actor: Actor, race: str) -> dict:
-    """What a race page shows live: the race (state, version, the caller's count), its standings, the caller's
-    own submissions in it (newest first)."""
-    view = league.race(actor, race)
-    mine = [{k: v for k, v in s.to_json().items() if k in MINE_KEYS} for s in league.submissions(actor, race)]
-    return {"race": {"name": view.name, "state": view.state, "version": view.version,
-                     "submissions_used": view.submissions_used, "max_submissions": view.max_submissions},
-            "standings": league.standings(actor, race).to_json(), "mine": mine}
+class Boards:
+    """The shared reads of the races' live pages and polls in this server process (see the module's docstring)."""
+
+    def __init__(self, league, poll_s: float = POLL_S, mine_ttl_s: float = MINE_TTL_S):
+        self.league, self.poll_s, self.mine_ttl_s = league, poll_s, mine_ttl_s
+        self._lock = threading.Lock()
+        self._versions: dict[str, tuple[int, float]] = {}
+        self._standings: dict[str, dict] = {}
+        self._races: dict[str, tuple[int, dict]] = {}
+        self._mine: OrderedDict[tuple[int, str], tuple[dict | None, float, list]] = OrderedDict()
+
+    def touch(self, race: str | None = None) -> None:
+        """A change made through this server: the next look at the race (every race: None) asks the store."""
+        with self._lock:
+            if race is None:
+                self._versions.clear()
+                self._mine.clear()
+            else:
+                self._versions.pop(race, None)
+                for key in [k for k in self._mine if k[1] == race]:
+                    del self._mine[key]
+
+    def version(self, actor: Actor, race: str) -> int:
+        people.require_role(actor, "race.view")
+        now = time.monotonic()
+        with self._lock:
+            hit = self._versions.get(race)
+        if hit is not None and now - hit[1] < self.poll_s:
+            return hit[0]
+        version = self.league.race_version(actor, race)  # 404 for a race that is not there
+        with self._lock:
+            self._versions[race] = (version, now)
+        return version
+
+    def standings(self, actor: Actor, race: str) -> dict:
+        """The race's standings as JSON (`Standings.to_json()`), read once per version."""
+        version = self.version(actor, race)
+        people.require_role(actor, "standings.view")
+        with self._lock:
+            hit = self._standings.get(race)
+        if hit is None or hit["version"] < version:
+            hit = self.league.standings(actor, race).to_json()
+            with self._lock:
+                held = self._standings.get(race)
+                if held is None or held["version"] <= hit["version"]:
+                    self._standings[race] = hit
+        return {**hit, "state": self.meta(actor, race)["state"]}
+
+    def meta(self, actor: Actor, race: str) -> dict:
+        """What every racer's page shows of the race itself: its state (now) and submission limit."""
+        version = self.version(actor, race)
+        with self._lock:
+            hit = self._races.get(race)
+        if hit is None or hit[0] < version:
+            view = self.league.race(actor, race)
+            hit = (view.version, {"name": view.name, "max_submissions": view.max_submissions,
+                                  "opens_at": view.opens_at, "closes_at": view.closes_at})
+            with self._lock:
+                self._races[race] = hit
+        held = hit[1]
+        return {"name": held["name"], "state": race_state(held["opens_at"], held["closes_at"], utcnow()),
+                "max_submissions": held["max_submissions"]}
+
+    def mine(self, actor: Actor, race: str) -> list[dict]:
+        """The actor's own submissions in the race as JSON (newest first): read again when their leaderboard row
+        changed, after a change made through this server (`touch`), and at least every `mine_ttl_s` (statuses
+        that do not show in the row, queue places and ETAs)."""
+        row, now, key = own_row(self.standings(actor, race), actor.alias), time.monotonic(), (actor.id, race)
+        with self._lock:
+            hit = self._mine.get(key)
+        if hit is not None and hit[0] == row and now - hit[1] < self.mine_ttl_s:
+            return hit[2]
+        subs = [s.to_json() for s in self.league.submissions(actor, race)]
+        with self._lock:
+            self._mine[key] = (row, now, subs)
+            self._mine.move_to_end(key)
+            while len(self._mine) > MAX_MINE:
+                self._mine.popitem(last=False)
+        return subs
 
 
-async def board_events(request, actor: Actor, race: str, poll_s: float = POLL_S, refresh_s: float = REFRESH_S):
-    league = request.app.state.league
+def own_row(standings: dict, alias: str) -> dict | None:
+    return next((r for r in standings["rows"] if r["alias"] == alias), None)
+
+
+def board(boards: Boards, actor: Actor, race: str) -> dict:
+    """What a race page shows live: the race, its standings, the caller's own submissions in it."""
+    standings = boards.standings(actor, race)
+    row = own_row(standings, actor.alias)
+    mine = [{k: v for k, v in s.items() if k in MINE_KEYS} for s in boards.mine(actor, race)]
+    used = row["submissions"] if row else 0
+    return {"race": {**boards.meta(actor, race), "version": standings["version"], "submissions_used": used},
+            "standings": standings, "mine": mine}
+
+
+async def board_events(request, actor: Actor, race: str, poll_s: float = POLL_S, refresh_s: float = REFRESH_S,
+                       gap_s: float = MIN_GAP_S):
+    boards: Boards = request.app.state.boards
     last, sent = None, 0.0
     while not await request.is_disconnected():
         try:
-            version = await run_in_threadpool(league.race_version, actor, race)
-            if version != last or time.monotonic() - sent >= refresh_s:
-                data = await run_in_threadpool(board, league, actor, race)
-                last, sent = data["race"]["version"], time.monotonic()
-                yield sse("board", data)
+            await run_in_threadpool(recheck, request, actor)
+            version = await run_in_threadpool(boards.version, actor, race)
+            now = time.monotonic()
+            moved = last is not None and version != last["race"]["version"] and now - sent >= gap_s
+            if moved or now - sent >= refresh_s:
+                last = await run_in_threadpool(board, boards, actor, race)
+                sent = time.monotonic()
+                yield sse("board", last)
         except LeagueError as exc:
             yield sse("error", {"error": str(exc), "status": exc.status})
             return

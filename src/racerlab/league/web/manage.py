@@ -122,6 +122,7 @@ def _people(app: FastAPI) -> None:
         role = str(form.get("role") or "") or None
         try:
             await run_in_threadpool(lambda: request.app.state.league.set_user(actor, alias, active=active, role=role))
+            request.app.state.tokens.forget()
         except LeagueError as exc:
             return redirect(request, "/admin/people", str(exc), "error")
         return redirect(request, "/admin/people", f"{alias} changed")
@@ -159,6 +160,7 @@ def _account(app: FastAPI) -> None:
     @app.post("/account/tokens/{token_id}/revoke")
     def revoke(request: Request, token_id: int, actor: User):
         request.app.state.league.revoke_token(actor, token_id)
+        request.app.state.tokens.forget()
         return redirect(request, "/account", f"Token {token_id} revoked")
 
     @app.post("/account/password")
@@ -169,6 +171,7 @@ def _account(app: FastAPI) -> None:
             if new != str(form.get("new2") or ""):
                 raise LeagueError("the two new passwords differ; type the same password twice")
             await run_in_threadpool(request.app.state.league.change_password, actor, old, new)
+            request.app.state.tokens.forget()
         except LeagueError as exc:
             return await run_in_threadpool(_account_page, request, actor, exc.status, None, str(exc))
         return redirect(request, "/login", "Password changed: log in again with the new one")

@@ -235,6 +235,7 @@ def _leaving(app: FastAPI) -> None:
     @app.post("/logout")
     def logout(request: Request, actor: User):
         request.app.state.league.end_session(request.state.caller.session)
+        request.app.state.tokens.forget(request.state.caller.session)
         response = redirect(request, "/login", "You are logged out")
         auth.clear_session(response, request.app.state.secure)
         return response
