@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+import time
 from datetime import timedelta
 
 import pytest
@@ -121,3 +123,49 @@ def test_csrf_tokens_are_bound_to_the_session_and_the_store(league, admin):
     assert people.csrf_ok(secret, a, tok)
     assert not people.csrf_ok(secret, b, tok) and not people.csrf_ok(secret, a, None)
     assert not people.csrf_ok("another store's secret", a, tok)
+
+
+class _SlowHasher:
+    """Counts how many password checks run at once (argon2's own checks take the CPU and cannot be counted)."""
+
+    def __init__(self):
+        self.now = self.most = 0
+        self.lock = threading.Lock()
+
+    def verify(self, stored, password):
+        with self.lock:
+            self.now += 1
+            self.most = max(self.most, self.now)
+        time.sleep(0.05)
+        with self.lock:
+            self.now -= 1
+        return True
+
+
+def test_a_crowd_logging_in_at_once_hashes_a_few_passwords_at_a_time(monkeypatch):
+    counting = _SlowHasher()
+    monkeypatch.setattr(people, "_hasher", counting)
+    threads = [threading.Thread(target=people.verify_password, args=("stored", "a password")) for _ in range(12)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert counting.most == people.HASHES_AT_ONCE and people.HASHES_AT_ONCE >= 1
+
+
+def test_a_token_lookup_writes_its_last_use_once_a_minute(league, admin):
+    from racerlab.league.tables import utcnow
+
+    issued = league.issue_token(admin, "api", "script")
+    league.actor_for_token(issued.token)
+    with league.store.read() as s:
+        first = s.scalars(select(Token).where(Token.token_hash == people.digest(issued.token))).one().last_used_at
+    league.actor_for_token(issued.token)
+    with league.store.read() as s:
+        row = s.scalars(select(Token).where(Token.token_hash == people.digest(issued.token))).one()
+    assert first is not None and row.last_used_at == first  # a second lookup within the minute reads only
+    with league.store.write() as s:
+        s.get(Token, row.id).last_used_at = utcnow() - timedelta(minutes=2)
+    assert league.actor_for_token(issued.token) == admin
+    with league.store.read() as s:
+        assert utcnow() - s.get(Token, row.id).last_used_at < timedelta(seconds=30)

@@ -14,7 +14,7 @@ from sqlalchemy import select
 
 from racerlab.league import queue, start_workers
 from racerlab.league.tables import AuditEntry, Submission, utcnow
-from racerlab.league.worker import worker_main
+from racerlab.league.worker import WORKER_NICE, worker_main
 from tests.league.conftest import features_model, racer
 
 STRAIGHT_AHEAD = ((0.0, 1.0),)
@@ -83,6 +83,9 @@ def test_a_worker_killed_during_an_evaluation_loses_nothing_and_counts_once(leag
     sub = _submit(league, ana, wide_race, tmp_path, 0, wide)
     pool = start_workers(league.store.folder, workers=1, poll_s=0.1)
     try:
+        _wait(league, admin, sub.id, ("evaluating",))  # evaluations yield the CPU to the server's answers
+        pid = next(iter(pool.pids.values()))
+        assert os.getpriority(os.PRIO_PROCESS, pid) == min(19, os.getpriority(os.PRIO_PROCESS, 0) + WORKER_NICE)
         killed = _kill_when_evaluating(league, admin, sub.id, pool)
         done = _wait(league, admin, sub.id, ("ranked", "not_ranked", "no_lap", "failed", "refused"))
         assert killed not in pool.pids.values()

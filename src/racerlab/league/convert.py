@@ -4,8 +4,9 @@ A submission is a racerlab model folder or an AWS model racerlab imports (consol
 car's archive), as a folder or a .tar.gz / .zip. `convert_upload` runs the whole reading of it in a child process
 forked from a small server that has torch loaded already (so a conversion costs a fork, not an interpreter start):
 
-1. the child first limits itself (`resource.setrlimit`: address space, CPU seconds, file size, no core dumps) and
-   the parent kills it at the deadline;
+1. the child first limits itself (`resource.setrlimit`: address space, CPU seconds, file size, no core dumps;
+   a lower CPU priority than the web server's, `CHILD_NICE`) and the parent kills it at the deadline; at most
+   `CONVERSIONS_AT_ONCE` children run at a time per server, the other uploads wait their turn;
 2. it copies or unpacks only the files a model has, through `racerlab.exchange`'s archive checks (no links,
    devices, absolute paths or '..', bounded sizes and member count);
 3. it opens the checkpoint through the model folder's one door (`ModelFolder.open`: `weights_only`, non-finite
@@ -29,6 +30,7 @@ import os
 import re
 import shutil
 import signal
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,6 +80,10 @@ def clean_name(name: str, fallback: str = "model") -> str:
     return text or fallback
 
 
+CONVERSIONS_AT_ONCE = max(1, os.cpu_count() or 1)  # a flood of uploads queues here instead of forking a child each
+CHILD_NICE = 5  # a conversion yields the CPU to the server's answers (leaderboards, status polls)
+_converting = threading.BoundedSemaphore(CONVERSIONS_AT_ONCE)
+
 # ---- the parent's side -----------------------------------------------------------------------------------------
 _context = None
 
@@ -102,13 +108,16 @@ def convert_upload(upload, work, checkpoint: str = "best", name: str = "", *, de
     if upload.is_symlink():
         raise LeagueError(f"{upload.name}: a symbolic link; submit the model folder or archive itself")
     work.mkdir(parents=True, exist_ok=True)
-    proc = _ctx().Process(target=child_main, args=(str(upload), str(work), str(checkpoint), int(memory_bytes),
-                                                   float(deadline_s)), daemon=True, name="racerlab-league-convert")
-    proc.start()
-    proc.join(deadline_s)
-    if proc.is_alive():
-        proc.kill()
-        proc.join(10)
+    with _converting:  # the deadline counts from the child's start, not from the wait for a turn
+        proc = _ctx().Process(target=child_main, args=(str(upload), str(work), str(checkpoint), int(memory_bytes),
+                                                       float(deadline_s)), daemon=True, name="racerlab-league-convert")
+        proc.start()
+        proc.join(deadline_s)
+        killed = proc.is_alive()
+        if killed:
+            proc.kill()
+            proc.join(10)
+    if killed:
         raise LeagueError(f"{upload.name}: reading the model took longer than {deadline_s:g} s; it was stopped. "
                           "Submit a DeepRacer or racerlab model of the usual size")
     if proc.exitcode != 0:
@@ -197,6 +206,7 @@ def limit_resources(memory_bytes: int, cpu_s: float) -> None:
     cpu = max(1, int(cpu_s))
     resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 5))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    os.nice(CHILD_NICE)
     from racerlab.spec import MAX_ARCHIVE_BYTES
 
     resource.setrlimit(resource.RLIMIT_FSIZE, (MAX_ARCHIVE_BYTES, MAX_ARCHIVE_BYTES))

@@ -4,7 +4,9 @@
   result and the audit log; `racer` enters races and sees their own submissions and every leaderboard.
   `PERMISSIONS` is the one table of who may do what; `require` checks it.
 - Passwords are hashed with Argon2id (argon2-cffi's defaults: 64 MiB, 3 passes), a memory-hard hash; at least
-  `MIN_PASSWORD` characters (length, not character classes: NIST SP 800-63B). An alias is 3-20 characters of
+  `MIN_PASSWORD` characters (length, not character classes: NIST SP 800-63B). A process hashes at most
+  `HASHES_AT_ONCE` passwords at a time (the others wait their turn): a crowd logging in at once would otherwise
+  take every core, 64 MiB each, and the leaderboard's polls would wait behind it. An alias is 3-20 characters of
   letters, digits, `_` and `-` (DRoA's rule).
 - Invites, API tokens and session tokens are random strings shown once and stored as SHA-256 hashes (they hold
   192-256 random bits, so a fast hash is enough; a stolen database gives no usable token).
@@ -17,8 +19,10 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import os
 import re
 import secrets
+import threading
 from dataclasses import dataclass
 from datetime import timedelta
 
@@ -33,6 +37,7 @@ SESSION_TTL = timedelta(hours=12)
 THROTTLE = 5
 CLIENT_THROTTLE = 30
 THROTTLE_WINDOW = timedelta(minutes=15)
+HASHES_AT_ONCE = max(1, (os.cpu_count() or 2) // 2)
 TOKEN_PREFIX = {"api": "rla_", "session": "rls_", "invite": "rli_"}
 
 STAFF = frozenset({"admin", "facilitator"})
@@ -95,6 +100,7 @@ def check_password(password: str) -> str:
 
 # ---- hashes ---------------------------------------------------------------------------------------------------
 _hasher = None
+_hashing = threading.BoundedSemaphore(HASHES_AT_ONCE)
 
 
 def _argon2():
@@ -107,7 +113,9 @@ def _argon2():
 
 
 def hash_password(password: str) -> str:
-    return _argon2().hash(check_password(password))
+    password = check_password(password)
+    with _hashing:
+        return _argon2().hash(password)
 
 
 def verify_password(stored: str, password: str) -> bool:
@@ -116,7 +124,8 @@ def verify_password(stored: str, password: str) -> bool:
     if not isinstance(password, str) or len(password) > MAX_PASSWORD:
         return False
     try:
-        return _argon2().verify(stored, password)
+        with _hashing:
+            return _argon2().verify(stored, password)
     except (VerificationError, InvalidHashError):
         return False
 

@@ -11,11 +11,15 @@ runs out, and the submission is evaluated again from the start, once; then it fa
 environment is set before torch loads: `evaluation.PIN_ENV`) and a thread that restarts a worker that died,
 after handing its claim back to the queue. A pool's worker whose parent is gone (a server killed with -9) stops
 as if asked to (at its next poll or lap) instead of evaluating on beside the restarted server's workers.
+A pool's workers run at a lower CPU priority than the server (`WORKER_NICE`): on a machine that serves and
+evaluates, the racers' pages and polls are answered first and the evaluations take the rest of the CPU (the
+results do not change: an evaluation is the same whatever its speed).
 The web server calls it for `racerlab league serve DIR --workers N`.
 """
 
 from __future__ import annotations
 
+import errno
 import multiprocessing as mp
 import os
 import secrets
@@ -32,6 +36,11 @@ from racerlab.league.store import Store
 
 POLL_S = 1.0
 SEEN_EVERY_S = 10.0
+DB_RETRY_S = 2.0  # a worker whose database cannot write waits this long before it tries again
+WORKER_NICE = 10
+MIN_FREE_BYTES = 16 << 20  # an evaluation that fails with less room than this left failed for want of disk
+DISK_FULL_REASON = ("the league's disk filled up during the evaluation; nothing of it was kept. Submit the same "
+                    "model again to retry once staff have made room (it does not count against your limit)")
 
 
 class Stopped(Exception):
@@ -86,13 +95,40 @@ def evaluate_claim(store: Store, claim: queue.Claim, stop=None, lost=None) -> tu
         outcome = evaluate_stored(model_dir, rules, store.folder / "tracks", out, on_lap=check)
     except (Stopped, Lost):
         raise
-    except RacerlabError as exc:  # the model does not fit the race: the racer's to fix
-        return "refused", _scrub(str(exc), model_dir, store.folder), {}
-    except Exception as exc:  # noqa: BLE001 - any other failure is stored as one line, not a dead worker
-        why = _scrub(str(exc), model_dir, store.folder)
-        return "failed", f"the evaluation failed ({type(exc).__name__}: {why}); staff can queue it again", {}
+    except Exception as exc:  # noqa: BLE001 - sorted below: the disk's, the racer's or racerlab's
+        return _failure(exc, store, model_dir, out.parent)
     outcome["result_dir"] = str(out.relative_to(store.folder))
     return outcome["status"], outcome["reason"], queue.result_values(outcome)
+
+
+def _failure(exc: Exception, store: Store, model_dir: Path, attempt: Path) -> tuple[str, str, dict]:
+    """The outcome of an evaluation that raised: a full disk fails it (nothing of it kept, a retry clears it), a
+    model that does not fit the race is refused, anything else fails with its one line."""
+    if disk_full(exc, store.folder):
+        shutil.rmtree(attempt, ignore_errors=True)  # what it wrote is incomplete, and the room is needed
+        return "failed", DISK_FULL_REASON, {}
+    if isinstance(exc, RacerlabError):  # the model does not fit the race: the racer's to fix
+        return "refused", _scrub(str(exc), model_dir, store.folder), {}
+    why = _scrub(str(exc), model_dir, store.folder)  # stored as one line, not a dead worker
+    return "failed", f"the evaluation failed ({type(exc).__name__}: {why}); staff can queue it again", {}
+
+
+def disk_full(exc: BaseException, folder: Path) -> bool:
+    """Whether an evaluation's failure is the league's disk filling up: ENOSPC or EDQUOT anywhere in the chain of
+    causes, ffmpeg's 'No space left' in its message, or less than `MIN_FREE_BYTES` left under the league folder."""
+    seen: BaseException | None = exc
+    for _ in range(8):
+        if seen is None:
+            break
+        if isinstance(seen, OSError) and seen.errno in (errno.ENOSPC, errno.EDQUOT):
+            return True
+        if "no space left" in str(seen).lower():
+            return True
+        seen = seen.__cause__ or seen.__context__
+    try:
+        return shutil.disk_usage(folder).free < MIN_FREE_BYTES
+    except OSError:
+        return False
 
 
 def attempt_folder(store: Store, claim: queue.Claim) -> Path:
@@ -131,7 +167,22 @@ def run_claim(store: Store, claim: queue.Claim, lease_s: float, stop) -> str:
         return "lost"
     finally:
         beat.done.set()
-    return status if queue.finish(store, claim, status, reason, values) else "lost"
+    return status if _finish(store, claim, status, reason, values) else "lost"
+
+
+def _finish(store: Store, claim: queue.Claim, status: str, reason: str, values: dict, tries: int = 5) -> bool:
+    """queue.finish, tried again while the database cannot write (a full disk being cleared, a restarting
+    PostgreSQL); after the last try the error goes up and the lease's expiry gives the submission back."""
+    from sqlalchemy.exc import OperationalError
+
+    for k in range(tries):
+        try:
+            return queue.finish(store, claim, status, reason, values)
+        except OperationalError:
+            if k == tries - 1:
+                raise
+            time.sleep(DB_RETRY_S)
+    return False
 
 
 def worker_main(folder: str, url: str | None, worker: str, stop=None, lease_s: float = queue.LEASE_S,
@@ -149,24 +200,26 @@ def worker_main(folder: str, url: str | None, worker: str, stop=None, lease_s: f
 
 
 def _work(folder, url, worker, stop, lease_s, poll_s, max_jobs) -> int:
+    from sqlalchemy.exc import OperationalError
+
     store = Store.open(folder, url, upgrade=False)
     host, pid = socket.gethostname()[:64], os.getpid()
     queue.worker_seen(store, worker, host, pid, "idle")
     done, seen = 0, time.monotonic()
     try:
         while not stop.is_set() and (max_jobs is None or done < max_jobs):
-            queue.reap(store)
-            claim = queue.claim(store, worker, lease_s)
-            if claim is None:
+            try:
+                ran = _one_turn(store, worker, host, pid, lease_s, stop)
+            except OperationalError:  # the database cannot write now (its disk is full, it restarts): wait
+                stop.wait(DB_RETRY_S)
+                continue
+            if not ran:
                 if time.monotonic() - seen > SEEN_EVERY_S:
                     queue.worker_seen(store, worker, host, pid, "idle")
                     seen = time.monotonic()
                 stop.wait(poll_s)
                 continue
-            queue.worker_seen(store, worker, host, pid, "evaluating")
-            run_claim(store, claim, lease_s, stop)
             done += 1
-            queue.worker_seen(store, worker, host, pid, "idle")
             seen = time.monotonic()
     finally:
         queue.worker_seen(store, worker, host, pid, "stopped")
@@ -174,7 +227,20 @@ def _work(folder, url, worker, stop, lease_s, poll_s, max_jobs) -> int:
     return done
 
 
+def _one_turn(store: Store, worker: str, host: str, pid: int, lease_s: float, stop) -> bool:
+    """Reap lost claims, claim the next submission and evaluate it; whether there was one."""
+    queue.reap(store)
+    claim = queue.claim(store, worker, lease_s)
+    if claim is None:
+        return False
+    queue.worker_seen(store, worker, host, pid, "evaluating")
+    run_claim(store, claim, lease_s, stop)
+    queue.worker_seen(store, worker, host, pid, "idle")
+    return True
+
+
 def _spawned(folder, url, worker, stop, lease_s, poll_s, parent: int | None = None) -> None:
+    os.nice(WORKER_NICE)
     try:
         worker_main(folder, url, worker, _PoolStop(stop, parent), lease_s, poll_s)
     except KeyboardInterrupt:
