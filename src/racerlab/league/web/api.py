@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, FastAPI, Request
+from fastapi import Depends, FastAPI, Request, Response
 from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
@@ -160,7 +160,8 @@ def _standings(app: FastAPI) -> None:
             return csv_response(league.standings_csv(actor, name), name)
         if format != "json":
             raise LeagueError(f"format {format!r}: json or csv")
-        return request.app.state.boards.standings(actor, name)  # computed once per change of the race
+        body = request.app.state.boards.standings_json(actor, name)  # read and encoded once per change
+        return Response(body, media_type="application/json")
 
     @app.get("/api/races/{name}/standings.csv")
     def standings_csv(request: Request, name: str, actor: User):
@@ -207,13 +208,13 @@ def _submissions(app: FastAPI) -> None:
     @app.get("/api/submissions")
     def submissions(request: Request, actor: User, race: str | None = None, everyone: bool = False):
         if race is not None and not everyone:  # a racer's poll of one race: shared with their board
-            return {"submissions": request.app.state.boards.mine(actor, race)}
+            return JSONResponse({"submissions": request.app.state.boards.mine(actor, race)})
         subs = request.app.state.league.submissions(actor, race, everyone=everyone)
         return {"submissions": [s.to_json() for s in subs]}
 
     @app.get("/api/submissions/{sid}")
     def submission(request: Request, sid: int, actor: User):
-        return request.app.state.league.submission(actor, sid).to_json()
+        return JSONResponse(request.app.state.league.submission(actor, sid).to_json())
 
     @app.get("/api/submissions/{sid}/files/{kind}")
     def download(request: Request, sid: int, kind: str, actor: User, download: bool = False):
