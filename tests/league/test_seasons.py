@@ -240,3 +240,20 @@ def test_the_command_line_shows_and_changes_a_season_and_a_final_that_cannot_run
     out = capsys.readouterr().out
     assert "final 1 of r1: ana (#1) vs bob (#2): failed (" in out and folder not in out
     assert league.finals(season["ana"], "r1")[0].status == "failed"
+
+
+def test_a_final_that_lost_its_process_holds_the_race_only_for_a_while(league, admin, season):
+    from racerlab.league.tables import Final
+
+    fid = done_final(league, "r1", "ana")
+    with league.store.write() as s:
+        s.get(Final, fid).status = "running"  # as a server stopped under it leaves it
+    with pytest.raises(LeagueError, match="has a final running") as err:
+        league.start_final(admin, "r1")
+    assert err.value.status == 409
+    with league.store.write() as s:
+        s.get(Final, fid).created_at = datetime.now(UTC) - timedelta(hours=1)
+    league.start_final(admin, "r1")  # its models are not in the store: it fails, but it ran
+    old, new = league.final(admin, fid), league.finals(admin, "r1")[0]
+    assert old.status == "failed" and "ended without a result" in old.reason
+    assert new.id != fid and new.status == "failed" and "model_metadata.json" in new.reason

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import threading
+from datetime import timedelta
 from pathlib import Path
 
 from sqlalchemy import select
@@ -33,6 +34,7 @@ from racerlab.league.tables import Final, Race, utcnow
 from racerlab.league.views import FinalView, loads
 
 FINAL_SIZE = 2  # the simulator's head-to-model race pairs cars
+LOST_AFTER = timedelta(minutes=30)  # a final's process runs a few minutes at most (two cars, the race's time cap)
 FINAL_FILES = {"simtrace": "evaluation-simtrace/0-iteration.csv", "metrics": "EvalMetrics.json",
                "summary": "summary.json", "video": "evaluation.mp4"}
 
@@ -168,8 +170,7 @@ class FinalsMixin:
         with self.store.write() as s:
             self._acting(s, actor, "final.start")
             row = self._race_row(s, race)
-            if s.scalars(select(Final).where(Final.race_id == row.id, Final.status == "running")).first():
-                raise LeagueError(f"race {row.name!r} has a final running; wait for its result", 409)
+            self._running_final(s, row)
             entrants = self._top(s, row, size)
             final = Final(race_id=row.id, status="running", reason="", entrants_json=json.dumps(entrants),
                           rules_hash=row.rules_hash, created_by=actor.id)
@@ -181,6 +182,19 @@ class FinalsMixin:
             final_id = final.id
         launch(self.store, final_id, wait)
         return self.final(actor, final_id)
+
+    def _running_final(self, s: Session, race: Race) -> None:
+        """Refuse a second final while one runs; one running longer than `LOST_AFTER` lost its process (a server
+        stopped under it) and is failed, so that it does not hold the race's finals for ever."""
+        running = s.scalars(select(Final).where(Final.race_id == race.id, Final.status == "running")).first()
+        if running is None:
+            return
+        if utcnow() - running.created_at < LOST_AFTER:
+            raise LeagueError(f"race {race.name!r} has a final running; wait for its result", 409)
+        running.status, running.finished_at = "failed", utcnow()
+        running.reason = "its process ended without a result (the server stopped?); started again"
+        audit.record(s, None, "final.result", f"final:{running.id}", race=race.name, status="failed",
+                     reason=running.reason)
 
     def _top(self, s: Session, race: Race, size: int) -> list[dict]:
         from racerlab.league.submissions import race_rows
