@@ -172,6 +172,28 @@ def test_a_race_counts_in_one_season_and_names_are_checked(league, admin, season
 
 
 # ---- finals ---------------------------------------------------------------------------------------------------
+def test_a_finals_order_laps_then_time_then_progress_then_qualifying():
+    from racerlab.evaluate import Lap
+    from racerlab.league.finals import final_order
+
+    def laps(*ends):  # (end time, progress, completed) of each lap, each starting where the one before ended
+        out, t = [], 0.0
+        for k, (end, progress, completed) in enumerate(ends, 1):
+            out.append(Lap(k, "lap_complete" if completed else "time_up", t, end, progress))
+            t = end
+        return out
+
+    cars = [{"alias": "a", "qualifying_rank": 1, "laps": laps((10.0, 100, True), (20.0, 100, True))},  # 20.0 s
+            {"alias": "b", "qualifying_rank": 2, "laps": laps((9.5, 100, True), (19.5, 100, True))},  # 19.5 s
+            {"alias": "c", "qualifying_rank": 3, "laps": laps((10.0, 100, True), (60.0, 60.0, False))},
+            {"alias": "d", "qualifying_rank": 5, "laps": laps((10.0, 100, True), (60.0, 80.0, False))},
+            {"alias": "e", "qualifying_rank": 4, "laps": laps((11.0, 100, True), (60.0, 80.0, False))}]
+    order = final_order(cars, 2)
+    assert [(r["place"], r["alias"]) for r in order] == [(1, "b"), (2, "a"), (3, "e"), (4, "d"), (5, "c")]
+    assert [r["total_s"] for r in order] == [19.5, 20.0, None, None, None]
+    assert [r["progress"] for r in order] == [0.0, 0.0, 80.0, 80.0, 60.0]
+
+
 @pytest.fixture
 def dash(league, admin, straight, tmp_path, monkeypatch):
     """Race `dash` on Straight_track (2 laps, total time): ana's model drives straight at 1 m/s, bob's at 0.6 m/s,

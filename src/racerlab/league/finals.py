@@ -41,25 +41,29 @@ FINAL_FILES = {"simtrace": "evaluation-simtrace/0-iteration.csv", "metrics": "Ev
 
 def final_order(cars: list[dict], laps: int) -> list[dict]:
     """`cars` (each with "laps": `evaluate.Lap`s and "qualifying_rank") in the final's order, with their figures."""
-    rows = []
-    for car in cars:
-        done = [lap for lap in car["laps"] if lap.completed]
-        finished = len(done) >= laps
-        last = car["laps"][-1] if car["laps"] else None
-        progress = 0.0 if finished or last is None or last.completed else float(last.progress)
-        total_ms = sum(lap.time_ms for lap in car["laps"])
-        rows.append({**{k: v for k, v in car.items() if k != "laps"}, "finished": finished,
-                     "laps_completed": len(done), "total_s": total_ms / 1000 if finished else None,
-                     "progress": round(progress, 4),
-                     "off_track": sum(lap.counts.get("off_track", 0) for lap in car["laps"]),
-                     "crashed": sum(lap.counts.get("crashed", 0) for lap in car["laps"]),
-                     "laps": [lap.to_json() for lap in car["laps"]], "_key": (
-                         -len(done), total_ms if finished else 0, -round(progress * 1000), car["qualifying_rank"])})
-    rows.sort(key=lambda r: r["_key"])
+    rows = sorted((_figures(car, laps) for car in cars), key=_place_key)
     for place, r in enumerate(rows, 1):
-        r.pop("_key")
         r["place"] = place
     return rows
+
+
+def _figures(car: dict, laps: int) -> dict:
+    driven = car["laps"]
+    done = sum(1 for lap in driven if lap.completed)
+    finished = done >= laps
+    last = driven[-1] if driven else None
+    progress = 0.0 if finished or last is None or last.completed else float(last.progress)
+    total_ms = sum(lap.time_ms for lap in driven)
+    return {**{k: v for k, v in car.items() if k != "laps"}, "finished": finished, "laps_completed": done,
+            "total_s": total_ms / 1000 if finished else None, "progress": round(progress, 4),
+            "off_track": sum(lap.counts.get("off_track", 0) for lap in driven),
+            "crashed": sum(lap.counts.get("crashed", 0) for lap in driven), "laps": [lap.to_json() for lap in driven]}
+
+
+def _place_key(r: dict) -> tuple:
+    """More completed laps; a finisher's smaller total time; the farther progress; the better qualifying rank."""
+    total_ms = round(r["total_s"] * 1000) if r["finished"] else 0
+    return (-r["laps_completed"], total_ms, -round(r["progress"] * 1000), r["qualifying_rank"])
 
 
 def run_final(store: Store, final_id: int) -> str:
