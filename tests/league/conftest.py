@@ -120,6 +120,7 @@ def postgres():
 
 
 BOTH_DATABASES = {"test_store", "test_queue", "test_people", "test_races", "test_submissions", "test_results",
+                  "test_seasons",
                   "test_migrations", "test_hostile"}
 DATABASES = ("sqlite", "postgresql")
 

@@ -15,6 +15,7 @@ from fastapi import FastAPI
 
 from racerlab.league.web.app import _check_routes, routes
 from tests.league.conftest import PASSWORD, racer
+from tests.league.test_seasons import done_final
 from tests.league.web_fixtures import LiveServer, app_for, evaluate_queue, model_archive, session_for
 
 ASKERS = ("stranger", "bob", "ana", "fay", "admin")
@@ -80,13 +81,23 @@ TABLE = {
     ("POST", "/api/submissions/{sid}/requeue"): api(403, 403, 409, 409),  # staff: it has not failed
     ("POST", "/api/tokens"): api(201), ("DELETE", "/api/tokens/{token_id}"): api(404, 200, 404, 200),
     ("PUT", "/api/settings"): api(403, 403, 403, 200),
+    # seasons and finals
+    ("GET", "/seasons"): page(), ("GET", "/seasons/{name}"): page(), ("GET", "/finals/{fid}"): page(),
+    ("GET", "/finals/{fid}/files/{place}/{kind}"): page(404, 200),  # the first car is ana's
+    ("POST", "/admin/seasons"): page(403, 403, "303 /seasons/", "303 /seasons/"),
+    ("POST", "/seasons/{name}/races"): page(403, 403, "303 /seasons/cup", "303 /seasons/cup"),
+    ("POST", "/seasons/{name}/points"): page(403, 403, "303 /seasons/cup", "303 /seasons/cup"),
+    ("POST", "/races/{name}/final"): page(403, 403, "303 /races/cup", "303 /races/cup"),  # one ranked racer
+    ("GET", "/api/seasons"): api(), ("GET", "/api/seasons/{name}"): api(), ("GET", "/api/races/{name}/finals"): api(),
+    ("GET", "/api/finals/{fid}"): api(), ("POST", "/api/races/{name}/finals"): api(403, 403, 409, 409),
 }
 
 
 def _request(route, asker, ids, archive) -> dict:
     """The request one asker sends to one route: path, JSON or form body, files."""
     method, path = route
-    filled = path.format(name="cup", sid=ids["sid"], kind="simtrace", token_id=ids["token"], alias="bob")
+    filled = path.format(name="cup", sid=ids["sid"], kind="simtrace", token_id=ids["token"], alias="bob",
+                         fid=ids["fid"], place=1)
     out = {"method": method, "url": filled}
     bodies = {
         "/api/login": {"json": {"alias": "nobody", "password": "x" * 12}},
@@ -102,6 +113,9 @@ def _request(route, asker, ids, archive) -> dict:
         "/account/password": {"data": {"old": "not the password", "new": PASSWORD, "new2": PASSWORD}},
         "/account/tokens": {"data": {"label": "walk"}},
         "/races/cup/update": {"data": {"max_submissions": "60"}},
+        "/admin/seasons": {"data": {"name": f"season-{asker}"}},
+        "/seasons/cup/races": {"data": {"race": "cup", "action": "remove"}},
+        "/seasons/cup/points": {"data": {"points": "10,5"}},
     }
     if method == "PATCH":
         out["json"] = {"max_submissions": 50} if "races" in path else {"role": "racer"}
@@ -139,7 +153,10 @@ def walk(league, admin, straight, tmp_path):
     league.create_race(admin, "cup", {"track": str(straight), "laps": 1, "time_cap_s": 30, "video": False})
     sid = league.submit(actors["ana"], "cup", model_archive(tmp_path, straight, seed=1, name="ana-model")).id
     evaluate_queue(league)
-    ids = {"sid": sid, "token": league.issue_token(actors["ana"], "api", label="spare").id}
+    ids = {"sid": sid, "token": league.issue_token(actors["ana"], "api", label="spare").id,
+           "fid": done_final(league, "cup", "ana")}
+    league.create_season(admin, "cup")
+    league.season_add_race(admin, "cup", "cup")
     app = app_for(league)
     server = LiveServer(app)
     yield app, server, actors, ids, model_archive(tmp_path, straight, seed=1, name="ana-model")

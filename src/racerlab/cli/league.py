@@ -1,9 +1,10 @@
 """`racerlab league ...`: run a club's virtual races from the command line (see racerlab.league, docs/league.md).
 
 On a league folder DIR on this machine, as its admin (`--as ALIAS`, default the first admin): init, race create /
-list / update, invite, standings, status, replay, audit, work (evaluation workers in the foreground), serve (the
-web pages, the HTTP API and local workers). Over HTTP, with the API token `login` stores in the user's config
-folder: login (an invite or a password), submit, status and standings (without DIR: the server logged in to).
+list / update, invite, standings, season and final (`cli.league_seasons`), status, replay, audit, work
+(evaluation workers in the foreground), serve (the web pages, the HTTP API and local workers). Over HTTP, with the
+API token `login` stores in the user's config folder: login (an invite or a password), submit, status and
+standings (without DIR: the server logged in to).
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ def register(sub) -> None:
     _serve(cmds)
     _login(cmds)
     _submit(cmds)
+    from racerlab.cli import league_seasons
+
+    league_seasons.register(cmds, _dir_flags, _open)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 

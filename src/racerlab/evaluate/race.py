@@ -18,7 +18,7 @@ from pathlib import Path
 
 from racerlab import logs
 from racerlab.errors import RacerlabError
-from racerlab.evaluate.api import EvaluationResult, _write, evaluate, run_pair
+from racerlab.evaluate.api import RACE_SEED, EvaluationResult, _write, evaluate, run_pair
 from racerlab.evaluate.results import DEFAULT_RANKING_LAPS, race_result, rank_key
 from racerlab.evaluate.rules import RaceRules
 from racerlab.logs.layout import STAMP_FORMAT
@@ -135,20 +135,34 @@ def head_to_model(model_a, model_b, track=None, *, rules: RaceRules | None = Non
 
     models = [ModelFolder(m).open(checkpoint) for m in dirs]
     track_obj = resolve_track(models[0].folder, track)
-    worlds, runs = run_pair(models, track_obj, rules, video=video, on_lap=lap_end, device=device,
-                            where="racerlab race --head-to-model", car=car)
+    results = head_to_model_loaded(models, track_obj, rules, ranking_laps=ranking_laps, video=video,
+                                   progress=progress, on_result=on_result, on_lap=lap_end, device=device,
+                                   write=write, car=car)
+    return _board(results, rules, out, dirs[0])
+
+
+def head_to_model_loaded(models, track, rules: RaceRules, *, ranking_laps: int = DEFAULT_RANKING_LAPS,
+                         video: bool = False, progress: bool = False, on_result=None, on_lap=None,
+                         device: str = "cpu", write: bool = True, car=None, seed: int = RACE_SEED,
+                         out_dirs=None, look: tuple | None = None) -> list[EvaluationResult]:
+    """`head_to_model` of two models already open (`ModelFolder.open`, or a race server's stored models) on a
+    `Track`: each car's `EvaluationResult`, in the order given. `seed` seeds the world; `out_dirs` (one per car)
+    receive the evaluations' files instead of new evaluation folders in the model folders; `look` is the video's
+    (track width in pixels, title or None, every k-th step)."""
+    worlds, runs = run_pair(models, track, rules, video=video, on_lap=on_lap, device=device,
+                            where="racerlab race --head-to-model", car=car, seed=seed)
     results = []
-    for m, w, run in zip(models, worlds, runs, strict=True):
-        res = EvaluationResult(m.name, m.folder.path, m.checkpoint.name, track_obj.name, rules,
+    for k, (m, w, run) in enumerate(zip(models, worlds, runs, strict=True)):
+        res = EvaluationResult(m.name, m.folder.path, m.checkpoint.name, track.name, rules,
                                run.laps, race_result(run.laps, ranking_laps), steps=run.rows,
                                wall_seconds=run.wall_seconds, run=run, race={"type": "head_to_model"},
                                car=w.sim.car_params.name)
         if write:
-            _write(res, w, video, progress)
+            _write(res, w, video, progress, out_dirs[k] if out_dirs else None, *([look] if look else []))
         results.append(res)
         if on_result:
             on_result(res)
-    return _board(results, rules, out, dirs[0])
+    return results
 
 
 def _board(results: list[EvaluationResult], rules: RaceRules, out, home: Path) -> Leaderboard:

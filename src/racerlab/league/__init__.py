@@ -14,7 +14,8 @@ passwords, invites, tokens, throttling), `rules` (a race's frozen rules and thei
 times), `service` (`League`: the API the web pages and the command line call), `submissions` (its submission,
 result and standings calls), `convert` (uploads to safetensors in a locked-down child), `queue` (claims, leases,
 retries), `evaluation` (a stored model raced under the rules: a pure function), `worker` (local worker processes),
-`scoring` (timing methods, the leaderboard order), `audit` (the append-only log), `views` (what calls return).
+`scoring` (timing methods, the leaderboard order), `seasons` (points per place, overall standings), `finals`
+(head-to-model finals of a race's top racers), `audit` (the append-only log), `views` (what calls return).
 See docs/league.md.
 """
 

@@ -48,6 +48,7 @@ PERMISSIONS = {
     "standings.view": EVERYONE, "audit.view": STAFF,
     "invite.racer": STAFF, "invite.staff": frozenset({"admin"}), "settings.change": frozenset({"admin"}),
     "user.list": STAFF, "user.change": frozenset({"admin"}), "token.own": EVERYONE,
+    "season.edit": STAFF, "final.start": STAFF,
 }
 
 

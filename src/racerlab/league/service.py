@@ -12,7 +12,8 @@ Every call that acts for someone takes the acting user (`Actor`) first and check
 before it reads anything; the user is read again inside the call's transaction, so a deactivated account stops at
 once. Refusals are `LeagueError`s: one line, with the HTTP status a page answers with (400 bad input, 401 not
 logged in, 403 not allowed, 404 no such thing or not yours, 409 a limit or a state, 429 throttled).
-Submissions, results and files: `racerlab.league.submissions` (the same `League` methods, defined there).
+Submissions, results and files: `racerlab.league.submissions`; seasons: `racerlab.league.seasons`; head-to-model
+finals: `racerlab.league.finals` (the same `League` methods, defined there).
 """
 
 from __future__ import annotations
@@ -26,9 +27,11 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from racerlab.league import audit, people
+from racerlab.league.finals import FinalsMixin
 from racerlab.league.people import Actor, require_role
 from racerlab.league.races import RaceOptions, check_limit, check_name, race_state
 from racerlab.league.rules import Rules, with_tracks
+from racerlab.league.seasons import SeasonsMixin
 from racerlab.league.store import LeagueError, Store
 from racerlab.league.submissions import SubmissionsMixin
 from racerlab.league.tables import Invite, LoginAttempt, Race, Setting, Submission, Token, User, utcnow
@@ -60,7 +63,7 @@ def _race_changes(race: Race, now: datetime, asked: dict) -> dict:
     return changes
 
 
-class League(SubmissionsMixin):
+class League(SubmissionsMixin, SeasonsMixin, FinalsMixin):
     """A league: its store and every action on it."""
 
     def __init__(self, store: Store):

@@ -272,10 +272,8 @@ class SubmissionsMixin:
         with self.store.read() as s:
             self._acting(s, actor, "standings.view")
             row = self._race_row(s, race)
-            subs = s.execute(select(Submission, User.alias).join(User, User.id == Submission.user_id)
-                             .where(Submission.race_id == row.id)).all()
             rules = Rules.from_json(row.rules_json)
-            rows = _standing_rows(subs, row)
+            rows = race_rows(s, row)
             return Standings(row.name, rules.timing, row.rules_hash, race_state(row.opens_at, row.closes_at, utcnow()),
                              utcnow(), row.version, rows)
 
@@ -310,6 +308,13 @@ def logs_bundle(attempt: Path, dest: Path, name: str) -> Path:
                 tar.add(p, f"{name}/{p.relative_to(attempt).as_posix()}", recursive=False)
     os.replace(tmp, dest)
     return dest
+
+
+def race_rows(s: Session, race: Race) -> list[StandingRow]:
+    """A race's leaderboard rows (`standings`): ranked rows first (rank 1..n), then the racers not ranked."""
+    subs = s.execute(select(Submission, User.alias).join(User, User.id == Submission.user_id)
+                     .where(Submission.race_id == race.id)).all()
+    return _standing_rows(subs, race)
 
 
 def _standing_rows(subs, race: Race) -> list[StandingRow]:

@@ -201,3 +201,44 @@ class AuditEntry(Base):
     action: Mapped[str] = mapped_column(String(48))
     subject: Mapped[str] = mapped_column(String(128), default="")
     detail: Mapped[str] = mapped_column(Text, default="{}")
+
+
+class Season(Base):
+    """A season: races whose standings add up, by the points each place earns (`points_json`: a JSON list, the
+    points of 1st, 2nd, ... place; a place past its end earns 0)."""
+
+    __tablename__ = "seasons"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    description: Mapped[str] = mapped_column(String(255), default="")
+    points_json: Mapped[str] = mapped_column(Text)
+    created_by: Mapped[int] = mapped_column(ForeignKey("users.id"))
+    created_at: Mapped[datetime] = mapped_column(UTCTime, default=utcnow)
+
+
+class SeasonRace(Base):
+    """A race of a season (a race is in at most one season), in the order it was added."""
+
+    __tablename__ = "season_races"
+    season_id: Mapped[int] = mapped_column(ForeignKey("seasons.id"), primary_key=True)
+    race_id: Mapped[int] = mapped_column(ForeignKey("races.id"), primary_key=True)
+    added_at: Mapped[datetime] = mapped_column(UTCTime, default=utcnow)
+    __table_args__ = (UniqueConstraint("race_id", name="uq_season_race"),)
+
+
+class Final(Base):
+    """A head-to-model final of a race: its entrants (the top racers' ranked submissions, frozen when it starts),
+    its state (running | done | failed) and its result (the order, each car's laps) as canonical JSON."""
+
+    __tablename__ = "finals"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    race_id: Mapped[int] = mapped_column(ForeignKey("races.id"), index=True)
+    status: Mapped[str] = mapped_column(String(16), default="running")
+    reason: Mapped[str] = mapped_column(String(500), default="")
+    entrants_json: Mapped[str] = mapped_column(Text)
+    rules_hash: Mapped[str] = mapped_column(String(64))
+    result_json: Mapped[str | None] = mapped_column(Text, nullable=True)
+    result_dir: Mapped[str | None] = mapped_column(String(255), nullable=True)  # relative to the league folder
+    created_by: Mapped[int] = mapped_column(ForeignKey("users.id"))
+    created_at: Mapped[datetime] = mapped_column(UTCTime, default=utcnow)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCTime, nullable=True)

@@ -138,8 +138,17 @@ class StandingRow(_View):
     video: bool
 
 
+class _RowsView(_View):
+    """A view whose `rows` are views themselves."""
+
+    def to_json(self) -> dict:
+        out = _jsonable({k: v for k, v in self.__dict__.items() if k != "rows"})
+        out["rows"] = [r.to_json() for r in self.rows]
+        return out
+
+
 @dataclass
-class Standings(_View):
+class Standings(_RowsView):
     race: str
     timing: str
     rules_hash: str
@@ -148,10 +157,38 @@ class Standings(_View):
     version: int
     rows: list  # StandingRow: ranked rows first (rank 1..n), then racers with no ranked result (rank None)
 
-    def to_json(self) -> dict:
-        out = _jsonable({k: v for k, v in self.__dict__.items() if k != "rows"})
-        out["rows"] = [r.to_json() for r in self.rows]
-        return out
+
+@dataclass
+class SeasonRow(_View):
+    rank: int
+    alias: str
+    points: int
+    places: list  # the racer's place in each of the season's races, in order (None: not ranked in it)
+    race_points: list  # the points each race gave (0 where not ranked)
+    wins: int
+
+
+@dataclass
+class SeasonView(_RowsView):
+    name: str
+    description: str
+    points: list  # points of 1st, 2nd, ... place
+    races: list  # the race names, in the order they were added
+    rows: list  # SeasonRow, rank 1 first
+
+
+@dataclass
+class FinalView(_View):
+    id: int
+    race: str
+    status: str  # running | done | failed
+    reason: str
+    rules_hash: str
+    entrants: list  # {"alias", "qualifying_rank", "submission_id", "model_hash"} in qualifying order
+    order: list  # when done: {"place", "alias", "finished", "laps_completed", "total_s", "laps", ...}, 1st first
+    created_at: datetime
+    finished_at: datetime | None
+    files: dict = field(default_factory=dict)  # place -> the file kinds `League.final_file` serves for that car
 
 
 @dataclass

@@ -144,13 +144,14 @@ def read_flash(request: Request) -> tuple[str, str] | None:
 
 
 def register(app: FastAPI) -> None:
-    from racerlab.league.web import manage
+    from racerlab.league.web import manage, seasons
 
     _people(app)
     _joining(app)
     _leaving(app)
     _racing(app)
     manage.register(app)
+    seasons.register(app)
 
 
 # ---- people ---------------------------------------------------------------------------------------------------
@@ -261,7 +262,7 @@ def _racing(app: FastAPI) -> None:
         league = request.app.state.league
         view = league.race(actor, name)
         return render(request, "race.html", race=view, standings=league.standings(actor, name),
-                      mine=league.submissions(actor, name))
+                      mine=league.submissions(actor, name), finals=league.finals(actor, name))
 
     @app.get("/races/{name}/track.svg")
     def track_svg(request: Request, name: str, actor: User):
