@@ -74,20 +74,20 @@ def _people(app: FastAPI) -> None:
     @app.post("/api/login")
     async def login(request: Request):
         body, league = await json_body(request), request.app.state.league
-        actor = await run_in_threadpool(league.authenticate, text(body, "alias"), text(body, "password"),
+        actor = await auth.hashing(request, league.authenticate, text(body, "alias"), text(body, "password"),
                                         auth.client_address(request))
         return await run_in_threadpool(issued, league, actor, text(body, "label", False))
 
     @app.post("/api/invites/accept")
     async def accept(request: Request):
         body, league = await json_body(request), request.app.state.league
-        actor = await run_in_threadpool(league.accept_invite, text(body, "code"), text(body, "password"))
+        actor = await auth.hashing(request, league.accept_invite, text(body, "code"), text(body, "password"))
         return JSONResponse(await run_in_threadpool(issued, league, actor, text(body, "label", False)), 201)
 
     @app.post("/api/signup")
     async def signup(request: Request):
         body, league = await json_body(request), request.app.state.league
-        actor = await run_in_threadpool(league.sign_up, text(body, "alias"), text(body, "password"))
+        actor = await auth.hashing(request, league.sign_up, text(body, "alias"), text(body, "password"))
         return JSONResponse(await run_in_threadpool(issued, league, actor, text(body, "label", False)), 201)
 
     @app.get("/api/me")
@@ -154,13 +154,15 @@ def _races(app: FastAPI) -> None:
 
 def _standings(app: FastAPI) -> None:
     @app.get("/api/races/{name}/standings")
-    def standings(request: Request, name: str, actor: User, format: str = "json"):
-        league = request.app.state.league
+    async def standings(request: Request, name: str, actor: User, format: str = "json"):
+        league, boards = request.app.state.league, request.app.state.boards
         if format == "csv":
-            return csv_response(league.standings_csv(actor, name), name)
+            return csv_response(await run_in_threadpool(league.standings_csv, actor, name), name)
         if format != "json":
             raise LeagueError(f"format {format!r}: json or csv")
-        body = request.app.state.boards.standings_json(actor, name)  # read and encoded once per change
+        body = boards.standings_json_held(actor, name)  # read and encoded once per change, sent from memory
+        if body is None:
+            body = await run_in_threadpool(boards.standings_json, actor, name)
         return Response(body, media_type="application/json")
 
     @app.get("/api/races/{name}/standings.csv")
@@ -206,11 +208,15 @@ def _submissions(app: FastAPI) -> None:
         return JSONResponse(view.to_json(), 200 if view.duplicate else 201)
 
     @app.get("/api/submissions")
-    def submissions(request: Request, actor: User, race: str | None = None, everyone: bool = False):
+    async def submissions(request: Request, actor: User, race: str | None = None, everyone: bool = False):
+        boards = request.app.state.boards
         if race is not None and not everyone:  # a racer's poll of one race: shared with their board
-            return JSONResponse({"submissions": request.app.state.boards.mine(actor, race)})
-        subs = request.app.state.league.submissions(actor, race, everyone=everyone)
-        return {"submissions": [s.to_json() for s in subs]}
+            mine = boards.mine_held(actor, race)
+            if mine is None:
+                mine = await run_in_threadpool(boards.mine, actor, race)
+            return JSONResponse({"submissions": mine})
+        subs = await run_in_threadpool(request.app.state.league.submissions, actor, race, everyone=everyone)
+        return JSONResponse({"submissions": [s.to_json() for s in subs]})
 
     @app.get("/api/submissions/{sid}")
     def submission(request: Request, sid: int, actor: User):

@@ -23,6 +23,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import hmac
 import secrets
@@ -65,12 +66,15 @@ class TokenCache:
         self._held: dict[str, tuple[Actor, float]] = {}
         self._generation = 0  # moves with every forget: a lookup that began before one is not kept
 
-    def actor(self, league, token: str, kind: str) -> Actor:
+    def actor(self, league, token: str, kind: str, lookup: bool = True) -> Actor:
+        """The token's actor; with `lookup` False, `NeedsLookup` when only the store can say (nothing cached)."""
         key, now = f"{kind}:{people.digest(token)}", time.monotonic()
         with self._lock:
             hit, generation = self._held.get(key), self._generation
         if hit is not None and now - hit[1] < self.TTL_S:
             return hit[0]
+        if not lookup:
+            raise NeedsLookup()
         actor = league.actor_for_token(token, kind)  # 401 for an unknown, revoked or expired one
         with self._lock:
             if generation == self._generation:
@@ -90,27 +94,52 @@ class TokenCache:
                     self._held.pop(f"{kind}:{people.digest(token)}", None)
 
 
-def _identify(request: Request) -> Caller:
+class NeedsLookup(Exception):
+    """The token is not in the cache: asking the store means leaving the event loop."""
+
+
+def _identify(request: Request, lookup: bool = True) -> Caller:
     league, cache = request.app.state.league, request.app.state.tokens
     header = request.headers.get("authorization", "")
     if header:
         scheme, _, token = header.partition(" ")
         if scheme.lower() != "bearer" or not token.strip():
             raise LeagueError("Authorization: send 'Bearer <token>' (racerlab league login stores one)", 401)
-        return Caller(cache.actor(league, token.strip(), "api"), "bearer")
+        return Caller(cache.actor(league, token.strip(), "api", lookup), "bearer")
     token = request.cookies.get(SESSION_COOKIE, "")
     if token:
         try:
-            return Caller(cache.actor(league, token, "session"), "session", token)
+            return Caller(cache.actor(league, token, "session", lookup), "session", token)
         except LeagueError:
             pass  # an expired or revoked session: a stranger, who is sent to the login page
     return Caller(None)
 
 
-def recheck(request: Request, actor: Actor) -> None:
+async def identify(request: Request) -> Caller:
+    """Who asks: from the token cache on the event loop, the store (in a thread) only on a miss. A crowd's polls
+    would otherwise each take a thread of the pool, and wait for one when logins hold them."""
+    try:
+        return _identify(request, lookup=False)
+    except NeedsLookup:
+        return await run_in_threadpool(_identify, request)
+
+
+async def hashing(request: Request, call, *args):
+    """`call(*args)` (a login, invite, sign-up or password change: an Argon2id hash inside) in a thread, at most
+    `people.HASHES_AT_ONCE` at a time; the others wait on the event loop, not in the thread pool the other routes
+    need."""
+    import anyio
+
+    state = request.app.state
+    if getattr(state, "hash_limiter", None) is None:
+        state.hash_limiter = anyio.CapacityLimiter(people.HASHES_AT_ONCE)
+    return await anyio.to_thread.run_sync(functools.partial(call, *args), limiter=state.hash_limiter)
+
+
+async def recheck(request: Request, actor: Actor) -> None:
     """A long request (a live board's stream) asks again who it comes from: 401 once its token was revoked or
     logged out, or the account disabled or changed (through this server: at once; elsewhere: within the TTL)."""
-    if _identify(request).actor != actor:
+    if (await identify(request)).actor != actor:
         raise LeagueError("the session ended or the account changed; log in again", 401)
 
 
@@ -118,7 +147,7 @@ async def caller(request: Request) -> Caller:
     """Who asks (looked up once per request; the token lookup runs off the event loop)."""
     found = getattr(request.state, "caller", None)
     if found is None:
-        found = await run_in_threadpool(_identify, request)
+        found = await identify(request)
         request.state.caller = found
     return found
 

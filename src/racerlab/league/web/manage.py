@@ -16,7 +16,7 @@ from starlette.concurrency import run_in_threadpool
 from racerlab.errors import RacerlabError
 from racerlab.league.people import Actor
 from racerlab.league.store import LeagueError
-from racerlab.league.web import forms
+from racerlab.league.web import auth, forms
 from racerlab.league.web.api import RACE_CHANGES, base_url, invite_answer
 from racerlab.league.web.auth import needs, signed_in
 from racerlab.league.web.pages import redirect, render
@@ -170,7 +170,7 @@ def _account(app: FastAPI) -> None:
         try:
             if new != str(form.get("new2") or ""):
                 raise LeagueError("the two new passwords differ; type the same password twice")
-            await run_in_threadpool(request.app.state.league.change_password, actor, old, new)
+            await auth.hashing(request, request.app.state.league.change_password, actor, old, new)
             request.app.state.tokens.forget()
         except LeagueError as exc:
             return await run_in_threadpool(_account_page, request, actor, exc.status, None, str(exc))

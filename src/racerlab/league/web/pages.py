@@ -183,7 +183,7 @@ def _people(app: FastAPI) -> None:
         form, league = await request.form(), request.app.state.league
         alias, target = str(form.get("alias") or ""), safe_next(form.get("next"))
         try:
-            actor = await run_in_threadpool(league.authenticate, alias, str(form.get("password") or ""),
+            actor = await auth.hashing(request, league.authenticate, alias, str(form.get("password") or ""),
                                             auth.client_address(request))
         except LeagueError as exc:
             signup = await run_in_threadpool(league.open_signup)
@@ -206,7 +206,7 @@ def _joining(app: FastAPI) -> None:
         try:
             if password != str(form.get("password2") or ""):
                 raise LeagueError("the two passwords differ; type the same password twice")
-            actor = await run_in_threadpool(league.accept_invite, code, password)
+            actor = await auth.hashing(request, league.accept_invite, code, password)
         except LeagueError as exc:
             return _pre_form(request, "invite.html", exc.status, code=code[:200], error=str(exc))
         return await run_in_threadpool(_signed_in_as, request, actor, "/",
@@ -225,7 +225,7 @@ def _joining(app: FastAPI) -> None:
         try:
             if password != str(form.get("password2") or ""):
                 raise LeagueError("the two passwords differ; type the same password twice")
-            actor = await run_in_threadpool(league.sign_up, alias, password)
+            actor = await auth.hashing(request, league.sign_up, alias, password)
         except LeagueError as exc:
             return _pre_form(request, "signup.html", exc.status, signup=True, alias=alias[:40], error=str(exc))
         return await run_in_threadpool(_signed_in_as, request, actor, "/", f"Welcome, {actor.alias}")
