@@ -67,31 +67,36 @@ class _Beat(threading.Thread):
 
 def evaluate_claim(store: Store, claim: queue.Claim, stop=None, lost=None) -> tuple[str, str, dict]:
     """(status, reason, column values) of one claimed submission's evaluation. Raises Stopped or Lost."""
-    from racerlab.league.evaluation import evaluate_stored
-    from racerlab.league.rules import Rules
-
-    rules = Rules.from_json(claim.rules_json)
-    if rules.hash != claim.rules_hash:
-        return "failed", "the stored rules do not match their hash; the store was changed", {}
-    out = attempt_folder(store, claim)
-
     def check(_lap) -> None:
         if lost is not None and lost.is_set():
             raise Lost()
         if stop is not None and stop.is_set():
             raise Stopped()
 
-    model_dir = store.model_dir(claim.model_hash)
+    return evaluate_in(store.folder, claim, attempt_folder(store, claim), on_lap=check)
+
+
+def evaluate_in(folder: Path, claim: queue.Claim, out: Path, on_lap=None,
+                tracks_dir: Path | None = None) -> tuple[str, str, dict]:
+    """`evaluate_claim` on a league folder's files alone (models/<hash>/, tracks/ or `tracks_dir`), no store: what a
+    Ray node runs on the copies it was sent (`racerlab.league.ray_pool`). Raises what `on_lap` raises."""
+    from racerlab.league.evaluation import evaluate_stored
+    from racerlab.league.rules import Rules
+
+    rules = Rules.from_json(claim.rules_json)
+    if rules.hash != claim.rules_hash:
+        return "failed", "the stored rules do not match their hash; the store was changed", {}
+    model_dir = folder / "models" / claim.model_hash
     try:
-        outcome = evaluate_stored(model_dir, rules, store.folder / "tracks", out, on_lap=check)
+        outcome = evaluate_stored(model_dir, rules, tracks_dir or folder / "tracks", out, on_lap=on_lap)
     except (Stopped, Lost):
         raise
     except RacerlabError as exc:  # the model does not fit the race: the racer's to fix
-        return "refused", _scrub(str(exc), model_dir, store.folder), {}
+        return "refused", _scrub(str(exc), model_dir, folder), {}
     except Exception as exc:  # noqa: BLE001 - any other failure is stored as one line, not a dead worker
-        why = _scrub(str(exc), model_dir, store.folder)
+        why = _scrub(str(exc), model_dir, folder)
         return "failed", f"the evaluation failed ({type(exc).__name__}: {why}); staff can queue it again", {}
-    outcome["result_dir"] = str(out.relative_to(store.folder))
+    outcome["result_dir"] = str(out.relative_to(folder))
     return outcome["status"], outcome["reason"], queue.result_values(outcome)
 
 
