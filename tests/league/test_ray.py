@@ -184,13 +184,17 @@ def test_a_server_stopped_mid_evaluation_queues_it_again_uncounted(club, cluster
     err_path = club["home"] / "first.err"
     proc, children = _serve(cluster, club, err_path)
     sub = league.submit(racer(league, admin, "stop"), "wide", club["model"])
+    task = None
     try:
         task = _task_pid(cluster)
+        os.kill(task, signal.SIGSTOP)  # held mid-evaluation: it cannot finish while the server stops
     finally:
         _stopped(proc, children, err_path)
+        if task is not None:
+            os.kill(task, signal.SIGCONT)
     again = league.submission(admin, sub.id)
     assert (again.status, again.attempts) == ("queued", 0)
-    assert _nodes().still_running({task}, within_s=30) == []  # cancelled: Ray ended its worker
+    assert _nodes().still_running({task}, within_s=60) == []  # cancelled, its driver gone: Ray ended the worker
     request.getfixturevalue("server")
     done = _wait(league, admin, sub.id, FINAL, timeout=300)
     assert done.attempts == 1

@@ -40,6 +40,7 @@ from racerlab.logs import atomic_write_bytes
 PROBE_S = 5.0  # a head that does not accept a TCP connection within this is not there
 GET_S = 120.0  # fetching a finished task's answer (its files) from the object store, at most
 PAUSE_S = 10.0  # after a node could not evaluate, before the next claim: its one line is not repeated every second
+SAY_AGAIN_S = 60.0  # the same trouble of the dispatcher is printed again after this
 VERSIONED = ("torch", "numpy")  # besides racerlab: the builds whose sums an evaluation depends on
 
 
@@ -186,6 +187,7 @@ class RayPool:
         self.slots: set[str] = set()  # every worker id the dispatcher used (the workers table's rows)
         self._stopping = threading.Event()
         self._resume_at = 0.0  # after a node could not evaluate: a pause before the next claim
+        self._said, self._said_at = "", 0.0  # the dispatcher's last trouble, and when it said so
         self._thread: threading.Thread | None = None
 
     def start(self) -> RayPool:
@@ -205,7 +207,7 @@ class RayPool:
     def capacity(self) -> int:
         if self.fixed:
             return self.fixed
-        return max(1, int(self.ray.cluster_resources().get("CPU", 1)))
+        return int(self.ray.cluster_resources().get("CPU", 0))  # none (a head with --num-cpus=0 alone): no claims
 
     @property
     def evaluating(self) -> dict[str, int]:
@@ -218,7 +220,10 @@ class RayPool:
                 self._fill()
                 self._collect()
             except Exception as exc:  # noqa: BLE001 - a database or cluster hiccup: the leases have slack
-                self.note(f"the Ray dispatcher: {type(exc).__name__}: {str(exc).strip()[:200]}; trying again")
+                line = f"the Ray dispatcher: {type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[0][:200]}"
+                if line != self._said or time.monotonic() - self._said_at > SAY_AGAIN_S:  # not once a second
+                    self.note(f"{line}; trying again")
+                    self._said, self._said_at = line, time.monotonic()
                 self._stopping.wait(self.poll_s)
 
     def _fill(self) -> None:
@@ -244,9 +249,9 @@ class RayPool:
     def _send(self, worker: str, claim: queue.Claim) -> None:
         queue.worker_seen(self.store, worker, socket.gethostname(), os.getpid(), "evaluating")
         out = attempt_folder(self.store, claim)
+        ref = self.remote.remote(make_job(self.store, claim, out))  # if this raises, the lease runs out: reaped
         beat = _Beat(self.store, claim, self.lease_s)
         beat.start()
-        ref = self.remote.remote(make_job(self.store, claim, out))
         self.jobs[ref] = Job(worker, claim, beat, str(out.relative_to(self.store.folder)))
 
     def _collect(self) -> None:
@@ -256,6 +261,8 @@ class RayPool:
         for ref, job in list(self.jobs.items()):
             if job.beat.lost.is_set():  # its lease ran out and another took it: the work is dropped
                 self._drop(ref, cancel=True)
+        if not self.jobs:
+            return
         ready, _ = self.ray.wait(list(self.jobs), num_returns=1, timeout=self.poll_s)
         for ref in ready:
             self._answer(ref, self.jobs[ref])
@@ -264,7 +271,8 @@ class RayPool:
         errors = self.ray.exceptions
         try:
             answer = self.ray.get(ref, timeout=GET_S)
-        except errors.RayTaskError as exc:  # the node cannot evaluate: not the submission's fault, not counted
+        except (errors.RayTaskError, errors.RuntimeEnvSetupError) as exc:  # the node cannot evaluate: not the
+            # submission's fault, not counted
             from racerlab.cluster.collector import remote_error
 
             self.note(f"submission {job.claim.submission_id} queued again: {remote_error(exc, 'a Ray node')}")
