@@ -268,6 +268,12 @@ class RayPool:
             self._answer(ref, self.jobs[ref])
 
     def _answer(self, ref, job: Job) -> None:
+        try:
+            self._store_answer(ref, job)
+        finally:  # whatever happened (a full disk while writing), the task is done with: never waited on again
+            self._drop(ref)
+
+    def _store_answer(self, ref, job: Job) -> None:
         errors = self.ray.exceptions
         try:
             answer = self.ray.get(ref, timeout=GET_S)
@@ -286,7 +292,6 @@ class RayPool:
             if not job.beat.lost.is_set():
                 land(self.store, job.out, answer)
                 queue.finish(self.store, job.claim, answer["status"], answer["reason"], answer["values"])
-        self._drop(ref)
 
     def _drop(self, ref, cancel: bool = False) -> None:
         job = self.jobs.pop(ref)
