@@ -24,7 +24,7 @@ import pytest
 from racerlab.cli import main
 from racerlab.league import League
 from racerlab.league.evaluation import PIN_ENV
-from racerlab.league.worker import worker_main
+from racerlab.league.worker import POLL_S, worker_main
 from tests.league.conftest import PASSWORD, features_model, racer
 from tests.league.test_queue import _wait
 
@@ -41,12 +41,13 @@ def cluster():
     tmp = Path(tempfile.mkdtemp(prefix="rl", dir="/tmp"))
     port, saved = _free_port(), os.environ.get("RAY_AUTH_MODE")
     os.environ["RAY_AUTH_MODE"] = "disabled"  # as `ray start` on a fresh install: no token yet
-    procs = [tc.start_node(["--head", f"--port={port}", "--include-dashboard=false"], tmp)]
+    # the head runs no evaluation (as on a server that keeps its CPUs for the web pages): they all go to the node
+    procs = [tc.start_node(["--head", f"--port={port}", "--include-dashboard=false"], tmp, cpus=0)]
     address = f"127.0.0.1:{port}"
     try:
         tc._wait_for_head(address, tmp)
         procs.append(tc.start_node([f"--address={address}"], tmp))
-        yield {"address": address, "procs": procs}
+        yield {"address": address, "procs": procs, "tmp": tmp}
     finally:
         ray_pids = set().union(*(tc._descendants(p.pid) for p in procs))
         tc.stop_nodes(procs)
@@ -232,6 +233,35 @@ def test_a_ray_worker_killed_mid_evaluation_requeues_its_submission(club, cluste
     said = [line for line in server.read_text().splitlines() if f"submission {sub.id}:" in line]
     assert said == [f"racerlab league: submission {sub.id}: its Ray worker was lost (WorkerCrashedError); evaluated "
                     "again from the start"], said
+
+
+@pytest.mark.slow
+def test_a_node_lost_mid_evaluation_requeues_it_and_a_machine_added_evaluates_it(club, cluster, server):
+    """Every process of the node killed (-9) while it evaluates: the submission goes back to the queue, counted
+    as a local worker killed with -9; with no CPU left it waits, and a machine that joins evaluates it."""
+    tc, league, admin = _nodes(), club["league"], club["admin"]
+    sub = league.submit(racer(league, admin, "node"), "wide", club["model"])
+    _task_pid(cluster)
+    node = cluster["procs"][1]
+    node_pids = tc._descendants(node.pid)
+    for pid in node_pids:  # the machine is gone: its raylet, its agents and the worker (in its own process group)
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    node.wait()
+    assert tc.still_running(node_pids, within_s=60) == []
+    end = time.monotonic() + 120
+    while f"submission {sub.id}: its Ray worker was lost" not in server.read_text() and time.monotonic() < end:
+        time.sleep(0.1)
+    time.sleep(3 * POLL_S)  # nothing can evaluate it: the cluster has no CPU left
+    assert league.submission(admin, sub.id).status == "queued"
+    cluster["procs"].append(tc.start_node([f"--address={cluster['address']}"], cluster["tmp"]))
+    done = _wait(league, admin, sub.id, FINAL, timeout=300)
+    assert done.attempts == 2
+    _same_as_local(club, done)
+    said = [line for line in server.read_text().splitlines() if f"submission {sub.id}:" in line]
+    assert len(said) == 1 and "its Ray worker was lost (" in said[0], said
 
 
 def test_ray_without_the_cluster_extra_is_one_line(tmp_path):

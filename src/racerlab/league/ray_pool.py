@@ -237,6 +237,9 @@ class RayPool:
             self._seen = time.monotonic()
         if not free or time.monotonic() < self._resume_at:
             return
+        # a claim only for a CPU free now: with a node just lost, the submission waits queued, not claimed for a task
+        # that no node can run yet
+        free = free[:int(self.ray.available_resources().get("CPU", 0))]
         queue.reap(self.store)
         for worker in free:
             if self._stopping.is_set():
