@@ -3,8 +3,9 @@
 (a fresh process, a fresh HOME, no RAY_* variable but the one that keeps a test cluster on loopback).
 
 The same model is evaluated by a local worker process and through Ray: the outcomes and the simtraces are the same
-bit for bit (every column but the wall clock). A Ray worker killed with -9 mid-evaluation hands the submission
-back; evaluated again from the start, it ends with the same result as the undisturbed ones.
+bit for bit (every column but the wall clock). A Ray worker killed with -9 mid-evaluation, or the whole node, hands
+the submission back; evaluated again from the start, it ends with the same result as the undisturbed ones. A server
+stopped mid-evaluation queues it again, uncounted. Ray missing and wrong flags are one line.
 """
 
 from __future__ import annotations
