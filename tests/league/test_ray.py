@@ -292,6 +292,34 @@ def test_a_wrong_ray_flag_is_one_line(tmp_path, capsys, flags, says):
     assert len(err) == 1 and says in err[0] and err[0].startswith("racerlab: error: --"), err
 
 
+def test_an_address_where_a_web_server_answers_is_one_line_not_minutes_of_retries(tmp_path, capsys):
+    """ray.init retried for many minutes on a port where something other than a Ray head answers (the league's own
+    port, the dashboard's): the head's gRPC is asked first."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    pytest.importorskip("ray")
+    League.create(tmp_path / "club", password=PASSWORD)[0].close()
+    class Quiet(BaseHTTPRequestHandler):
+        def log_message(self, *args) -> None:  # its log lines would mix with the command's stderr
+            pass
+
+    web = ThreadingHTTPServer(("127.0.0.1", 0), Quiet)
+    threading.Thread(target=web.serve_forever, daemon=True).start()
+    try:
+        start = time.monotonic()
+        rc = main(["league", "serve", str(tmp_path / "club"), "--port", str(_free_port()), "--ray",
+                   f"127.0.0.1:{web.server_address[1]}"])
+        took = time.monotonic() - start
+    finally:
+        web.shutdown()
+        web.server_close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "no Ray cluster answers there (something answers, but not a Ray head's " \
+        "gRPC)" in err[0], err
+    assert took < 30
+
+
 def test_a_node_with_other_versions_refuses_the_task_in_one_line():
     """Bit-identity holds for the same racerlab, torch and NumPy builds: a node with others would race other sums."""
     from racerlab.errors import RacerlabError

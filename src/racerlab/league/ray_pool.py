@@ -71,10 +71,8 @@ def join_cluster(address: str):
     if importlib.util.find_spec("ray") is None:  # not imported here: cluster.collector imports it
         raise RacerlabError(f"--ray {address}: Ray is not installed; run `pip install 'racerlab[cluster]'`")
     host, port = check_address(address)
-    try:
-        socket.create_connection((host, port), timeout=PROBE_S).close()
-    except OSError as exc:  # ray.init would wait for minutes on an address where nothing answers
-        why = exc.strerror or type(exc).__name__
+    why = _not_grpc(host, port)
+    if why:  # ray.init would retry for many minutes on an address where no Ray head answers
         raise RacerlabError(f"--ray {address}: no Ray cluster answers there ({why}); start its head with "
                             "`ray start --head` and give the address it prints") from None
     from racerlab.cluster.collector import connect
@@ -87,6 +85,24 @@ def join_cluster(address: str):
         first = (str(exc).strip().splitlines() or [""])[0][:300]
         raise RacerlabError(f"--ray {address}: could not join the Ray cluster ({type(exc).__name__}: {first})") \
             from None
+
+
+# an HTTP/2 client's first bytes: the connection preface and an empty SETTINGS frame
+_H2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _not_grpc(host: str, port: int) -> str:
+    """Why nothing at host:port can be a Ray head ('' when it may be): a Ray head's GCS is a gRPC server, which answers
+    an HTTP/2 preface with a SETTINGS frame at once; a closed port, a web server or silence does not."""
+    try:
+        with socket.create_connection((host, port), timeout=PROBE_S) as conn:
+            conn.sendall(_H2_HELLO)
+            head = conn.recv(9)
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    if len(head) == 9 and head[3] == 4:  # a frame header whose type is SETTINGS
+        return ""
+    return "something answers, but not a Ray head's gRPC" if head else "the connection was closed without an answer"
 
 
 # ---- what travels -----------------------------------------------------------------------------------------------
