@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -52,6 +53,7 @@ def cluster():
     finally:
         ray_pids = set().union(*(tc._descendants(p.pid) for p in procs))
         tc.stop_nodes(procs)
+        shutil.rmtree(tmp, ignore_errors=True)
         if saved is None:
             os.environ.pop("RAY_AUTH_MODE", None)
         else:
