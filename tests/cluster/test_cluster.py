@@ -44,8 +44,8 @@ def _small_model(path: Path, episodes: int = 4) -> Path:
     return folder.path
 
 
-def start_node(args: list[str], tmp: Path) -> subprocess.Popen:
-    """`ray start --block` of one node on 127.0.0.1 with one CPU, its files under `tmp`, under a reaper
+def start_node(args: list[str], tmp: Path, cpus: int = 1) -> subprocess.Popen:
+    """`ray start --block` of one node on 127.0.0.1 with `cpus` CPUs, its files under `tmp`, under a reaper
     (`_REAPER`) that takes the node down when this process closes its end of the reaper's stdin or ends, however it
     ends: a test run that died left both nodes running.
 
@@ -57,7 +57,7 @@ def start_node(args: list[str], tmp: Path) -> subprocess.Popen:
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0" if head else "1")
     command = [RAY] if head else [sys.executable, "-c", _KEEP_LOOPBACK]
     return subprocess.Popen([sys.executable, "-c", _REAPER, *command, "start", *args, "--node-ip-address=127.0.0.1",
-                             "--num-cpus=1", "--block", "--disable-usage-stats", f"--temp-dir={tmp}"], env=env,
+                             f"--num-cpus={cpus}", "--block", "--disable-usage-stats", f"--temp-dir={tmp}"], env=env,
                             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
 

@@ -413,6 +413,11 @@ def _serve(cmds) -> None:
     p.add_argument("--port", type=int, default=8000, help="port (default 8000)")
     p.add_argument("--workers", type=int, default=0, metavar="N",
                    help="local evaluation workers started beside the server (default 0: `racerlab league work`)")
+    p.add_argument("--ray", metavar="ADDRESS",
+                   help="send the evaluations to the Ray cluster whose head is at ADDRESS (HOST:PORT, as `ray start "
+                        "--head` prints it) instead of local workers; needs racerlab[cluster]")
+    p.add_argument("--ray-workers", type=int, metavar="N",
+                   help="evaluations at once on the Ray cluster (default: its CPUs, as machines join or leave)")
     p.add_argument("--tls-cert", type=Path, metavar="FILE", help="the server's certificate (PEM)")
     p.add_argument("--tls-key", type=Path, metavar="FILE", help="its private key (PEM)")
     p.add_argument("--public-url", metavar="URL",
@@ -432,7 +437,7 @@ def run_serve(args) -> int:
     if not 0 < args.port < 65536:
         raise RacerlabError(f"--port must be within 1-65535, got {args.port}")
     serve(args.dir, args.db, host=args.host, port=args.port, workers=args.workers, tls_cert=args.tls_cert,
-          tls_key=args.tls_key, public_url=args.public_url)
+          tls_key=args.tls_key, public_url=args.public_url, ray=args.ray, ray_workers=args.ray_workers)
     return 0
 
 

@@ -14,6 +14,7 @@ passwords, invites, tokens, throttling), `rules` (a race's frozen rules and thei
 times), `service` (`League`: the API the web pages and the command line call), `submissions` (its submission,
 result and standings calls), `convert` (uploads to safetensors in a locked-down child), `queue` (claims, leases,
 retries), `evaluation` (a stored model raced under the rules: a pure function), `worker` (local worker processes),
+`ray_pool` (evaluations on a Ray cluster),
 `scoring` (timing methods, the leaderboard order), `seasons` (points per place, overall standings), `finals`
 (head-to-model finals of a race's top racers), `audit` (the append-only log), `views` (what calls return).
 See docs/league.md.
@@ -26,7 +27,8 @@ import importlib
 _WHERE = {"ROLES": "people", "Actor": "people", "RaceOptions": "races", "Rules": "rules", "League": "service",
           "LeagueError": "store", "Store": "store"}
 
-__all__ = ["ROLES", "Actor", "League", "LeagueError", "RaceOptions", "Rules", "Store", "start_workers"]
+__all__ = ["ROLES", "Actor", "League", "LeagueError", "RaceOptions", "Rules", "Store", "start_ray_workers",
+           "start_workers"]
 
 
 def __getattr__(name: str):
@@ -41,3 +43,11 @@ def start_workers(folder, url: str | None = None, workers: int = 1, **options):
     from racerlab.league.worker import WorkerPool
 
     return WorkerPool(folder, url, workers, **options).start()
+
+
+def start_ray_workers(folder, url: str | None = None, address: str = "", workers: int | None = None, **options):
+    """Send the league's evaluations to the Ray cluster at `address`, `workers` at a time (default: its CPUs; see
+    `racerlab.league.ray_pool.RayPool`); call `.stop()` on the answer to end them."""
+    from racerlab.league.ray_pool import RayPool
+
+    return RayPool(folder, url, address, workers, **options).start()

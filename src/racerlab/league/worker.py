@@ -76,40 +76,45 @@ class _Beat(threading.Thread):
 
 def evaluate_claim(store: Store, claim: queue.Claim, stop=None, lost=None) -> tuple[str, str, dict]:
     """(status, reason, column values) of one claimed submission's evaluation. Raises Stopped or Lost."""
-    from racerlab.league.evaluation import evaluate_stored
-    from racerlab.league.rules import Rules
-
-    rules = Rules.from_json(claim.rules_json)
-    if rules.hash != claim.rules_hash:
-        return "failed", "the stored rules do not match their hash; the store was changed", {}
-    out = attempt_folder(store, claim)
-
     def check(_lap) -> None:
         if lost is not None and lost.is_set():
             raise Lost()
         if stop is not None and stop.is_set():
             raise Stopped()
 
-    model_dir = store.model_dir(claim.model_hash)
+    return evaluate_in(store.folder, claim, attempt_folder(store, claim), on_lap=check)
+
+
+def evaluate_in(folder: Path, claim: queue.Claim, out: Path, on_lap=None,
+                tracks_dir: Path | None = None) -> tuple[str, str, dict]:
+    """`evaluate_claim` on a league folder's files alone (models/<hash>/, tracks/ or `tracks_dir`), no store: what a
+    Ray node runs on the copies it was sent (`racerlab.league.ray_pool`). Raises what `on_lap` raises."""
+    from racerlab.league.evaluation import evaluate_stored
+    from racerlab.league.rules import Rules
+
+    rules = Rules.from_json(claim.rules_json)
+    if rules.hash != claim.rules_hash:
+        return "failed", "the stored rules do not match their hash; the store was changed", {}
+    model_dir = folder / "models" / claim.model_hash
     try:
-        outcome = evaluate_stored(model_dir, rules, store.folder / "tracks", out, on_lap=check)
+        outcome = evaluate_stored(model_dir, rules, tracks_dir or folder / "tracks", out, on_lap=on_lap)
     except (Stopped, Lost):
         raise
     except Exception as exc:  # noqa: BLE001 - sorted below: the disk's, the racer's or racerlab's
-        return _failure(exc, store, model_dir, out.parent)
-    outcome["result_dir"] = str(out.relative_to(store.folder))
+        return _failure(exc, folder, model_dir, out.parent)
+    outcome["result_dir"] = str(out.relative_to(folder))
     return outcome["status"], outcome["reason"], queue.result_values(outcome)
 
 
-def _failure(exc: Exception, store: Store, model_dir: Path, attempt: Path) -> tuple[str, str, dict]:
+def _failure(exc: Exception, folder: Path, model_dir: Path, attempt: Path) -> tuple[str, str, dict]:
     """The outcome of an evaluation that raised: a full disk fails it (nothing of it kept, a retry clears it), a
     model that does not fit the race is refused, anything else fails with its one line."""
-    if disk_full(exc, store.folder):
+    if disk_full(exc, folder):
         shutil.rmtree(attempt, ignore_errors=True)  # what it wrote is incomplete, and the room is needed
         return "failed", DISK_FULL_REASON, {}
     if isinstance(exc, RacerlabError):  # the model does not fit the race: the racer's to fix
-        return "refused", _scrub(str(exc), model_dir, store.folder), {}
-    why = _scrub(str(exc), model_dir, store.folder)  # stored as one line, not a dead worker
+        return "refused", _scrub(str(exc), model_dir, folder), {}
+    why = _scrub(str(exc), model_dir, folder)  # stored as one line, not a dead worker
     return "failed", f"the evaluation failed ({type(exc).__name__}: {why}); staff can queue it again", {}
 
 
