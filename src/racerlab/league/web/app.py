@@ -130,7 +130,8 @@ class Guard:
                     scope, receive, guarded_send)
         finally:
             if scope["method"] not in SAFE_METHODS and "app" in scope:
-                scope["app"].state.boards.touch()  # a change made here: the live boards look at once
+                who = scope.get("state", {}).get("caller")  # a change made here: the live boards look at once
+                scope["app"].state.boards.touch(who.actor if who is not None else None)
 
     def _refusal(self, scope, headers: Headers) -> tuple[int, str] | None:
         host = headers.get("host", "")

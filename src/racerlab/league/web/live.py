@@ -10,8 +10,9 @@ each of them would cost a core. `Boards` shares the work:
   everyone); the race's state (upcoming, open, closed) is worked out from its times at each hand-out, since it
   moves with the clock, not the version;
 - a racer's own submissions in the race are read again when their row on the leaderboard changed, after a change
-  made through this server, and at least every `MINE_TTL_S` (a status that does not show in the row, queue places
-  and ETAs): reading them at every move of the race would cost a hundred reads a second on race day.
+  of theirs (or of staff) made through this server, and at least every `MINE_TTL_S` (a status that does not show
+  in the row, queue places and ETAs): reading them at every move of the race would cost a hundred reads a second
+  on race day.
 
 Who asks is checked before anything is handed out: the route's token (`auth.TokenCache`) and the role
 (`people.require_role`). A stream asks again at every look (`auth.recheck`), so logging out, a revoked token or a
@@ -68,16 +69,21 @@ class Boards:
         self._encoded: dict[str, tuple[tuple, bytes]] = {}
         self._mine: OrderedDict[tuple[int, str], tuple[dict | None, float, list]] = OrderedDict()
 
-    def touch(self, race: str | None = None) -> None:
-        """A change made through this server: the next look at the race (every race: None) asks the store."""
+    def touch(self, actor: Actor | None = None) -> None:
+        """A change made through this server by `actor`: the next look at any race asks the store for its version
+        (and so reads its standings again when they moved); the actor's own lists are read again (a member of staff:
+        everyone's, since staff change others' submissions). A stranger's request (a login, a sign-up) changes
+        nothing a board shows, so the racers' lists stay: dropping them all at each of a crowd's logins and uploads
+        sent every poll to the store at once."""
         with self._lock:
-            if race is None:
-                self._versions.clear()
+            self._versions.clear()
+            if actor is None:
+                return
+            if actor.staff:
                 self._mine.clear()
-            else:
-                self._versions.pop(race, None)
-                for key in [k for k in self._mine if k[1] == race]:
-                    del self._mine[key]
+                return
+            for key in [k for k in self._mine if k[0] == actor.id]:
+                del self._mine[key]
 
     def version(self, actor: Actor, race: str) -> int:
         people.require_role(actor, "race.view")
