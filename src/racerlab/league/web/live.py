@@ -67,6 +67,7 @@ class Boards:
         self._standings: dict[str, dict] = {}
         self._races: dict[str, tuple[int, dict]] = {}
         self._encoded: dict[str, tuple[tuple, bytes]] = {}
+        self._readers: dict[tuple[str, str], threading.Lock] = {}
         self._mine: OrderedDict[tuple[int, str], tuple[dict | None, float, list]] = OrderedDict()
 
     def touch(self, actor: Actor | None = None) -> None:
@@ -85,16 +86,30 @@ class Boards:
             for key in [k for k in self._mine if k[0] == actor.id]:
                 del self._mine[key]
 
-    def version(self, actor: Actor, race: str) -> int:
-        people.require_role(actor, "race.view")
-        now = time.monotonic()
+    def _one_reader(self, kind: str, race: str) -> threading.Lock:
+        """The lock under which one thread reads `kind` of `race` from the store while the others wait for its
+        answer (a crowd's polls that miss together would otherwise each read the same rows)."""
+        with self._lock:
+            return self._readers.setdefault((kind, race), threading.Lock())
+
+    def _held_version(self, race: str) -> int | None:
         with self._lock:
             hit = self._versions.get(race)
-        if hit is not None and now - hit[1] < self.poll_s:
-            return hit[0]
-        version = self.league.race_version(actor, race)  # 404 for a race that is not there
-        with self._lock:
-            self._versions[race] = (version, now)
+        return hit[0] if hit is not None and time.monotonic() - hit[1] < self.poll_s else None
+
+    def version(self, actor: Actor, race: str) -> int:
+        people.require_role(actor, "race.view")
+        version = self._held_version(race)
+        if version is not None:
+            return version
+        with self._one_reader("version", race):
+            version = self._held_version(race)
+            if version is not None:
+                return version
+            now = time.monotonic()
+            version = self.league.race_version(actor, race)  # 404 for a race that is not there
+            with self._lock:
+                self._versions[race] = (version, now)
         return version
 
     def standings(self, actor: Actor, race: str) -> dict:
@@ -104,11 +119,15 @@ class Boards:
         with self._lock:
             hit = self._standings.get(race)
         if hit is None or hit["version"] < version:
-            hit = self.league.standings(actor, race).to_json()
-            with self._lock:
-                held = self._standings.get(race)
-                if held is None or held["version"] <= hit["version"]:
-                    self._standings[race] = hit
+            with self._one_reader("standings", race):
+                with self._lock:
+                    hit = self._standings.get(race)
+                if hit is None or hit["version"] < version:
+                    hit = self.league.standings(actor, race).to_json()
+                    with self._lock:
+                        held = self._standings.get(race)
+                        if held is None or held["version"] <= hit["version"]:
+                            self._standings[race] = hit
         return {**hit, "state": self.meta(actor, race)["state"]}
 
     # ---- from memory alone, on the event loop: None when only the store can say ------------------------------
@@ -150,9 +169,7 @@ class Boards:
 
     def version_held(self, actor: Actor, race: str) -> int | None:
         people.require_role(actor, "race.view")
-        with self._lock:
-            held = self._versions.get(race)
-        return held[0] if held is not None and time.monotonic() - held[1] < self.poll_s else None
+        return self._held_version(race)
 
     # ---- through the store when needed (in a thread) -----------------------------------------------------------
     def standings_json(self, actor: Actor, race: str) -> bytes:
@@ -174,11 +191,15 @@ class Boards:
         with self._lock:
             hit = self._races.get(race)
         if hit is None or hit[0] < version:
-            view = self.league.race(actor, race)
-            hit = (view.version, {"name": view.name, "max_submissions": view.max_submissions,
-                                  "opens_at": view.opens_at, "closes_at": view.closes_at})
-            with self._lock:
-                self._races[race] = hit
+            with self._one_reader("race", race):
+                with self._lock:
+                    hit = self._races.get(race)
+                if hit is None or hit[0] < version:
+                    view = self.league.race(actor, race)
+                    hit = (view.version, {"name": view.name, "max_submissions": view.max_submissions,
+                                          "opens_at": view.opens_at, "closes_at": view.closes_at})
+                    with self._lock:
+                        self._races[race] = hit
         held = hit[1]
         return {"name": held["name"], "state": race_state(held["opens_at"], held["closes_at"], utcnow()),
                 "max_submissions": held["max_submissions"]}
