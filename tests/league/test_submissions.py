@@ -165,3 +165,24 @@ def test_a_racer_sees_only_their_own_submissions(league, admin, cup, straight, t
     assert [s.id for s in league.submissions(admin, everyone=True)] == [sub.id]
     with pytest.raises(LeagueError, match="may not submission view any"):
         league.submissions(ana, everyone=True)
+
+
+def test_a_failed_evaluation_uses_no_submission_and_its_retry_gets_in_at_the_limit(league, admin, straight, tmp_path):
+    from racerlab.league import queue
+
+    league.create_race(admin, "one", {"track": str(straight), "laps": 1, "time_cap_s": 30, "video": False,
+                                      "max_submissions": 1})
+    ana = racer(league, admin, "ana")
+    model = features_model(tmp_path / "m", straight, seed=1).path
+    sub = league.submit(ana, "one", model)
+    claim = queue.claim(league.store, "w1")
+    queue.finish(league.store, claim, "failed", "the league's disk filled up", {})  # the league's fault
+    assert league.race(ana, "one").submissions_used == 0
+    again = league.submit(ana, "one", model)  # the retry: queued again, at the limit of 1
+    assert again.id == sub.id and again.status == "queued" and league.race(ana, "one").submissions_used == 1
+    claim = queue.claim(league.store, "w1")
+    queue.finish(league.store, claim, "failed", "the league's disk filled up", {})
+    other = league.submit(ana, "one", features_model(tmp_path / "n", straight, seed=2).path)  # the freed place
+    assert other.id != sub.id and league.race(ana, "one").submissions_used == 1
+    with pytest.raises(LeagueError, match="used all 1 submissions"):  # the old one's retry would be a second
+        league.submit(ana, "one", model)

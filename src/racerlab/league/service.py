@@ -33,8 +33,8 @@ from racerlab.league.races import RaceOptions, check_limit, check_name, race_sta
 from racerlab.league.rules import Rules, with_tracks
 from racerlab.league.seasons import SeasonsMixin
 from racerlab.league.store import LeagueError, Store
-from racerlab.league.submissions import SubmissionsMixin
-from racerlab.league.tables import Invite, LoginAttempt, Race, Setting, Submission, Token, User, utcnow
+from racerlab.league.submissions import SubmissionsMixin, used_count
+from racerlab.league.tables import Invite, LoginAttempt, Race, Setting, Token, User, utcnow
 from racerlab.league.views import AuditView, IssuedInvite, IssuedToken, RaceView, TokenView, UserView
 
 KEEP = object()  # `update_race`: leave this field as it is
@@ -371,8 +371,7 @@ class League(SubmissionsMixin, SeasonsMixin, FinalsMixin):
 
     def _race_view(self, s: Session, race: Race, actor: Actor, now: datetime) -> RaceView:
         rules = Rules.from_json(race.rules_json)
-        used = s.scalar(select(func.count()).select_from(Submission).where(
-            Submission.race_id == race.id, Submission.user_id == actor.id, Submission.status != "refused"))
+        used = used_count(s, race.id, actor.id)
         shown = rules.to_json() if people.may(actor.role, "race.view_hidden") else rules.public_json()
         return RaceView(race.id, race.name, race.description, shown, race.rules_hash, rules.describe(),
                         race.opens_at, race.closes_at, race_state(race.opens_at, race.closes_at, now),

@@ -6,7 +6,7 @@ one transaction, checks the window, the identical model and the limit again and 
 counter cannot be raced: each submission takes the next `number` for (race, racer), unique in the database, so two
 simultaneous requests that both read n - 1 cannot both insert n; the loser retries, reads n and is refused at the
 limit. An identical model (same content hash) in the same race returns the earlier submission and says why (a
-failed one is queued again instead: a retry clears a failure). Refused evaluations do not count.
+failed one is queued again instead: a retry clears a failure). Refused and failed evaluations do not count.
 """
 
 from __future__ import annotations
@@ -37,10 +37,14 @@ CSV_COLUMNS = ("rank", "alias", "time_s", "gap_s", "off_track", "laps_completed"
                "status", "submission_id", "model_hash", "submitted_at")
 
 
+NOT_COUNTED = ("refused", "failed")  # the race refused the model, or the league failed it: no submission used
+
+
 def used_count(s: Session, race_id: int, user_id: int) -> int:
-    """Submissions that count against the limit: every one but those the evaluation refused."""
+    """Submissions that count against the limit: every one but those the evaluation refused or the league failed
+    (a failure is the league's: its retry, the same model submitted again, must get in at the limit)."""
     return s.scalar(select(func.count()).select_from(Submission).where(
-        Submission.race_id == race_id, Submission.user_id == user_id, Submission.status != "refused"))
+        Submission.race_id == race_id, Submission.user_id == user_id, Submission.status.not_in(NOT_COUNTED)))
 
 
 def check_window(race: Race, now: datetime) -> None:
@@ -123,6 +127,7 @@ class SubmissionsMixin:
 
     def _resubmitted(self, s: Session, actor: Actor, race: Race, earlier: Submission) -> SubmissionView:
         if earlier.status == "failed":
+            check_quota(race, used_count(s, race.id, actor.id), actor.alias)  # it counts again once queued
             earlier.status, earlier.reason, earlier.attempts = "queued", "", 0
             earlier.worker = earlier.lease_until = earlier.started_at = earlier.finished_at = None
             race.version += 1
@@ -324,7 +329,7 @@ def _standing_rows(subs, race: Race) -> list[StandingRow]:
     by_id = {sub.id: sub for sub, _ in subs}
     used: dict[int, int] = {}
     for sub, _ in subs:
-        used[sub.user_id] = used.get(sub.user_id, 0) + (sub.status != "refused")
+        used[sub.user_id] = used.get(sub.user_id, 0) + (sub.status not in NOT_COUNTED)
     board = scoring.leaderboard(entries)
     first = board[0].score_ms if board else None
     rows = [_row(rank, e, by_id[e.submission_id], used, first, race) for rank, e in enumerate(board, 1)]
