@@ -12,7 +12,6 @@ import os
 import shutil
 import sqlite3
 import subprocess
-import time
 
 import pytest
 
@@ -22,6 +21,7 @@ from racerlab.league.rules import Rules
 from racerlab.league.tables import Submission
 from racerlab.league.worker import DISK_FULL_REASON, disk_full, worker_main
 from tests.league.conftest import PASSWORD, features_model
+from tests.league.test_queue import _wait
 
 pytestmark = pytest.mark.skipif(os.geteuid() != 0, reason="mounting a small tmpfs (a disk that fills) needs root")
 FINAL = ("ranked", "not_ranked", "no_lap", "refused", "failed")
@@ -48,16 +48,6 @@ def _jobs(folder, n):
     worker_main(folder, None, "w-disk", max_jobs=n, poll_s=0.1)
 
 
-def _wait(league, actor, sid, statuses, timeout=900):  # a spawned worker imports torch first
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        sub = league.submission(actor, sid)
-        if sub.status in statuses:
-            return sub
-        time.sleep(0.1)
-    raise AssertionError(f"submission {sid} still {league.submission(actor, sid).status} after {timeout} s")
-
-
 def test_a_disk_that_fills_during_an_evaluation_fails_it_cleanly_and_a_retry_clears_it(small_disk, wide, tmp_path):
     league, _ = League.create(small_disk / "league", password=PASSWORD)
     admin = league.local_admin()
@@ -69,14 +59,14 @@ def test_a_disk_that_fills_during_an_evaluation_fails_it_cleanly_and_a_retry_cle
     worker = mp.get_context("spawn").Process(target=_jobs, args=(str(league.store.folder), 2))
     worker.start()
     try:
-        failed = _wait(league, admin, sub.id, FINAL)
+        failed = _wait(league, admin, sub.id, FINAL, timeout=900)  # a spawned worker imports torch first
         assert (failed.status, failed.reason) == ("failed", DISK_FULL_REASON)
         assert not (league.store.results_dir(sub.id) / "attempt-1").exists()  # nothing half-written kept
         assert worker.is_alive()  # the worker waits for the next submission
         filler.unlink()
         again = league.submit(admin, "wide", model)  # the racer's retry: the same model, queued again
         assert again.id == sub.id and "queued again" in again.note
-        done = _wait(league, admin, sub.id, ("ranked", "not_ranked", "no_lap"))
+        done = _wait(league, admin, sub.id, ("ranked", "not_ranked", "no_lap"), timeout=900)
     finally:
         worker.join(60)
         if worker.is_alive():
