@@ -86,70 +86,67 @@ class Boards:
             for key in [k for k in self._mine if k[0] == actor.id]:
                 del self._mine[key]
 
-    def _one_reader(self, kind: str, race: str) -> threading.Lock:
-        """The lock under which one thread reads `kind` of `race` from the store while the others wait for its
-        answer (a crowd's polls that miss together would otherwise each read the same rows)."""
+    def _through(self, kind: str, race: str, table: dict, current, read):
+        """`table[race]` when `current(it)`, else read again by one thread (`read()`) while the others wait for its
+        answer: a crowd's polls that miss together would otherwise each read the same rows."""
         with self._lock:
-            return self._readers.setdefault((kind, race), threading.Lock())
+            hit = table.get(race)
+        if current(hit):
+            return hit
+        with self._lock:
+            reader = self._readers.setdefault((kind, race), threading.Lock())
+        with reader:
+            with self._lock:
+                hit = table.get(race)
+            if not current(hit):
+                hit = read()
+                with self._lock:
+                    table[race] = hit
+        return hit
+
+    def _version_current(self, hit) -> bool:
+        return hit is not None and time.monotonic() - hit[1] < self.poll_s
 
     def _held_version(self, race: str) -> int | None:
         with self._lock:
             hit = self._versions.get(race)
-        return hit[0] if hit is not None and time.monotonic() - hit[1] < self.poll_s else None
+        return hit[0] if self._version_current(hit) else None
 
     def version(self, actor: Actor, race: str) -> int:
         people.require_role(actor, "race.view")
-        version = self._held_version(race)
-        if version is not None:
-            return version
-        with self._one_reader("version", race):
-            version = self._held_version(race)
-            if version is not None:
-                return version
-            now = time.monotonic()
-            version = self.league.race_version(actor, race)  # 404 for a race that is not there
-            with self._lock:
-                self._versions[race] = (version, now)
-        return version
+
+        def read() -> tuple[int, float]:
+            at = time.monotonic()
+            return self.league.race_version(actor, race), at  # 404 for a race that is not there
+
+        return self._through("version", race, self._versions, self._version_current, read)[0]
 
     def standings(self, actor: Actor, race: str) -> dict:
         """The race's standings as JSON (`Standings.to_json()`), read once per version."""
         version = self.version(actor, race)
         people.require_role(actor, "standings.view")
-        with self._lock:
-            hit = self._standings.get(race)
-        if hit is None or hit["version"] < version:
-            with self._one_reader("standings", race):
-                with self._lock:
-                    hit = self._standings.get(race)
-                if hit is None or hit["version"] < version:
-                    hit = self.league.standings(actor, race).to_json()
-                    with self._lock:
-                        held = self._standings.get(race)
-                        if held is None or held["version"] <= hit["version"]:
-                            self._standings[race] = hit
+        hit = self._through("standings", race, self._standings, lambda h: h is not None and h["version"] >= version,
+                            lambda: self.league.standings(actor, race).to_json())
         return {**hit, "state": self.meta(actor, race)["state"]}
 
     # ---- from memory alone, on the event loop: None when only the store can say ------------------------------
-    def _fresh(self, race: str) -> tuple[int, dict, dict] | None:
-        """(version, standings, race meta) held and still fresh (the version read within `poll_s`)."""
-        now = time.monotonic()
+    def _fresh(self, actor: Actor, race: str) -> tuple[dict, dict] | None:
+        """(standings, race meta) held for the race's version, read within `poll_s`; the actor's roles checked."""
+        people.require_role(actor, "race.view")
+        people.require_role(actor, "standings.view")
+        version = self._held_version(race)
         with self._lock:
-            held, standings, meta = self._versions.get(race), self._standings.get(race), self._races.get(race)
-        if held is None or now - held[1] >= self.poll_s or standings is None or meta is None:
+            standings, meta = self._standings.get(race), self._races.get(race)
+        if version is None or standings is None or meta is None or min(standings["version"], meta[0]) < version:
             return None
-        if standings["version"] < held[0] or meta[0] < held[0]:
-            return None
-        return held[0], standings, meta[1]
+        return standings, meta[1]
 
     def standings_json_held(self, actor: Actor, race: str) -> bytes | None:
         """`standings_json` when it needs no read of the store; None otherwise (then call `standings_json`)."""
-        people.require_role(actor, "race.view")
-        people.require_role(actor, "standings.view")
-        fresh = self._fresh(race)
+        fresh = self._fresh(actor, race)
         if fresh is None:
             return None
-        version, standings, meta = fresh
+        standings, meta = fresh
         state = race_state(meta["opens_at"], meta["closes_at"], utcnow())
         with self._lock:
             hit = self._encoded.get(race)
@@ -157,12 +154,10 @@ class Boards:
 
     def mine_held(self, actor: Actor, race: str) -> list[dict] | None:
         """`mine` when it needs no read of the store; None otherwise (then call `mine`)."""
-        people.require_role(actor, "race.view")
-        people.require_role(actor, "standings.view")
-        fresh = self._fresh(race)
+        fresh = self._fresh(actor, race)
         if fresh is None:
             return None
-        row, now = own_row(fresh[1], actor.alias), time.monotonic()
+        row, now = own_row(fresh[0], actor.alias), time.monotonic()
         with self._lock:
             hit = self._mine.get((actor.id, race))
         return hit[2] if hit is not None and hit[0] == row and now - hit[1] < self.mine_ttl_s else None
@@ -188,19 +183,13 @@ class Boards:
     def meta(self, actor: Actor, race: str) -> dict:
         """What every racer's page shows of the race itself: its state (now) and submission limit."""
         version = self.version(actor, race)
-        with self._lock:
-            hit = self._races.get(race)
-        if hit is None or hit[0] < version:
-            with self._one_reader("race", race):
-                with self._lock:
-                    hit = self._races.get(race)
-                if hit is None or hit[0] < version:
-                    view = self.league.race(actor, race)
-                    hit = (view.version, {"name": view.name, "max_submissions": view.max_submissions,
-                                          "opens_at": view.opens_at, "closes_at": view.closes_at})
-                    with self._lock:
-                        self._races[race] = hit
-        held = hit[1]
+
+        def read() -> tuple[int, dict]:
+            view = self.league.race(actor, race)
+            return view.version, {"name": view.name, "max_submissions": view.max_submissions,
+                                  "opens_at": view.opens_at, "closes_at": view.closes_at}
+
+        held = self._through("race", race, self._races, lambda h: h is not None and h[0] >= version, read)[1]
         return {"name": held["name"], "state": race_state(held["opens_at"], held["closes_at"], utcnow()),
                 "max_submissions": held["max_submissions"]}
 
