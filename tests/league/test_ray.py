@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 from racerlab.cli import main
-from racerlab.league import League
+from racerlab.league import League, ray_pool
 from racerlab.league.evaluation import PIN_ENV
 from racerlab.league.worker import POLL_S, worker_main
 from tests.league.conftest import PASSWORD, features_model, racer
@@ -258,8 +258,8 @@ def test_a_node_lost_mid_evaluation_requeues_it_and_a_machine_added_evaluates_it
     while f"submission {sub.id}: its Ray worker was lost" not in server.read_text() and time.monotonic() < end:
         time.sleep(0.1)
     assert f"submission {sub.id}: its Ray worker was lost" in server.read_text(), "the loss was not seen in 300 s"
-    time.sleep(3 * POLL_S)  # nothing can evaluate it: the cluster has no CPU left
-    assert league.submission(admin, sub.id).status == "queued"
+    time.sleep(ray_pool.PAUSE_S + 3 * POLL_S)  # nothing can evaluate it: the cluster has no CPU left
+    assert league.submission(admin, sub.id).status == "queued", server.read_text()[-2000:]
     cluster["procs"].append(tc.start_node([f"--address={cluster['address']}"], cluster["tmp"]))
     done = _wait(league, admin, sub.id, FINAL, timeout=300)
     assert done.attempts == 2

@@ -40,6 +40,7 @@ from racerlab.logs import atomic_write_bytes
 PROBE_S = 5.0  # a head that does not accept a TCP connection within this is not there
 GET_S = 120.0  # fetching a finished task's answer (its files) from the object store, at most
 PAUSE_S = 10.0  # after a node could not evaluate, before the next claim: its one line is not repeated every second
+NODE_HOLD_S = 180.0  # after a node died, claims wait until Ray's node table changes, at most this long
 SAY_AGAIN_S = 60.0  # the same trouble of the dispatcher is printed again after this
 VERSIONED = ("torch", "numpy")  # besides racerlab: the builds whose sums an evaluation depends on
 
@@ -203,6 +204,7 @@ class RayPool:
         self.slots: set[str] = set()  # every worker id the dispatcher used (the workers table's rows)
         self._stopping = threading.Event()
         self._resume_at = 0.0  # after a node could not evaluate: a pause before the next claim
+        self._held: tuple[frozenset, float] | None = None  # after a node died: the live nodes then, and until when
         self._said, self._said_at = "", 0.0  # the dispatcher's last trouble, and when it said so
         self._thread: threading.Thread | None = None
 
@@ -255,7 +257,7 @@ class RayPool:
             return
         # a claim only for a CPU free now: with a node just lost, the submission waits queued, not claimed for a task
         # that no node can run yet
-        free = free[:int(self.ray.available_resources().get("CPU", 0))]
+        free = free[:self._cpus_free()]
         queue.reap(self.store)
         for worker in free:
             if self._stopping.is_set():
@@ -264,6 +266,24 @@ class RayPool:
             if claim is None:
                 return
             self._send(worker, claim)
+
+    def _alive(self) -> dict[str, float]:
+        """Ray's live nodes, by id, with their CPUs."""
+        return {n["NodeID"]: n.get("Resources", {}).get("CPU", 0) for n in self.ray.nodes() if n.get("Alive")}
+
+    def _cpus_free(self) -> int:
+        """CPUs free now. The owner hears of a node's death (NodeDiedError) before Ray's node table and resource
+        view do (tens of seconds on a busy machine, measured): until the table changes, a dead node's CPU still
+        shows as free, and a claim for it would sit 'evaluating' in a task no node runs. So after a node died no
+        claim is made until the live nodes differ from those of that moment (it is gone, or another joined)."""
+        alive = self._alive()
+        if self._held is not None:
+            nodes, until = self._held
+            if frozenset(alive) == nodes and time.monotonic() < until:
+                return 0
+            self._held = None
+        free = int(self.ray.available_resources().get("CPU", 0))
+        return max(0, min(free, int(sum(alive.values())) - len(self.jobs)))
 
     def _send(self, worker: str, claim: queue.Claim) -> None:
         queue.worker_seen(self.store, worker, socket.gethostname(), os.getpid(), "evaluating")
@@ -307,6 +327,8 @@ class RayPool:
             self.note(f"submission {job.claim.submission_id}: its Ray worker was lost ({type(exc).__name__}); "
                       "evaluated again from the start")
             queue.reap(self.store, dead_workers=(job.worker,))
+            if isinstance(exc, errors.NodeDiedError):
+                self._held = (frozenset(self._alive()), time.monotonic() + NODE_HOLD_S)
         else:
             if not job.beat.lost.is_set():
                 land(self.store, job.out, answer)

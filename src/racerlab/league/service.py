@@ -96,10 +96,11 @@ class League(SubmissionsMixin, SeasonsMixin, FinalsMixin):
         self.store.dispose()
 
     # ---- who acts ----------------------------------------------------------------------------------------------
-    def _acting(self, s: Session, actor: Actor, action: str) -> User:
-        """The actor's row, checked again inside this transaction (active, same role, allowed `action`)."""
+    def _acting(self, s: Session, actor: Actor, action: str, *, lock: bool = False) -> User:
+        """The actor's row, checked again inside this transaction (active, same role, allowed `action`); with
+        `lock`, held until the transaction ends (PostgreSQL's FOR UPDATE; SQLite's writers take turns anyway)."""
         require_role(actor, action)
-        user = s.get(User, actor.id)
+        user = s.get(User, actor.id, with_for_update=lock)
         if user is None or not user.active or user.role != actor.role or user.alias != actor.alias:
             raise LeagueError(f"{actor.alias}: the account is disabled or changed; log in again", 401)
         return user

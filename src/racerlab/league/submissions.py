@@ -94,7 +94,9 @@ class SubmissionsMixin:
         """Insert a converted model (`convert.Converted`, stored) as `actor`'s submission to `race`, as of `now`:
         the window, the identical model and the limit checked in the insert's transaction. On PostgreSQL two such
         transactions can both read n - 1; the second insert of number n then breaks the unique constraint and
-        this tries again, reading n."""
+        this tries again, reading n. The racer's row is locked for the transaction, so two of their submissions
+        take turns between the limit's count and the insert (PostgreSQL reads each statement afresh: without it,
+        another's #3 committed between this count and this max would make this #4, past a limit of 3)."""
         for _ in range(INSERT_TRIES):
             try:
                 return self._insert(actor, race, conv, now)
@@ -104,7 +106,7 @@ class SubmissionsMixin:
 
     def _insert(self, actor: Actor, race: str, conv, now: datetime) -> SubmissionView:
         with self.store.write() as s:
-            self._acting(s, actor, "submission.create")
+            self._acting(s, actor, "submission.create", lock=True)
             row = self._race_row(s, race)
             check_window(row, now)
             earlier = s.scalars(select(Submission).where(Submission.race_id == row.id, Submission.user_id == actor.id,
