@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import os
 import shutil
 import socket
@@ -306,9 +307,10 @@ def main() -> int:
     workers_up(folder, args.workers)
     load_before = loadavg()
     try:
-        cpu0, t0 = proc_cpu(proc.pid), time.perf_counter()
+        cpu0, t0, mine0 = proc_cpu(proc.pid), time.perf_counter(), time.process_time()
         tally = asyncio.run(crowd(f"http://127.0.0.1:{port}", models, args))
         wall, cpu = time.perf_counter() - t0, proc_cpu(proc.pid) - cpu0
+        client_cpu = time.process_time() - mine0
         drain_s = drain(folder, args.drain)
     finally:
         proc.terminate()
@@ -324,8 +326,13 @@ def main() -> int:
          requests_per_s=round(sum(len(v) for v in tally.ms.values()) / wall, 1), board_events=tally.events,
          stream_errors=tally.stream_errors, refused_at_limit=tally.refused_at_limit,
          accepted_past_limit=tally.past_limit, check=check(folder, tally, args.limit), drain_s=round(drain_s, 1),
-         server_cpu_s=round(cpu, 1), load_before=load_before, load_after=loadavg(), budget_p95_ms=250)
-    if not args.keep:
+         server_cpu_s=round(cpu, 1), client_cpu_s=round(client_cpu, 1), load_before=load_before,
+         load_after=loadavg(), budget_p95_ms=250)
+    if args.keep:  # every request's start (s after the first) and latency (ms), to see when the slow ones were
+        first = min(min(v) for v in tally.at.values() if v)
+        (root / "latency.json").write_text(json.dumps({r: [[round(t - first, 3), round(d, 1)] for t, d in zip(
+            tally.at[r], tally.ms[r], strict=True)] for r in tally.ms}))
+    else:
         shutil.rmtree(root, ignore_errors=True)
     return 0
 

@@ -15,6 +15,7 @@ import csv
 import io
 import secrets
 import shutil
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
@@ -64,6 +65,22 @@ def csv_cell(value) -> str:
     """A CSV cell that a spreadsheet will not run as a formula (OWASP: a leading = + - @ tab or CR is quoted)."""
     text = "" if value is None else str(value)
     return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
+
+
+@dataclass(frozen=True)
+class QueuePicture:
+    """The queued submissions' places (1 = next), the live workers and the mean evaluation time, read once."""
+    places: dict[int, int]
+    workers: int
+    mean_s: float
+
+    def place(self, submission_id: int) -> tuple[int, float | None]:
+        """(place in the queue, seconds until its result or None with no worker up)."""
+        position = self.places.get(submission_id, len(self.places) + 1)
+        if not self.workers:
+            return position, None
+        rounds = -(-position // self.workers)  # ceil: the evaluations ahead of it, shared by the workers
+        return position, round(rounds * self.mean_s, 1)
 
 
 class SubmissionsMixin:
@@ -145,7 +162,9 @@ class SubmissionsMixin:
         return view
 
     # ---- reading submissions ------------------------------------------------------------------------------
-    def _view(self, s: Session, sub: Submission, race: Race, alias: str, now: datetime) -> SubmissionView:
+    def _view(self, s: Session, sub: Submission, race: Race, alias: str, now: datetime,
+              queue: QueuePicture | None = None) -> SubmissionView:
+        """`sub` as a racer sees it; a list of views shares one `queue` picture (else it is read for this one)."""
         result = loads(sub.result_json, {})
         view = SubmissionView(
             sub.id, race.name, alias, sub.number, sub.model_name, sub.model_hash, sub.checkpoint, sub.source,
@@ -154,20 +173,16 @@ class SubmissionsMixin:
             laps_completed=sub.laps_completed, laps_driven=sub.laps_driven, off_track=sub.off_track,
             laps=result.get("laps", []), files=self._files(sub), racerlab_version=sub.racerlab_version)
         if sub.status == "queued":
-            view.position, view.eta_s = self._queue_place(s, sub)
+            view.position, view.eta_s = (queue or self._queue_picture(s)).place(sub.id)
             if view.eta_s is None:
                 view.reason = "waiting for an evaluation worker to start"
         return view
 
-    def _queue_place(self, s: Session, sub: Submission) -> tuple[int, float | None]:
-        position = s.scalar(select(func.count()).select_from(Submission).where(
-            Submission.status == "queued", Submission.id <= sub.id))
-        workers = self._live_workers(s)
-        if not workers:
-            return position, None
-        mean = self._mean_eval_s(s) or DEFAULT_EVAL_S
-        rounds = -(-position // workers)  # ceil: the evaluations ahead of it, shared by the workers
-        return position, round(rounds * mean, 1)
+    def _queue_picture(self, s: Session) -> QueuePicture:
+        """The queue as the ETAs need it, in three reads (once per list of views, not once per queued row)."""
+        queued = s.scalars(select(Submission.id).where(Submission.status == "queued").order_by(Submission.id)).all()
+        return QueuePicture({sid: k + 1 for k, sid in enumerate(queued)}, self._live_workers(s),
+                            self._mean_eval_s(s) or DEFAULT_EVAL_S)
 
     def _live_workers(self, s: Session) -> int:
         """Workers seen in the last minute, or holding a claim whose lease still runs (a long evaluation)."""
@@ -213,8 +228,22 @@ class SubmissionsMixin:
                 q = q.where(Submission.user_id == actor.id)
             if race is not None:
                 q = q.where(Submission.race_id == self._race_row(s, race).id)
-            now = utcnow()
-            return [self._view(s, sub, r, u.alias, now) for sub, r, u in s.execute(q.order_by(Submission.id.desc()))]
+            now, queue = utcnow(), self._queue_picture(s)
+            return [self._view(s, sub, r, u.alias, now, queue)
+                    for sub, r, u in s.execute(q.order_by(Submission.id.desc()))]
+
+    def race_submissions(self, race: str) -> dict[int, list[SubmissionView]]:
+        """Every racer's submissions in `race` (newest first), by user id, in one read: for the web server's shared
+        boards (`web.live.Boards`), which hand each asker their own list alone once the route has checked who
+        asks. A hundred racers' status polls each reading their own list cost the server a core on race day."""
+        with self.store.read() as s:
+            row = self._race_row(s, race)
+            now, queue, by_user = utcnow(), self._queue_picture(s), {}
+            q = select(Submission, User.alias).join(User, User.id == Submission.user_id) \
+                .where(Submission.race_id == row.id).order_by(Submission.id.desc())
+            for sub, alias in s.execute(q):
+                by_user.setdefault(sub.user_id, []).append(self._view(s, sub, row, alias, now, queue))
+            return by_user
 
     def submission_file(self, actor: Actor, submission_id: int, kind: str) -> Path:
         """The path of a submission's `kind` file (`views.FILES`: simtrace, metrics, summary, video, result): the

@@ -198,7 +198,17 @@ async def submit_upload(request: Request, actor: Actor, race: str):
     name = str(form.get("name") or "")[:64]
     async with forms.saved(form.get("model"), request.app.state.uploads, request.app.state.upload_limit,
                            forms.ARCHIVE_SUFFIXES, "a model archive") as path:
-        return await run_in_threadpool(lambda: league.submit(actor, race, path, checkpoint=checkpoint, name=name))
+        return await converting(request, lambda: league.submit(actor, race, path, checkpoint=checkpoint, name=name))
+
+
+async def converting(request: Request, call):
+    """`call()` (a submission: the model's conversion in a child inside) in a thread, at most
+    `convert.CONVERSIONS_AT_ONCE` at a time; the others wait on the event loop. A crowd's uploads at the same
+    moment held every thread of the pool while they waited for their turn to convert, and the leaderboard and
+    status polls that needed a read waited seconds for a thread (p50 2.9 s in benchmarks/league_web.py)."""
+    from racerlab.league import convert
+
+    return await auth.in_turn(request, "upload_limiter", convert.CONVERSIONS_AT_ONCE, call)
 
 
 def _submissions(app: FastAPI) -> None:

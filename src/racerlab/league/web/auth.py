@@ -128,12 +128,18 @@ async def hashing(request: Request, call, *args):
     """`call(*args)` (a login, invite, sign-up or password change: an Argon2id hash inside) in a thread, at most
     `people.HASHES_AT_ONCE` at a time; the others wait on the event loop, not in the thread pool the other routes
     need."""
+    return await in_turn(request, "hash_limiter", people.HASHES_AT_ONCE, functools.partial(call, *args))
+
+
+async def in_turn(request: Request, name: str, at_once: int, call):
+    """`call()` in a thread of its own pool of `at_once` (the app's limiter `name`); the calls past it wait on the
+    event loop, holding no thread of the pool that the other routes share."""
     import anyio
 
     state = request.app.state
-    if getattr(state, "hash_limiter", None) is None:
-        state.hash_limiter = anyio.CapacityLimiter(people.HASHES_AT_ONCE)
-    return await anyio.to_thread.run_sync(functools.partial(call, *args), limiter=state.hash_limiter)
+    if getattr(state, name, None) is None:
+        setattr(state, name, anyio.CapacityLimiter(at_once))
+    return await anyio.to_thread.run_sync(call, limiter=getattr(state, name))
 
 
 async def recheck(request: Request, actor: Actor) -> None:

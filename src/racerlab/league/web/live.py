@@ -9,10 +9,10 @@ each of them would cost a core. `Boards` shares the work:
 - the standings and the race's limits are read once per version and handed to every asker (they are the same for
   everyone); the race's state (upcoming, open, closed) is worked out from its times at each hand-out, since it
   moves with the clock, not the version;
-- a racer's own submissions in the race are read again when their row on the leaderboard changed, after a change
-  of theirs (or of staff) made through this server, and at least every `MINE_TTL_S` (a status that does not show
-  in the row, queue places and ETAs): reading them at every move of the race would cost a hundred reads a second
-  on race day.
+- the racers' own submissions in the race are read for all of them at once (`League.race_submissions`), again when
+  the race's version moved and at least every `MINE_TTL_S` (queue places and ETAs move with other races too), and
+  each asker is handed their own list alone: a hundred racers' polls each reading their own list cost the server
+  a core on race day (the profile of benchmarks/league_web.py).
 
 Who asks is checked before anything is handed out: the route's token (`auth.TokenCache`) and the role
 (`people.require_role`). A stream asks again at every look (`auth.recheck`), so logging out, a revoked token or a
@@ -28,7 +28,6 @@ import asyncio
 import json
 import threading
 import time
-from collections import OrderedDict
 
 from starlette.concurrency import run_in_threadpool
 
@@ -43,7 +42,6 @@ POLL_S = 0.5
 MIN_GAP_S = 1.0
 REFRESH_S = 10.0
 MINE_TTL_S = 5.0
-MAX_MINE = 4096  # racers' lists kept (each a few kB)
 MINE_KEYS = ("id", "number", "model_name", "model_hash", "checkpoint", "created_at", "status", "status_text",
              "reason", "position", "eta_s", "score_ms", "laps_completed", "laps_driven", "off_track", "note")
 
@@ -68,23 +66,14 @@ class Boards:
         self._races: dict[str, tuple[int, dict]] = {}
         self._encoded: dict[str, tuple[tuple, bytes]] = {}
         self._readers: dict[tuple[str, str], threading.Lock] = {}
-        self._mine: OrderedDict[tuple[int, str], tuple[dict | None, float, list]] = OrderedDict()
+        self._mine: dict[str, tuple[int, float, dict[int, list[dict]]]] = {}  # race -> (version, read at, lists)
 
     def touch(self, actor: Actor | None = None) -> None:
-        """A change made through this server by `actor`: the next look at any race asks the store for its version
-        (and so reads its standings again when they moved); the actor's own lists are read again (a member of staff:
-        everyone's, since staff change others' submissions). A stranger's request (a login, a sign-up) changes
-        nothing a board shows, so the racers' lists stay: dropping them all at each of a crowd's logins and uploads
-        sent every poll to the store at once."""
+        """A change made through this server (by `actor`, unused: every change that a board shows moves its race's
+        version): the next look at any race asks the store for its version, and so reads its standings and the
+        racers' lists again when they moved."""
         with self._lock:
             self._versions.clear()
-            if actor is None:
-                return
-            if actor.staff:
-                self._mine.clear()
-                return
-            for key in [k for k in self._mine if k[0] == actor.id]:
-                del self._mine[key]
 
     def _through(self, kind: str, race: str, table: dict, current, read):
         """`table[race]` when `current(it)`, else read again by one thread (`read()`) while the others wait for its
@@ -154,13 +143,16 @@ class Boards:
 
     def mine_held(self, actor: Actor, race: str) -> list[dict] | None:
         """`mine` when it needs no read of the store; None otherwise (then call `mine`)."""
-        fresh = self._fresh(actor, race)
-        if fresh is None:
+        people.require_role(actor, "submission.create")
+        version = self.version_held(actor, race)
+        if version is None:
             return None
-        row, now = own_row(fresh[0], actor.alias), time.monotonic()
         with self._lock:
-            hit = self._mine.get((actor.id, race))
-        return hit[2] if hit is not None and hit[0] == row and now - hit[1] < self.mine_ttl_s else None
+            hit = self._mine.get(race)
+        return hit[2].get(actor.id, []) if self._mine_current(hit, version) else None
+
+    def _mine_current(self, hit, version: int) -> bool:
+        return hit is not None and hit[0] >= version and time.monotonic() - hit[1] < self.mine_ttl_s
 
     def version_held(self, actor: Actor, race: str) -> int | None:
         people.require_role(actor, "race.view")
@@ -194,21 +186,18 @@ class Boards:
                 "max_submissions": held["max_submissions"]}
 
     def mine(self, actor: Actor, race: str) -> list[dict]:
-        """The actor's own submissions in the race as JSON (newest first): read again when their leaderboard row
-        changed, after a change made through this server (`touch`), and at least every `mine_ttl_s` (statuses
-        that do not show in the row, queue places and ETAs)."""
-        row, now, key = own_row(self.standings(actor, race), actor.alias), time.monotonic(), (actor.id, race)
-        with self._lock:
-            hit = self._mine.get(key)
-        if hit is not None and hit[0] == row and now - hit[1] < self.mine_ttl_s:
-            return hit[2]
-        subs = [s.to_json() for s in self.league.submissions(actor, race)]
-        with self._lock:
-            self._mine[key] = (row, now, subs)
-            self._mine.move_to_end(key)
-            while len(self._mine) > MAX_MINE:
-                self._mine.popitem(last=False)
-        return subs
+        """The actor's own submissions in the race as JSON (newest first), out of everyone's lists read at once:
+        again when the race's version moved and at least every `mine_ttl_s` (queue places and ETAs)."""
+        people.require_role(actor, "submission.create")
+        version = self.version(actor, race)
+
+        def read() -> tuple[int, float, dict[int, list[dict]]]:
+            at = time.monotonic()
+            lists = self.league.race_submissions(race)
+            return version, at, {user: [s.to_json() for s in subs] for user, subs in lists.items()}
+
+        return self._through("mine", race, self._mine, lambda h: self._mine_current(h, version), read)[2].get(
+            actor.id, [])
 
 
 def own_row(standings: dict, alias: str) -> dict | None:
