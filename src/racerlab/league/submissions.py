@@ -184,6 +184,10 @@ class SubmissionsMixin:
         return QueuePicture({sid: k + 1 for k, sid in enumerate(queued)}, self._live_workers(s),
                             self._mean_eval_s(s) or DEFAULT_EVAL_S)
 
+    def _queue_picture_for(self, s: Session, subs: list[Submission]) -> QueuePicture | None:
+        """The queue picture a list of views shares: read only when one of them is queued."""
+        return self._queue_picture(s) if any(sub.status == "queued" for sub in subs) else None
+
     def _live_workers(self, s: Session) -> int:
         """Workers seen in the last minute, or holding a claim whose lease still runs (a long evaluation)."""
         now = utcnow()
@@ -228,9 +232,9 @@ class SubmissionsMixin:
                 q = q.where(Submission.user_id == actor.id)
             if race is not None:
                 q = q.where(Submission.race_id == self._race_row(s, race).id)
-            now, queue = utcnow(), self._queue_picture(s)
-            return [self._view(s, sub, r, u.alias, now, queue)
-                    for sub, r, u in s.execute(q.order_by(Submission.id.desc()))]
+            rows, now = s.execute(q.order_by(Submission.id.desc())).all(), utcnow()
+            queue = self._queue_picture_for(s, [sub for sub, _r, _u in rows])
+            return [self._view(s, sub, r, u.alias, now, queue) for sub, r, u in rows]
 
     def race_submissions(self, race: str) -> dict[int, list[SubmissionView]]:
         """Every racer's submissions in `race` (newest first), by user id, in one read: for the web server's shared
@@ -238,10 +242,10 @@ class SubmissionsMixin:
         asks. A hundred racers' status polls each reading their own list cost the server a core on race day."""
         with self.store.read() as s:
             row = self._race_row(s, race)
-            now, queue, by_user = utcnow(), self._queue_picture(s), {}
-            q = select(Submission, User.alias).join(User, User.id == Submission.user_id) \
-                .where(Submission.race_id == row.id).order_by(Submission.id.desc())
-            for sub, alias in s.execute(q):
+            rows = s.execute(select(Submission, User.alias).join(User, User.id == Submission.user_id)
+                             .where(Submission.race_id == row.id).order_by(Submission.id.desc())).all()
+            now, queue, by_user = utcnow(), self._queue_picture_for(s, [sub for sub, _alias in rows]), {}
+            for sub, alias in rows:
                 by_user.setdefault(sub.user_id, []).append(self._view(s, sub, row, alias, now, queue))
             return by_user
 

@@ -130,8 +130,7 @@ class Guard:
                     scope, receive, guarded_send)
         finally:
             if scope["method"] not in SAFE_METHODS and "app" in scope:
-                who = scope.get("state", {}).get("caller")  # a change made here: the live boards look at once
-                scope["app"].state.boards.touch(who.actor if who is not None else None)
+                scope["app"].state.boards.touch()  # a change made here: the live boards look at once
 
     def _refusal(self, scope, headers: Headers) -> tuple[int, str] | None:
         host = headers.get("host", "")

@@ -68,10 +68,10 @@ class Boards:
         self._readers: dict[tuple[str, str], threading.Lock] = {}
         self._mine: dict[str, tuple[int, float, dict[int, list[dict]]]] = {}  # race -> (version, read at, lists)
 
-    def touch(self, actor: Actor | None = None) -> None:
-        """A change made through this server (by `actor`, unused: every change that a board shows moves its race's
-        version): the next look at any race asks the store for its version, and so reads its standings and the
-        racers' lists again when they moved."""
+    def touch(self) -> None:
+        """A change made through this server: the next look at any race asks the store for its version, and so
+        reads its standings and the racers' lists again when they moved (every change a board shows moves its
+        race's version, whoever made it)."""
         with self._lock:
             self._versions.clear()
 
